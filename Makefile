@@ -1,0 +1,75 @@
+# eit_skin on a plain Python machine: `make demo` and `make test` do all set-up.
+#
+# Set-up is incremental and idempotent: a virtual environment in .venv with the
+# pinned wheels of requirements.txt (ROS 2 Kilted included), the interface
+# package eit_skin_msgs built by CMake into that environment, and eit_skin
+# installed editable. A second run finds everything up to date in seconds.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+PYTHON ?= python3
+VENV := $(CURDIR)/.venv
+BIN := $(VENV)/bin
+BUILD := $(CURDIR)/build
+UV := VIRTUAL_ENV=$(VENV) $(BIN)/uv
+GENERATOR := $(if $(shell command -v ninja),-G Ninja,)
+
+# ROS environment for everything run from here: the venv is the ament prefix,
+# logs stay in build/ (never ~/.ros), DDS discovery stays on this machine.
+export AMENT_PREFIX_PATH := $(VENV)
+export ROS_LOG_DIR := $(BUILD)/ros_log
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export PYTHONDONTWRITEBYTECODE := 1
+
+.PHONY: setup demo test lint bench colcon clean
+.DEFAULT_GOAL := demo
+
+setup: $(VENV)/.stamp-package
+
+$(BIN)/python:
+	@echo "[setup] creating virtual environment in .venv"
+	@$(PYTHON) -m venv $(VENV)
+
+$(BIN)/uv: | $(BIN)/python
+	@echo "[setup] installing uv"
+	@$(BIN)/pip install --quiet --disable-pip-version-check "$$(grep -E '^uv==' requirements.txt)"
+
+$(VENV)/.stamp-deps: requirements.txt | $(BIN)/uv
+	@echo "[setup] installing pinned dependencies (requirements.txt)"
+	@$(UV) pip install --quiet -r requirements.txt
+	@touch $@
+
+$(VENV)/.stamp-msgs: $(VENV)/.stamp-deps msg/CMakeLists.txt msg/package.xml $(wildcard msg/*.msg)
+	@echo "[setup] building eit_skin_msgs (CMake, log in build/msgs.log)"
+	@mkdir -p $(BUILD)
+	@{ cmake -S msg -B $(BUILD)/msgs $(GENERATOR) -DCMAKE_INSTALL_PREFIX=$(VENV) \
+	    -DBUILD_TESTING=OFF -DPython3_EXECUTABLE=$(BIN)/python \
+	  && cmake --build $(BUILD)/msgs -j 2 && cmake --install $(BUILD)/msgs; } \
+	  > $(BUILD)/msgs.log 2>&1 || { tail -30 $(BUILD)/msgs.log; exit 1; }
+	@touch $@
+
+$(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg package.xml
+	@echo "[setup] installing eit_skin (editable)"
+	@$(UV) pip install --quiet --no-deps -e .
+	@touch $@
+
+demo: setup
+	$(BIN)/eit-skin run --out $(BUILD)/demo
+
+test: setup
+	$(BIN)/python -m pytest
+
+lint: setup
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+bench: setup
+	@for script in bench/bench_*.py; do echo "== $$script"; $(BIN)/python $$script; done
+
+# Build both packages the way a robot does (into build/colcon, not the venv).
+colcon: setup
+	cd $(BUILD) && rm -rf colcon && mkdir colcon && cd colcon && \
+	  $(BIN)/colcon --log-base log build --base-paths $(CURDIR) $(CURDIR)/msg \
+	  --build-base build --install-base install
+
+clean:
+	rm -rf $(BUILD) $(VENV)

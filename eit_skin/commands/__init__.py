@@ -1,0 +1,1 @@
+"""Sub-commands of the ``eit-skin`` command line, one module each."""
