@@ -1,0 +1,93 @@
+"""Sheet materials: background conductance and the map to pressure or stretch.
+
+A reconstruction yields the relative conductivity change ``r = dsigma / sigma0``
+per element.  The :class:`Material` of a layer turns ``r`` into the physical
+quantity the layer senses:
+
+* ``pressure`` (painted two-layer rubber, conductive knit: pressure lowers the
+  resistance): ``sigma = sigma0 * (1 + p / pressure_scale_pa)``, so
+  ``p = pressure_scale_pa * r`` in pascals.
+* ``stretch`` (porous rubber: stretch raises the resistance):
+  ``sigma = sigma0 / (1 + gauge_factor * strain)``, so
+  ``strain = (1 / (1 + r) - 1) / gauge_factor`` (dimensionless, 0.5 = 50 %).
+
+``sheet_conductance_s`` is the conductance of one square of the sheet in
+siemens (``thickness / volume_resistivity``), the 2-D conductivity the forward
+model uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+QUANTITIES = ("pressure", "stretch")
+UNITS = {"pressure": "Pa", "stretch": "1"}
+
+
+@dataclass(frozen=True)
+class Material:
+    """Electrical and transduction properties of one sheet.
+
+    Attributes:
+        quantity: ``"pressure"`` or ``"stretch"``.
+        sheet_conductance_s: background sheet conductance, S (siemens per square), > 0.
+        pressure_scale_pa: pressure that doubles the conductance, Pa (pressure only).
+        gauge_factor: relative resistance change per unit strain (stretch only), > 0.
+    """
+
+    quantity: str
+    sheet_conductance_s: float
+    pressure_scale_pa: float | None = None
+    gauge_factor: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.quantity not in QUANTITIES:
+            raise ValueError(f"unknown quantity {self.quantity!r}, expected one of {QUANTITIES}")
+        if not np.isfinite(self.sheet_conductance_s) or self.sheet_conductance_s <= 0:
+            raise ValueError(f"sheet conductance must be > 0 S, got {self.sheet_conductance_s}")
+        if self.quantity == "pressure":
+            scale = self.pressure_scale_pa
+            if scale is None or not np.isfinite(scale) or scale <= 0:
+                raise ValueError(f"pressure_scale must be > 0 Pa for a pressure layer, got {scale}")
+        else:
+            gain = self.gauge_factor
+            if gain is None or not np.isfinite(gain) or gain <= 0:
+                raise ValueError(f"gauge_factor must be > 0 for a stretch layer, got {gain}")
+
+    @property
+    def unit(self) -> str:
+        """SI unit of the physical quantity: ``"Pa"`` or ``"1"`` (strain)."""
+        return UNITS[self.quantity]
+
+    def to_physical(self, relative_change: np.ndarray | float) -> np.ndarray:
+        """Physical quantity (Pa or strain) from ``r = dsigma/sigma0``; any shape, same shape out.
+
+        For stretch, ``r <= -1`` (conductivity gone) maps to ``+inf`` strain without warnings.
+        """
+        r = np.asarray(relative_change, dtype=float)
+        if self.quantity == "pressure":
+            return self.pressure_scale_pa * r
+        gain = self.gauge_factor
+        positive = r > -1.0
+        safe = np.where(positive, 1.0 + r, 1.0)
+        return np.where(positive, (1.0 / safe - 1.0) / gain, np.inf)
+
+    def from_physical(self, quantity: np.ndarray | float) -> np.ndarray:
+        """Relative conductivity change ``r`` from a pressure (Pa) or strain; same shape out.
+
+        For stretch, ``strain <= -1/gauge_factor`` would need infinite conductivity and
+        maps to ``+inf``.
+        """
+        q = np.asarray(quantity, dtype=float)
+        if self.quantity == "pressure":
+            return q / self.pressure_scale_pa
+        denominator = 1.0 + self.gauge_factor * q
+        positive = denominator > 0
+        safe = np.where(positive, denominator, 1.0)
+        return np.where(positive, 1.0 / safe - 1.0, np.inf)
+
+    def conductance(self, quantity: np.ndarray | float) -> np.ndarray:
+        """Sheet conductance (S) under a pressure (Pa) or strain; same shape out."""
+        return self.sheet_conductance_s * (1.0 + self.from_physical(quantity))

@@ -1,0 +1,568 @@
+"""Patch files: loading, conventions, and every validation failure named in issue 3."""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from eit_skin import geometry
+from eit_skin.material import Material
+from eit_skin.patch import PatchError, load_patch, patch_from_dict
+from eit_skin.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
+from eit_skin.protocol import build_protocol
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+RADIUS = 0.04
+
+
+def base() -> dict:
+    return {
+        "name": "disk",
+        "frame_id": "disk_link",
+        "layers": [
+            {
+                "name": "sheet",
+                "outline": {"type": "circle", "radius": RADIUS, "center": [0.0, 0.0]},
+                "electrodes": {"count": 16, "width": 0.004, "contact_impedance": 4.0},
+                "material": {
+                    "quantity": "pressure",
+                    "sheet_conductance": 1e-4,
+                    "pressure_scale": 3e4,
+                },
+            }
+        ],
+    }
+
+
+def write(tmp_path: Path, data: dict) -> Path:
+    path = tmp_path / "bad_patch.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def layer0(data: dict) -> dict:
+    return data["layers"][0]
+
+
+def square_layer(data: dict) -> dict:
+    layer = layer0(data)
+    layer["outline"] = {
+        "type": "polygon",
+        "points": [[0.0, 0.0], [0.1, 0.0], [0.1, 0.1], [0.0, 0.1]],
+    }
+    return layer
+
+
+def _set(path: str, value):
+    """Mutator setting a dotted key inside layers[0]."""
+
+    def mutate(data: dict) -> None:
+        node = layer0(data)
+        *head, last = path.split(".")
+        for key in head:
+            node = node[key]
+        node[last] = value
+
+    return mutate
+
+
+def _bow_tie(data):
+    square_layer(data)["outline"]["points"] = [[0, 0], [0.1, 0.1], [0.1, 0], [0, 0.1]]
+
+
+def _off_boundary_point(data):
+    square_layer(data)["electrodes"] = {
+        "positions": [[0.05, 0.0], [0.1, 0.05], [0.05, 0.095], [0.0, 0.05]],
+        "width": 0.004,
+        "contact_impedance": 4.0,
+    }
+
+
+def _off_boundary_fraction(data):
+    layer0(data)["electrodes"] = {
+        "positions": [0.0, 0.25, 1.2, 0.75],
+        "width": 0.004,
+        "contact_impedance": 4.0,
+    }
+
+
+def _overlap_explicit(data):
+    layer0(data)["electrodes"] = {
+        "positions": [0.0, 0.25, 0.26, 0.75],
+        "width": 0.004,
+        "contact_impedance": 4.0,
+    }
+
+
+def _overlap_wraparound(data):
+    # perimeter ~0.2513 m: 0.99 -> 0.005 is 0.015 * P = 3.8 mm, less than the 5 mm width
+    layer0(data)["electrodes"] = {
+        "positions": [0.005, 0.25, 0.5, 0.99],
+        "width": 0.005,
+        "contact_impedance": 4.0,
+    }
+
+
+def _not_ccw(data):
+    layer0(data)["electrodes"] = {
+        "positions": [0.0, 0.5, 0.25, 0.75],
+        "width": 0.004,
+        "contact_impedance": 4.0,
+    }
+
+
+def _hole_outside(data):
+    layer0(data)["holes"] = [{"type": "circle", "radius": 0.005, "center": [0.038, 0.0]}]
+
+
+def _hole_far_outside(data):
+    layer0(data)["holes"] = [{"type": "polygon", "points": [[0.1, 0.1], [0.12, 0.1], [0.12, 0.12]]}]
+
+
+def _holes_overlap(data):
+    layer0(data)["holes"] = [
+        {"type": "circle", "radius": 0.005, "center": [0.0, 0.0]},
+        {"type": "circle", "radius": 0.005, "center": [0.008, 0.0]},
+    ]
+
+
+def _grid_pitch(data):
+    layer0(data)["holes"] = [{"type": "grid", "diameter": 0.005, "pitch": 0.005}]
+
+
+def _missing(key):
+    def mutate(data):
+        del layer0(data)[key]
+
+    return mutate
+
+
+def _missing_top(key):
+    def mutate(data):
+        del data[key]
+
+    return mutate
+
+
+BAD = [
+    # (id, mutate, key path, reason fragment)
+    ("self-intersecting outline", _bow_tie, "layers[0].outline.points", "intersects itself"),
+    (
+        "electrode point off boundary",
+        _off_boundary_point,
+        "layers[0].electrodes.positions[2]",
+        "off the outline",
+    ),
+    (
+        "electrode fraction off boundary",
+        _off_boundary_fraction,
+        "layers[0].electrodes.positions[2]",
+        "off the outline",
+    ),
+    (
+        "overlapping electrodes (even)",
+        _set("electrodes.width", 0.016),
+        "layers[0].electrodes.width",
+        "overlap",
+    ),
+    (
+        "overlapping electrodes (explicit)",
+        _overlap_explicit,
+        "layers[0].electrodes.positions[2]",
+        "electrodes 1 and 2 overlap",
+    ),
+    (
+        "overlapping electrodes (wrap-around)",
+        _overlap_wraparound,
+        "layers[0].electrodes.positions[0]",
+        "electrodes 3 and 0 overlap",
+    ),
+    (
+        "electrodes not counter-clockwise",
+        _not_ccw,
+        "layers[0].electrodes.positions",
+        "counter-clockwise",
+    ),
+    (
+        "fewer than 4 electrodes",
+        _set("electrodes.count", 3),
+        "layers[0].electrodes.count",
+        "at least 4",
+    ),
+    ("zero width", _set("electrodes.width", 0.0), "layers[0].electrodes.width", "> 0"),
+    (
+        "unknown protocol",
+        _set("protocol", {"drive": "zigzag"}),
+        "layers[0].protocol.drive",
+        "unknown pattern",
+    ),
+    (
+        "protocol skip joins electrode to itself",
+        _set("protocol", {"drive": "skip", "drive_skip": 15}),
+        "layers[0].protocol.drive_skip",
+        "itself",
+    ),
+    (
+        "unknown protocol key",
+        _set("protocol", {"drvie": "adjacent"}),
+        "layers[0].protocol.drvie",
+        "unknown key",
+    ),
+    (
+        "negative conductivity",
+        _set("material.sheet_conductance", -1e-4),
+        "layers[0].material.sheet_conductance",
+        "must be > 0",
+    ),
+    (
+        "negative resistivity",
+        _set(
+            "material",
+            {
+                "quantity": "stretch",
+                "volume_resistivity": -7.6,
+                "thickness": 5e-4,
+                "gauge_factor": 5.0,
+            },
+        ),
+        "layers[0].material.volume_resistivity",
+        "must be > 0",
+    ),
+    (
+        "unknown quantity",
+        _set("material.quantity", "temperature"),
+        "layers[0].material.quantity",
+        "unknown value",
+    ),
+    ("hole crossing the outline", _hole_outside, "layers[0].holes[0]", "not strictly inside"),
+    ("hole outside the sheet", _hole_far_outside, "layers[0].holes[0]", "not strictly inside"),
+    ("holes overlapping", _holes_overlap, "layers[0].holes[1]", "overlaps layers[0].holes[0]"),
+    ("grid pitch below diameter", _grid_pitch, "layers[0].holes[0].pitch", "must exceed"),
+    ("missing material", _missing("material"), "layers[0].material", "missing required key"),
+    ("missing electrodes", _missing("electrodes"), "layers[0].electrodes", "missing required"),
+    ("missing frame_id", _missing_top("frame_id"), "frame_id", "missing required key"),
+    (
+        "missing radius",
+        _set("outline", {"type": "circle"}),
+        "layers[0].outline.radius",
+        "missing required key",
+    ),
+    (
+        "radius is a string",
+        _set("outline.radius", "big"),
+        "layers[0].outline.radius",
+        "expected a number",
+    ),
+    (
+        "count is a float",
+        _set("electrodes.count", 16.5),
+        "layers[0].electrodes.count",
+        "expected an integer",
+    ),
+    ("boolean as number", _set("current", True), "layers[0].current", "expected a number"),
+    (
+        "center wrong length",
+        _set("outline.center", [0.0]),
+        "layers[0].outline.center",
+        "expected 2 numbers",
+    ),
+    (
+        "electrodes not a mapping",
+        _set("electrodes", [1, 2, 3]),
+        "layers[0].electrodes",
+        "expected a mapping",
+    ),
+    (
+        "unknown solver method",
+        _set("solver", {"method": "magic"}),
+        "layers[0].solver.method",
+        "unknown value",
+    ),
+    (
+        "electrode edge above max edge",
+        _set("mesh", {"max_edge": 0.002, "electrode_edge": 0.003}),
+        "layers[0].mesh.electrode_edge",
+        "<= max_edge",
+    ),
+    (
+        "start angle on a polygon",
+        lambda d: square_layer(d)["electrodes"].update(start_angle_deg=10.0),
+        "layers[0].electrodes.start_angle_deg",
+        "only for circle",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("mutate", "key_path", "reason"), [b[1:] for b in BAD], ids=[b[0] for b in BAD]
+)
+def test_bad_file_names_file_key_path_and_reason(tmp_path, mutate, key_path, reason):
+    data = base()
+    mutate(data)
+    path = write(tmp_path, data)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: {key_path}: "), message
+    assert reason in message
+    assert "\n" not in message
+    assert info.value.key_path == key_path
+
+
+def test_layers_must_be_a_list(tmp_path):
+    data = base()
+    data["layers"] = {"name": "x"}
+    path = write(tmp_path, data)
+    with pytest.raises(PatchError, match=r"bad_patch\.yaml: layers: expected a list"):
+        load_patch(path)
+
+
+def test_duplicate_layer_names():
+    data = base()
+    data["layers"].append(copy.deepcopy(data["layers"][0]))
+    with pytest.raises(PatchError, match=r"^<dict>: layers\[1\]\.name: duplicate"):
+        patch_from_dict(data)
+
+
+def test_yaml_syntax_error_names_line(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("name: x\nframe_id: [unclosed\nlayers: []\n")
+    with pytest.raises(PatchError, match=r"broken\.yaml: line \d+, column \d+: invalid YAML"):
+        load_patch(path)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(PatchError, match=r"nothing\.yaml: \(file\): "):
+        load_patch(tmp_path / "nothing.yaml")
+
+
+def test_exponent_without_sign_is_a_number(tmp_path):
+    text = yaml.safe_dump(base()).replace("30000.0", "3.0e4")
+    assert "3.0e4" in text
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    assert load_patch(path).layers[0].material.pressure_scale_pa == 3.0e4
+
+
+@pytest.mark.parametrize("name", ["arm", "face", "elbow"])
+def test_shipped_configs_load(name):
+    patch = load_patch(CONFIG / f"{name}.yaml")
+    assert patch.frame_id == f"{name}_skin_link"
+    for layer in patch.layers:
+        assert layer.n_electrodes == 16
+        protocol = build_protocol(layer.protocol, layer.n_electrodes)
+        assert protocol.n_measurements == 16 * 13
+        assert geometry.signed_area(layer.outline) > 0
+        for hole in layer.holes:
+            assert geometry.signed_area(hole) < 0
+
+
+def test_arm_config_matches_the_seed():
+    patch = load_patch(CONFIG / "arm.yaml")
+    assert isinstance(patch.placement, CylinderPlacement)
+    assert patch.placement.radius == pytest.approx(0.076 / 2 + 4 * 0.005)
+    assert patch.layer_names == ("pressure", "stretch")
+    stretch = patch.layer("stretch")
+    assert stretch.material.quantity == "stretch"
+    assert stretch.material.sheet_conductance_s == pytest.approx(0.5e-3 / (0.76e3 * 1e-2))
+    centres = np.array([h.mean(axis=0) for h in stretch.holes])
+    diameters = np.array([np.ptp(h[:, 0]) for h in stretch.holes])
+    np.testing.assert_allclose(diameters, 0.005, rtol=1e-12)
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    np.testing.assert_allclose(d.min(axis=1), 0.0072, rtol=1e-9)
+    assert len(stretch.holes) > 40
+    pressure = patch.layer("pressure")
+    assert pressure.material.quantity == "pressure"
+    assert not pressure.holes
+    with pytest.raises(KeyError, match="no layer 'skin'"):
+        patch.layer("skin")
+
+
+def test_face_electrodes_are_not_evenly_spaced():
+    layer = load_patch(CONFIG / "face.yaml").layers[0]
+    s = np.array([e.center_m for e in layer.electrodes])
+    gaps = np.diff(np.append(s, s[0] + layer.perimeter_m))
+    assert gaps.max() > 2 * gaps.min()
+    assert isinstance(load_patch(CONFIG / "face.yaml").placement, HeightmapPlacement)
+
+
+def test_elbow_electrodes_only_on_long_edges():
+    layer = load_patch(CONFIG / "elbow.yaml").layers[0]
+    centres = np.array([e.center for e in layer.electrodes])
+    half_width = 0.5 * np.ptp(layer.outline[:, 0])
+    np.testing.assert_allclose(np.abs(centres[:, 0]), half_width, rtol=0, atol=1e-15)
+    assert np.ptp(layer.outline[:, 1]) > np.ptp(layer.outline[:, 0])
+
+
+def test_electrodes_numbered_counter_clockwise_from_start_angle():
+    data = base()
+    layer0(data)["electrodes"]["start_angle_deg"] = 90.0
+    layer = patch_from_dict(data).layers[0]
+    centres = np.array([e.center for e in layer.electrodes])
+    angles = np.unwrap(np.arctan2(centres[:, 1], centres[:, 0]))
+    np.testing.assert_allclose(angles, np.pi / 2 + 2 * np.pi * np.arange(16) / 16, atol=1e-12)
+    # electrode ends are width/2 either side of the centre along the outline
+    for e in layer.electrodes:
+        assert np.mod(e.end_m - e.start_m, layer.perimeter_m) == pytest.approx(e.width_m)
+
+
+def test_polygon_orientation_normalised_keeping_start_point():
+    data = base()
+    cw = [[0.0, 0.0], [0.0, 0.1], [0.1, 0.1], [0.1, 0.0]]
+    layer0(data)["outline"] = {"type": "polygon", "points": cw}
+    layer0(data)["electrodes"] = {
+        "positions": [0.0, 0.25, 0.5, 0.75],
+        "width": 0.01,
+        "contact_impedance": 1.0,
+    }
+    layer = patch_from_dict(data).layers[0]
+    np.testing.assert_array_equal(layer.outline, [[0, 0], [0.1, 0], [0.1, 0.1], [0, 0.1]])
+    np.testing.assert_allclose(
+        [e.center for e in layer.electrodes], [[0, 0], [0.1, 0], [0.1, 0.1], [0, 0.1]], atol=1e-15
+    )
+    assert layer.electrodes[0].start_m == pytest.approx(0.4 - 0.005)  # wraps the start point
+    assert layer.electrodes[0].end_m == pytest.approx(0.005)
+
+
+def test_rectangle_starts_at_lower_left_corner():
+    data = base()
+    layer0(data)["outline"] = {
+        "type": "rectangle",
+        "width": 0.2,
+        "height": 0.1,
+        "center": [1.0, 2.0],
+    }
+    layer0(data)["electrodes"]["start_fraction"] = 0.0
+    layer0(data)["electrodes"]["count"] = 6
+    layer = patch_from_dict(data).layers[0]
+    np.testing.assert_allclose(layer.outline[0], [0.9, 1.95])
+    np.testing.assert_allclose(layer.electrodes[0].center, [0.9, 1.95])
+    # perimeter 0.6 m, 6 electrodes -> every 0.1 m: the second one is on the bottom edge
+    np.testing.assert_allclose(layer.electrodes[1].center, [1.0, 1.95])
+
+
+def test_content_hash_depends_on_content_only(tmp_path):
+    data = base()
+    a = patch_from_dict(data, source="a")
+    path = tmp_path / "x.yaml"
+    path.write_text("# a comment\n" + yaml.safe_dump(data, default_flow_style=True))
+    b = load_patch(path)
+    assert a.content_hash == b.content_hash
+    assert a.layers[0].content_hash == b.layers[0].content_hash
+    layer0(data)["electrodes"]["width"] = 0.0041
+    c = patch_from_dict(data)
+    assert c.content_hash != a.content_hash
+    assert len(a.content_hash) == 64
+
+
+def test_patch_is_immutable():
+    patch = patch_from_dict(base())
+    with pytest.raises(AttributeError):
+        patch.name = "x"
+    with pytest.raises(ValueError, match="read-only"):
+        patch.layers[0].outline[0, 0] = 1.0
+
+
+def test_defaults():
+    layer = patch_from_dict(base()).layers[0]
+    assert layer.current_a == 1e-3
+    assert layer.protocol.drive == "adjacent" and layer.protocol.measure == "adjacent"
+    assert layer.solver.method == "one_step" and layer.solver.hyperparameter is None
+    assert layer.mesh.max_edge_m == pytest.approx(layer.perimeter_m / 100)
+    assert layer.mesh.electrode_edge_m == pytest.approx(0.001)
+    assert isinstance(patch_from_dict(base()).placement, PlanePlacement)
+
+
+# ---------------------------------------------------------------- material
+
+
+def test_pressure_material_is_linear_and_invertible():
+    m = Material("pressure", 1e-4, pressure_scale_pa=3e4)
+    r = np.array([[0.0, 0.5], [1.0, -0.2]])
+    p = m.to_physical(r)
+    assert p.shape == r.shape
+    np.testing.assert_allclose(p, 3e4 * r)
+    np.testing.assert_allclose(m.from_physical(p), r)
+    assert m.unit == "Pa"
+    np.testing.assert_allclose(m.conductance(3e4), 2e-4)
+
+
+def test_stretch_material_follows_gauge_law_and_guards_r_minus_one():
+    m = Material("stretch", 1e-4, gauge_factor=2.0)
+    # strain 0.5 with G = 2 doubles the resistance: sigma = sigma0 / 2, r = -0.5
+    assert m.from_physical(0.5) == pytest.approx(-0.5)
+    assert m.to_physical(-0.5) == pytest.approx(0.5)
+    strain = np.linspace(-0.3, 1.5, 7).reshape(7, 1)
+    np.testing.assert_allclose(m.to_physical(m.from_physical(strain)), strain, rtol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with np.errstate(all="raise"):
+            out = m.to_physical(np.array([-1.0, -2.0, 0.0]))
+            back = m.from_physical(np.array([-0.5, -1.0]))
+    assert np.isinf(out[:2]).all() and out[2] == 0.0
+    assert np.isinf(back).all()
+    assert not np.isnan(out).any()
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"quantity": "heat", "sheet_conductance_s": 1.0},
+        {"quantity": "pressure", "sheet_conductance_s": -1.0, "pressure_scale_pa": 1.0},
+        {"quantity": "pressure", "sheet_conductance_s": 1.0},
+        {"quantity": "stretch", "sheet_conductance_s": 1.0, "gauge_factor": 0.0},
+    ],
+)
+def test_material_validation(kwargs):
+    with pytest.raises(ValueError):
+        Material(**kwargs)
+
+
+# ---------------------------------------------------------------- placement
+
+
+def test_cylinder_wraps_without_stretch():
+    cyl = CylinderPlacement(
+        radius=0.058, axis=[0, 0, 2.0], origin=[1.0, 0, 0], reference=[1.0, 0, 0]
+    )
+    x = np.linspace(-0.05, 0.05, 11)
+    pts = np.column_stack([x, np.full(11, 0.02)])
+    p3 = cyl.to_3d(pts)
+    assert p3.shape == (11, 3)
+    np.testing.assert_allclose(np.hypot(p3[:, 0] - 1.0, p3[:, 1]), 0.058, rtol=1e-12)
+    np.testing.assert_allclose(p3[:, 2], 0.02)
+    angles = np.arctan2(p3[:, 1], p3[:, 0] - 1.0)
+    np.testing.assert_allclose(angles, x / 0.058, atol=1e-12)  # counter-clockwise about +z
+    np.testing.assert_allclose(cyl.to_3d([[0.0, 0.0]]), [[1.058, 0, 0]], atol=1e-15)
+
+
+def test_plane_rotation():
+    plane = PlanePlacement(origin=[0, 0, 1.0], rpy=[0, 0, np.pi / 2])
+    np.testing.assert_allclose(plane.to_3d([[1.0, 0.0]]), [[0.0, 1.0, 1.0]], atol=1e-15)
+
+
+def test_heightmap_is_bilinear():
+    x_min, x_max, y_min, y_max = -0.1, 0.1, 0.0, 0.3
+    xs = np.linspace(x_min, x_max, 5)
+    ys = np.linspace(y_min, y_max, 4)
+    heights = 0.5 * xs[None, :] + 0.2 * ys[:, None] + 0.01  # a plane is reproduced exactly
+    hm = HeightmapPlacement(heights=heights, bounds=[x_min, x_max, y_min, y_max])
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(x_min, x_max, 50), rng.uniform(y_min, y_max, 50)])
+    np.testing.assert_allclose(
+        hm.to_3d(pts)[:, 2], 0.5 * pts[:, 0] + 0.2 * pts[:, 1] + 0.01, atol=1e-15
+    )
+    bump = HeightmapPlacement(heights=[[0, 0], [0, 1.0]], bounds=[0, 1, 0, 1])
+    assert bump.height([[0.5, 0.5]])[0] == pytest.approx(0.25)
+
+
+def test_heightmap_bounds_default_to_outline_box():
+    patch = load_patch(CONFIG / "face.yaml")
+    lo, hi = patch.layers[0].outline.min(axis=0), patch.layers[0].outline.max(axis=0)
+    np.testing.assert_allclose(patch.placement.bounds, [lo[0], hi[0], lo[1], hi[1]])
