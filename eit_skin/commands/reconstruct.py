@@ -1,0 +1,133 @@
+"""``eit-skin reconstruct``: offline frames file (npz) -> relative conductivity images (npz).
+
+IN.npz: ``reference`` float [M] volts, ``frames`` float [T, M] volts (protocol order).
+OUT.npz: ``images`` float32 [T, H, W] relative conductivity change (delta sigma / sigma0,
+positive = more conductive, NaN outside the sheet and in holes), ``x`` [W] and ``y`` [H]
+pixel-centre coordinates in metres (patch frame). The output is written to a temporary
+file next to OUT and renamed, so it is either complete or absent. Errors: one line on
+stderr, exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    parser.add_argument("--frames", required=True, type=Path, metavar="IN.npz")
+    parser.add_argument("--out", required=True, type=Path, metavar="OUT.npz")
+    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
+    parser.add_argument(
+        "--method",
+        choices=("one_step", "gauss_newton"),
+        default=None,
+        help="reconstruction method (default: the layer's solver.method)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        images, x, y, faulty = _reconstruct(args)
+        _write_atomic(args.out, images=images, x=x, y=y)
+    except (ValueError, KeyError, OSError) as exc:
+        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"eit-skin reconstruct: error: {message}", file=sys.stderr)
+        return 1
+    note = f", left out electrodes {faulty.tolist()}" if faulty.size else ""
+    print(f"wrote {args.out}: {images.shape[0]} images {images.shape[1]}x{images.shape[2]}{note}")
+    return 0
+
+
+def _reconstruct(args: argparse.Namespace):
+    import numpy as np
+
+    from eit_skin.electrode_faults import FaultTolerantReconstructor
+    from eit_skin.forward import ForwardModel
+    from eit_skin.gauss_newton import gauss_newton_difference
+    from eit_skin.image_grid import ImageGrid
+    from eit_skin.mesh import build_mesh
+    from eit_skin.patch import load_patch
+    from eit_skin.priors import make_prior
+    from eit_skin.protocol import build_protocol
+    from eit_skin.reconstruction import ReconstructionMatrix
+    from eit_skin.recording import load_frames_npz
+
+    patch_path = args.patch
+    if not Path(patch_path).exists():
+        from eit_skin.resources import config_path
+
+        patch_path = config_path(patch_path)
+    patch = load_patch(patch_path)
+    layer = patch.layers[0] if args.layer is None else patch.layer(args.layer)
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    if not args.frames.exists():
+        raise ValueError(f"{args.frames}: no such file")
+    reference, frames, _ = load_frames_npz(args.frames, protocol.n_measurements)
+
+    solver = layer.solver
+    method = args.method or solver.method
+    sigma0 = layer.material.sheet_conductance_s
+    mesh = build_mesh(layer)
+    inverse_mesh = (
+        mesh
+        if layer.mesh.inverse_max_edge_m is None
+        else build_mesh(layer, layer.mesh.inverse_max_edge_m)
+    )
+    grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
+    if method == "one_step":
+        forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+        rm = ReconstructionMatrix.build(
+            forward,
+            prior=solver.prior,
+            hyperparameter=solver.hyperparameter,
+            sigma0=sigma0,
+            inverse_mesh=inverse_mesh,
+            noise_figure=solver.noise_figure,
+        )
+        imager = FaultTolerantReconstructor(rm, protocol)
+        values = imager.reconstruct(frames, reference)
+        faulty = imager.last_faulty
+    else:
+        forward = ForwardModel(
+            inverse_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a
+        )
+        prior = make_prior(solver.prior, inverse_mesh) if solver.prior != "noser" else "noser"
+        h = 0.03 if solver.hyperparameter is None else solver.hyperparameter
+        values = np.stack(
+            [
+                gauss_newton_difference(
+                    forward,
+                    f,
+                    reference,
+                    sigma0,
+                    prior=prior,
+                    hyperparameter=h,
+                    max_iterations=solver.max_iterations,
+                ).relative_change
+                for f in frames
+            ]
+        )
+        faulty = np.zeros(0, dtype=np.int64)
+    images = grid.to_image(values)
+    return images, grid.x, grid.y, faulty
+
+
+def _write_atomic(path: Path, **arrays) -> None:
+    import numpy as np
+
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

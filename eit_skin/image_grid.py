@@ -1,0 +1,149 @@
+"""Regular pixel grids over a sheet: element values -> ``[H, W]`` images.
+
+:class:`ImageGrid` precomputes, once per mesh, a sparse ``[H*W, N]`` matrix that
+maps every pixel centre to the triangle containing it (element values are
+piecewise constant, so this is exact sampling). Pixels outside the sheet or
+inside a hole (no triangle there) are NaN in every image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from eit_skin.mesh import Mesh
+
+
+def locate_points(mesh: Mesh, points: np.ndarray, tolerance: float = 1e-9) -> np.ndarray:
+    """Index of the triangle containing each point, ``-1`` if none.
+
+    Args:
+        mesh: triangle mesh, metres.
+        points: ``[P, 2]`` query points, metres.
+        tolerance: barycentric slack (dimensionless) so points on edges are found.
+
+    Returns:
+        ``[P]`` int64 triangle indices.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out = np.full(points.shape[0], -1, dtype=np.int64)
+    n_tri = mesh.n_triangles
+    if n_tri == 0 or points.shape[0] == 0:
+        return out
+    p = mesh.nodes[mesh.triangles]  # [N, 3, 2]
+    a = p[:, 0]
+    e1 = p[:, 1] - a
+    e2 = p[:, 2] - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    tree = cKDTree(mesh.centroids)
+    todo = np.arange(points.shape[0])
+    for k in (8, 32, 128, n_tri):
+        k = min(k, n_tri)
+        _, cand = tree.query(points[todo], k=k)
+        cand = np.asarray(cand).reshape(todo.size, k)
+        d = points[todo, None, :] - a[cand]  # [P, k, 2]
+        dt = det[cand]
+        u = (d[..., 0] * e2[cand, 1] - d[..., 1] * e2[cand, 0]) / dt
+        v = (e1[cand, 0] * d[..., 1] - e1[cand, 1] * d[..., 0]) / dt
+        inside = (u >= -tolerance) & (v >= -tolerance) & (u + v <= 1 + tolerance)
+        hit = inside.any(axis=1)
+        first = inside.argmax(axis=1)
+        out[todo[hit]] = cand[hit, first[hit]]
+        todo = todo[~hit]
+        if todo.size == 0 or k == n_tri:
+            break
+        # points far from every centroid cannot be inside: skip the wider passes for them
+        if k >= 32:
+            near, _ = tree.query(points[todo], k=1)
+            reach = np.sqrt(np.abs(det).max()) * 2.0
+            todo = todo[near <= reach]
+            if todo.size == 0:
+                break
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ImageGrid:
+    """Pixel grid over a mesh and the sparse map from element values to pixels.
+
+    Attributes:
+        x: ``[W]`` pixel-centre x coordinates, metres (increasing).
+        y: ``[H]`` pixel-centre y coordinates, metres (increasing; row 0 is lowest y).
+        matrix: ``[H*W, N]`` CSR float32; row ``i`` picks the element under pixel ``i``.
+        inside: ``[H, W]`` bool, True where a pixel centre lies on the sheet.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    matrix: sp.csr_matrix
+    inside: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.y.size), int(self.x.size))
+
+    @classmethod
+    def build(
+        cls,
+        mesh: Mesh,
+        pixels: int,
+        bounding_box: tuple[float, float, float, float] | None = None,
+    ) -> ImageGrid:
+        """Build the grid for ``mesh``.
+
+        Args:
+            mesh: the mesh whose element values will be imaged (holes are absent triangles).
+            pixels: number of pixels along the longer side of the bounding box (>= 2);
+                pixels are square, the other side gets ``ceil(extent / pixel size)``.
+            bounding_box: ``(x_min, y_min, x_max, y_max)`` metres; default: the mesh's.
+
+        Raises:
+            ValueError: ``pixels < 2`` or an empty/degenerate bounding box.
+        """
+        if int(pixels) < 2:
+            raise ValueError(f"image pixels must be >= 2, got {pixels}")
+        if bounding_box is None:
+            lo = mesh.nodes.min(axis=0)
+            hi = mesh.nodes.max(axis=0)
+            bounding_box = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+        x0, y0, x1, y1 = (float(v) for v in bounding_box)
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f"degenerate image bounding box {bounding_box}")
+        size = max(x1 - x0, y1 - y0) / int(pixels)
+        w = max(1, int(np.ceil((x1 - x0) / size - 1e-9)))
+        h = max(1, int(np.ceil((y1 - y0) / size - 1e-9)))
+        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        x = cx + (np.arange(w) - 0.5 * (w - 1)) * size
+        y = cy + (np.arange(h) - 0.5 * (h - 1)) * size
+        xx, yy = np.meshgrid(x, y)
+        element = locate_points(mesh, np.column_stack([xx.ravel(), yy.ravel()]))
+        rows = np.flatnonzero(element >= 0)
+        matrix = sp.csr_matrix(
+            (np.ones(rows.size, dtype=np.float32), (rows, element[rows])),
+            shape=(h * w, mesh.n_triangles),
+        )
+        return cls(x=x, y=y, matrix=matrix, inside=(element >= 0).reshape(h, w))
+
+    def to_image(self, values: np.ndarray) -> np.ndarray:
+        """Map element values to images.
+
+        Args:
+            values: ``[N]`` or ``[T, N]`` per-element values.
+
+        Returns:
+            float32 ``[H, W]`` or ``[T, H, W]``, NaN outside the sheet and in holes.
+        """
+        v = np.asarray(values, dtype=np.float32)
+        single = v.ndim == 1
+        v2 = v[None, :] if single else v
+        if v2.ndim != 2 or v2.shape[1] != self.matrix.shape[1]:
+            raise ValueError(
+                f"values must be [N] or [T, N] with N={self.matrix.shape[1]}, got {v.shape}"
+            )
+        h, w = self.shape
+        img = np.asarray((self.matrix @ v2.T).T, dtype=np.float32).reshape(-1, h, w)
+        img[:, ~self.inside] = np.nan
+        return img[0] if single else img

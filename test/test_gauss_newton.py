@@ -1,0 +1,55 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eit_skin.gauss_newton import gauss_newton, gauss_newton_difference
+from eit_skin.priors import make_prior
+from eit_skin.reconstruction import ReconstructionMatrix
+from test.reconstruction_phantoms import RADIUS_M, phantom, setup
+
+pytestmark = pytest.mark.filterwarnings("error")
+R = RADIUS_M
+
+
+@pytest.fixture(scope="module")
+def s():
+    return setup()
+
+
+@pytest.mark.parametrize("contrast", [1e4, 1e-4])
+def test_silver_mesh_contrast_bounded_and_located(s, contrast):
+    c = np.array([0.5 * R, 0.2 * R])
+    v = phantom(s, [(c[0], c[1], 0.15 * R, contrast)])
+    prior = make_prior("laplace", s.coarse.mesh)
+    res = gauss_newton_difference(s.coarse, v, s.v0, 1.0, prior=prior, hyperparameter=0.03)
+    x = res.relative_change
+    assert np.isfinite(x).all() and np.isfinite(res.sigma).all() and (res.sigma > 0).all()
+    assert x.max() < 1e5 and x.min() > -1
+    # the data misfit falls by an order of magnitude (the rest is the coarse-model error)
+    r = res.relative_residuals
+    assert r[1] < r[0] and r[-1] < 0.1 * r[0] and res.iterations <= 10
+    k = np.argmax(np.abs(x))
+    assert np.sign(x[k]) == np.sign(contrast - 1)
+    assert np.linalg.norm(s.coarse.mesh.centroids[k] - c) < 0.3 * R
+
+
+def test_small_contrast_agrees_with_one_step(s):
+    v = phantom(s, [(0.3 * R, -0.2 * R, 0.1 * R, 1.05)])
+    one = ReconstructionMatrix.build(s.coarse, prior="laplace", hyperparameter=0.03)
+    x1 = one.reconstruct(v, s.v0)
+    res = gauss_newton_difference(
+        s.coarse, v, s.v0, prior="laplace", hyperparameter=0.03, max_iterations=3
+    )
+    corr = np.corrcoef(x1, res.relative_change)[0, 1]
+    assert corr > 0.95
+
+
+def test_exact_data_converges_and_bad_target_rejected(s):
+    sigma0 = 2.0
+    v = s.coarse.voltages(sigma0)
+    res = gauss_newton(s.coarse, v, sigma0)
+    assert res.iterations == 0 and res.converged
+    np.testing.assert_array_equal(res.relative_change, 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        gauss_newton(s.coarse, np.full(v.size, np.nan), sigma0)
