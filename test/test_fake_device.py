@@ -1,0 +1,133 @@
+"""The emulated board end to end: FakeDevice on a pty -> SerialLink -> frames bit-exact."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eit_skin.fake_device import FakeDevice, constant_test_pattern
+from eit_skin.recording import save_frames_npz
+from eit_skin.serial_link import SerialLink
+from eit_skin.wire import ValueEncoding
+
+
+def source(i: int) -> np.ndarray:
+    return np.random.default_rng(i).normal(0.0, 0.2, 208)
+
+
+def read_frames(link: SerialLink, n: int, timeout_s: float = 10.0) -> list:
+    got = []
+    deadline = time.monotonic() + timeout_s
+    while len(got) < n:
+        assert time.monotonic() < deadline, f"got {len(got)} of {n}; {link.status()}"
+        got += [r.frame for r in link.poll(timeout_s=0.01)]
+    return got
+
+
+def wait_connected(link: SerialLink, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not link.connected:
+        assert time.monotonic() < deadline, link.status()
+        link.poll(timeout_s=0.01)
+
+
+@pytest.mark.parametrize("encoding", list(ValueEncoding))
+def test_fake_device_to_serial_link_is_bit_exact(encoding):
+    with FakeDevice(source, rate_hz=400.0, value_encoding=encoding) as device:
+        link = SerialLink(device.slave_path)
+        wait_connected(link)
+        device.start(count=40)
+        got = read_frames(link, 40)
+        link.close()
+    assert [f.sequence for f in got] == list(range(40))
+    for f in got:
+        expected = device.frame(f.sequence, device_time_us=f.device_time_us)
+        assert f == expected
+        if encoding is ValueEncoding.FLOAT32_VOLTS:
+            np.testing.assert_array_equal(f.voltages_v, source(f.sequence).astype(np.float32))
+        else:
+            assert np.abs(f.voltages_v - source(f.sequence)).max() <= device.volts_per_count / 2
+    times = [f.device_time_us for f in got]
+    assert np.diff(times).tolist() == [2500] * 39  # stamped on the 400 Hz schedule
+    assert link.status().parser.errors == 0
+
+
+def test_unplug_and_replug_through_the_symlink(tmp_path):
+    path = tmp_path / "eit_skin_arm"
+    device = FakeDevice(source, rate_hz=500.0)
+    device.open()
+    device.link(path)
+    link = SerialLink(str(path), backoff_initial_s=0.01, backoff_max_s=0.05)
+    wait_connected(link)
+    for i in range(5):
+        device.send(device.frame(i))
+    before = read_frames(link, 5)
+    device.unplug()
+    assert not path.exists()
+    deadline = time.monotonic() + 5.0
+    while link.connected:
+        assert time.monotonic() < deadline
+        link.poll(timeout_s=0.01)
+    device.open()  # the same link path now points at a new pty
+    assert path.resolve() == Path(device.slave_path)
+    wait_connected(link)
+    for i in range(5, 10):
+        device.send(device.frame(i))
+    after = read_frames(link, 5)
+    device.close()
+    link.close()
+    assert [f.sequence for f in before + after] == list(range(10))
+    status = link.status()
+    assert (status.reconnects, status.disconnects) == (1, 1)
+
+
+def test_link_refuses_to_replace_a_regular_file(tmp_path):
+    target = tmp_path / "precious"
+    target.write_text("keep me")
+    with FakeDevice(constant_test_pattern()) as device, pytest.raises(FileExistsError):
+        device.link(target)
+    assert target.read_text() == "keep me"
+
+
+def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
+    frames = np.random.default_rng(0).normal(0, 0.1, (7, 208))
+    npz = tmp_path / "in.npz"
+    save_frames_npz(npz, frames[0], frames)
+    link_path = tmp_path / "eit_skin_test"
+    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--link", str(link_path),
+           "--rate", "200", "--frames", str(npz)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        first_line = proc.stdout.readline()
+        assert "fake device on /dev/pts/" in first_line and str(link_path) in first_line
+        link = SerialLink(str(link_path))
+        wait_connected(link)
+        got = read_frames(link, 20)
+        link.close()
+    finally:
+        os.kill(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    assert "sent" in out and not link_path.exists()
+    seqs = [f.sequence for f in got]
+    assert seqs == list(range(seqs[0], seqs[0] + 20))
+    for f in got:
+        np.testing.assert_array_equal(f.voltages_v, frames[f.sequence % 7].astype(np.float32))
+
+
+def test_cli_without_frames_says_test_pattern(tmp_path):
+    from eit_skin.cli import build_parser
+
+    help_text = build_parser()._subparsers._group_actions[0].choices["fake-device"].format_help()
+    assert "TEST PATTERN" in " ".join(help_text.split())
+    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--count", "3", "--rate", "100",
+           "--linger", "0"]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=30, check=True).stdout
+    assert "TEST PATTERN" in out and "sent 3 frames" in out
