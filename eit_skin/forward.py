@@ -19,7 +19,7 @@ differences (the measurements) do not depend on this choice.
 
 Solving: the grounded matrix is scaled symmetrically by its diagonal
 (``S K S`` with ``S = diag(K)^(-1/2)``), which removes the scale of sigma and of ``1/z`` and
-keeps the factorisation accurate at conductivity contrasts of 1e-8 and more, then factorised
+keeps the factorisation accurate at large conductivity contrasts, then factorised
 once per conductivity with SuperLU (``scipy.sparse.linalg.splu``) using the minimum-degree
 ordering of ``K^T + K`` (``MMD_AT_PLUS_A``, right for a symmetric matrix) with diagonal pivoting
 (no row interchanges are needed for an SPD matrix, so the fill-reducing order is kept).
