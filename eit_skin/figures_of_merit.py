@@ -10,7 +10,8 @@ so that the target's change is positive, is at least a quarter of the maximum.
 * resolution: ``sqrt(area(x_q) / area(sheet))``;
 * shape deformation: fraction of ``x_q`` outside the circle ``C`` of equal area
   centred on the centre of gravity;
-* ringing: summed opposite-sign image outside ``C`` / summed image inside ``C``.
+* ringing: summed opposite-sign image outside ``x_q`` / summed image over ``x_q``
+  (EIDORS ``eval_GREIT_fig_merit``: ``-sum(img .* ((img < 0) & ~qmi)) / sum(img .* qmi)``).
 """
 
 from __future__ import annotations
@@ -84,8 +85,7 @@ def figures_of_merit(
     r_c = np.sqrt(area_q / np.pi)
     in_c = inside & ((xx - cog[0]) ** 2 + (yy - cog[1]) ** 2 <= r_c**2)
     shape_deformation = float((q & ~in_c).sum() / q.sum())
-    inside_c = float(s[in_c].sum()) if in_c.any() else float(w.sum())
-    ringing = float(-s[inside & ~in_c & (s < 0)].sum() / inside_c) if inside_c > 0 else np.inf
+    ringing = float(-s[inside & ~q & (s < 0)].sum() / w.sum())
     if target_area_m2 is not None and contrast is not None and contrast != 0:
         amplitude = float(vals.sum() * pixel_area / (contrast * target_area_m2))
     else:

@@ -5,9 +5,10 @@ Noise figure (Adler & Guardo 1996, as in EIDORS ``calc_noise_figure``):
 unit white noise on the relative voltage changes. ``SNR_in = mean|dv_h| / 1``;
 ``SNR_out = sum_e a_e |x_e| / sqrt(sum_e a_e var(x_e))`` with area weights ``a``.
 Small ``h`` -> noisy image -> small NF; NF grows with ``h`` towards a plateau.
-:func:`choose_by_noise_figure` bisects ``log h`` to hit a target NF, using the
-eigendecomposition cached in the :class:`ReconstructionMatrix` (each trial costs
-one ``[N, M]`` product, no rebuild). The chosen ``h`` is returned so it can be
+:func:`choose_by_noise_figure` finds the ``h`` that hits a target NF (Brent's method in
+``log h``) from ``K = J P^-1 J^T`` and ``Y = P^-1 J^T`` cached in the
+:class:`ReconstructionMatrix`: each trial is one ``M x M`` Cholesky factorisation and one
+``[N, M]`` matrix-vector product, no rebuild. The chosen ``h`` is returned so it can be
 stored in the patch config (``solver.hyperparameter``).
 """
 
@@ -16,6 +17,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import brentq
 
 if TYPE_CHECKING:
     from eit_skin.reconstruction import ReconstructionMatrix
@@ -45,32 +48,43 @@ def _target(
 
 def noise_figure(rm: ReconstructionMatrix, h: float | None = None) -> float:
     """Noise figure of ``rm`` (or of the same matrix with hyperparameter ``h``)."""
-    return float(_noise_figure_curve(rm, np.array([rm.hyperparameter if h is None else h]))[0])
+    return _NoiseFigure(rm)(rm.hyperparameter if h is None else float(h))
 
 
-def _noise_figure_curve(rm: ReconstructionMatrix, hs: np.ndarray) -> np.ndarray:
-    from eit_skin.reconstruction import _lambda2
+class _NoiseFigure:
+    """``h -> NF(h)`` for one matrix; each call costs one ``M x M`` Cholesky and O(N M)."""
 
-    s, u, yu = rm._eig
-    weights, target = _target(rm)
-    dv = rm.jacobian[rm.channels] @ target  # [M_used]
-    snr_in = float(np.mean(np.abs(dv)))
-    coeff = u.T @ dv
-    w = weights @ (yu**2)  # [M_used]
-    out = np.empty(len(hs))
-    for i, h in enumerate(hs):
-        g = 1.0 / (s + _lambda2(float(h), s))
-        x = yu @ (coeff * g)
-        signal = float(weights @ np.abs(x))
-        noise = float(np.sqrt(w @ g**2))
-        out[i] = (signal / noise) / snr_in if noise > 0 and snr_in > 0 else 0.0
-    return out
+    def __init__(self, rm: ReconstructionMatrix) -> None:
+        k, y = rm.gram
+        weights, target = _target(rm)
+        self._k = k
+        self._y = y
+        self._weights = weights
+        self._dv = rm.jacobian[rm.channels] @ target  # [M_used]
+        self._snr_in = float(np.mean(np.abs(self._dv)))
+        self._g = (y * weights[:, None]).T @ y  # [M, M] = Y^T diag(a) Y
+        self._trace = float(np.trace(k))
+
+    def __call__(self, h: float) -> float:
+        from eit_skin.reconstruction import _lambda2_trace
+
+        m = self._k.shape[0]
+        c = self._k + _lambda2_trace(h, self._trace, m) * np.eye(m)
+        low = np.linalg.cholesky(c)
+        w = sla.solve_triangular(low, np.eye(m), lower=True, check_finite=False)  # C^-1 = W^T W
+        x = self._y @ (w.T @ (w @ self._dv))
+        signal = float(self._weights @ np.abs(x))
+        # sum_e a_e var(x_e) = trace(C^-1 G C^-1) = trace((W G W^T)(W W^T))
+        noise2 = float(np.sum((w @ self._g @ w.T) * (w @ w.T)))
+        if not (noise2 > 0 and self._snr_in > 0):
+            return 0.0
+        return (signal / np.sqrt(noise2)) / self._snr_in
 
 
 def choose_by_noise_figure(
-    rm: ReconstructionMatrix, target: float | None = None, iterations: int = 40
+    rm: ReconstructionMatrix, target: float | None = None, tolerance: float = 1e-9
 ) -> float:
-    """Hyperparameter ``h`` whose noise figure equals ``target`` (bisection in ``log h``).
+    """Hyperparameter ``h`` whose noise figure equals ``target`` (Brent's method in ``log h``).
 
     If the target lies outside what ``h`` in :data:`H_RANGE` can reach, the nearest end of
     the range is returned.
@@ -78,34 +92,33 @@ def choose_by_noise_figure(
     target = DEFAULT_NOISE_FIGURE if target is None else float(target)
     if not (np.isfinite(target) and target > 0):
         raise ValueError(f"noise figure target must be > 0, got {target}")
+    nf = _NoiseFigure(rm)
     lo, hi = np.log(H_RANGE[0]), np.log(H_RANGE[1])
-    f_lo, f_hi = _noise_figure_curve(rm, np.exp([lo, hi]))
+    f_lo, f_hi = nf(float(np.exp(lo))), nf(float(np.exp(hi)))
     if target <= f_lo:
         return float(np.exp(lo))
     if target >= f_hi:
         return float(np.exp(hi))
-    for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        if _noise_figure_curve(rm, np.array([np.exp(mid)]))[0] < target:
-            lo = mid
-        else:
-            hi = mid
-    return float(np.exp(0.5 * (lo + hi)))
+    root = brentq(lambda t: nf(float(np.exp(t))) - target, lo, hi, xtol=tolerance, rtol=1e-12)
+    return float(np.exp(root))
 
 
 def choose_by_gcv(rm: ReconstructionMatrix, dv: np.ndarray, n_grid: int = 60) -> float:
     """Hyperparameter minimising generalised cross-validation for data ``dv`` ``[M]``.
 
     ``GCV(h) = M ||(I - A) dv||^2 / trace(I - A)^2`` with influence matrix
-    ``A = K (K + lambda^2 I)^-1`` (eigenvalues ``s / (s + lambda^2)``).
+    ``A = K (K + lambda^2 I)^-1``, so ``I - A = lambda^2 (K + lambda^2 I)^-1``.
     """
-    from eit_skin.reconstruction import _lambda2
+    from eit_skin.reconstruction import _lambda2_trace, _regularised_inverse
 
-    s, u, _ = rm._eig
-    c2 = (u.T @ np.asarray(dv, dtype=np.float64)[rm.channels]) ** 2
+    k, _ = rm.gram
+    m = k.shape[0]
+    d = np.asarray(dv, dtype=np.float64)[rm.channels]
+    trace = float(np.trace(k))
     hs = np.exp(np.linspace(np.log(H_RANGE[0]), np.log(H_RANGE[1]), n_grid))
     scores = np.empty(n_grid)
     for i, h in enumerate(hs):
-        f = _lambda2(float(h), s) / (s + _lambda2(float(h), s))  # eigenvalues of I - A
-        scores[i] = s.size * float(c2 @ f**2) / float(f.sum()) ** 2
+        lam2 = _lambda2_trace(float(h), trace, m)
+        resid_op = lam2 * _regularised_inverse(k, lam2)  # I - A
+        scores[i] = m * float(np.sum((resid_op @ d) ** 2)) / float(np.trace(resid_op)) ** 2
     return float(hs[int(np.argmin(scores))])

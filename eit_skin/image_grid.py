@@ -12,13 +12,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from eit_skin.mesh import Mesh
 
 
 def locate_points(mesh: Mesh, points: np.ndarray, tolerance: float = 1e-9) -> np.ndarray:
-    """Index of the triangle containing each point, ``-1`` if none.
+    """Index of the triangle containing each point, ``-1`` if none (outside, in a hole).
+
+    A uniform bucket grid (cell ~ 1.5 x the mean triangle size) lists the triangles whose
+    bounding box touches each cell; a point is tested (barycentric) against its cell's list
+    only. Vectorised, ``O(N + P)`` for a quality mesh. A point on a shared edge gets the
+    lowest-numbered triangle.
 
     Args:
         mesh: triangle mesh, metres.
@@ -29,39 +33,52 @@ def locate_points(mesh: Mesh, points: np.ndarray, tolerance: float = 1e-9) -> np
         ``[P]`` int64 triangle indices.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    out = np.full(points.shape[0], -1, dtype=np.int64)
     n_tri = mesh.n_triangles
+    out = np.full(points.shape[0], -1, dtype=np.int64)
     if n_tri == 0 or points.shape[0] == 0:
         return out
-    p = mesh.nodes[mesh.triangles]  # [N, 3, 2]
+    p = np.asarray(mesh.nodes, dtype=np.float64)[mesh.triangles]  # [N, 3, 2]
+    lo = p.min(axis=1)
+    hi = p.max(axis=1)
+    origin = lo.min(axis=0)
+    extent = np.maximum(hi.max(axis=0) - origin, 1e-300)
     a = p[:, 0]
     e1 = p[:, 1] - a
     e2 = p[:, 2] - a
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    tree = cKDTree(mesh.centroids)
-    todo = np.arange(points.shape[0])
-    for k in (8, 32, 128, n_tri):
-        k = min(k, n_tri)
-        _, cand = tree.query(points[todo], k=k)
-        cand = np.asarray(cand).reshape(todo.size, k)
-        d = points[todo, None, :] - a[cand]  # [P, k, 2]
-        dt = det[cand]
-        u = (d[..., 0] * e2[cand, 1] - d[..., 1] * e2[cand, 0]) / dt
-        v = (e1[cand, 0] * d[..., 1] - e1[cand, 1] * d[..., 0]) / dt
-        inside = (u >= -tolerance) & (v >= -tolerance) & (u + v <= 1 + tolerance)
-        hit = inside.any(axis=1)
-        first = inside.argmax(axis=1)
-        out[todo[hit]] = cand[hit, first[hit]]
-        todo = todo[~hit]
-        if todo.size == 0 or k == n_tri:
-            break
-        # points far from every centroid cannot be inside: skip the wider passes for them
-        if k >= 32:
-            near, _ = tree.query(points[todo], k=1)
-            reach = np.sqrt(np.abs(det).max()) * 2.0
-            todo = todo[near <= reach]
-            if todo.size == 0:
-                break
+    cell = 1.5 * float(np.sqrt(np.abs(det).mean() / 2))
+    cell = max(cell, float(extent.max()) / 4096)  # at most 4096^2 cells
+    shape = np.maximum(np.ceil(extent / cell).astype(np.int64), 1)
+    slack = tolerance * extent
+    i0 = np.clip(((lo - slack - origin) / cell).astype(np.int64), 0, shape - 1)
+    i1 = np.clip(((hi + slack - origin) / cell).astype(np.int64), 0, shape - 1)
+    nx = i1[:, 0] - i0[:, 0] + 1
+    ny = i1[:, 1] - i0[:, 1] + 1
+    count = nx * ny
+    tri = np.repeat(np.arange(n_tri), count)
+    k = np.arange(tri.size) - np.repeat(np.cumsum(count) - count, count)  # index in the box
+    cx = i0[tri, 0] + k % nx[tri]
+    cy = i0[tri, 1] + k // nx[tri]
+    cell_id = cy * shape[0] + cx
+    order = np.argsort(cell_id, kind="stable")
+    bucket_tri = tri[order]
+    starts = np.searchsorted(cell_id[order], np.arange(shape[0] * shape[1] + 1))
+    q = np.floor((points - origin) / cell).astype(np.int64)
+    valid = np.all((q >= 0) & (q < shape), axis=1) & np.all(np.isfinite(points), axis=1)
+    pt = np.flatnonzero(valid)
+    cid = q[pt, 1] * shape[0] + q[pt, 0]
+    n_cand = starts[cid + 1] - starts[cid]
+    pt_rep = np.repeat(pt, n_cand)
+    j = np.arange(pt_rep.size) - np.repeat(np.cumsum(n_cand) - n_cand, n_cand)
+    cand = bucket_tri[np.repeat(starts[cid], n_cand) + j]
+    d = points[pt_rep] - a[cand]
+    u = (d[:, 0] * e2[cand, 1] - d[:, 1] * e2[cand, 0]) / det[cand]
+    v = (e1[cand, 0] * d[:, 1] - e1[cand, 1] * d[:, 0]) / det[cand]
+    inside = (u >= -tolerance) & (v >= -tolerance) & (u + v <= 1 + tolerance)
+    best = np.full(points.shape[0], n_tri, dtype=np.int64)
+    np.minimum.at(best, pt_rep[inside], cand[inside])
+    found = best < n_tri
+    out[found] = best[found]
     return out
 
 
