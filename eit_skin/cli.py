@@ -14,6 +14,16 @@ import sys
 # name -> (module under eit_skin.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     # "name": ("module", "help"),  one line per command, kept alphabetical
+    "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
+    "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
+    "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
+    "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
+    "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
+    "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),
+    "simulate": (
+        "simulate",
+        "Simulate a touch scenario on a patch and save frames + ground truth.",
+    ),
 }
 
 

@@ -1,0 +1,371 @@
+"""``eit_reconstruction``: pressure and stretch images of one skin patch.
+
+Subscribes to every layer's ``<layer>/frames`` (``eit_skin_msgs/EitFrame``), images each
+frame against the layer's no-load reference (see :mod:`eit_skin.reference` for capture,
+``~/rezero``, drift tracking and posture compensation) and publishes, per layer with
+quantity Q (``pressure`` or ``stretch``):
+
+* ``Q/image``: ``sensor_msgs/Image`` 32FC1 in the layer's physical unit (pressure: Pa,
+  stretch: strain), NaN outside the sheet and in holes, stamped with the frame's
+  acquisition time, row i / column j at ``(x[j], y[i])`` of the layer's image grid;
+* ``Q/image_color``: the same as rgb8 with a fixed colour scale (parameters), for rviz;
+* ``skin_marker``: a coloured TRIANGLE_LIST of the mesh on the patch's 3-D surface;
+* ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image, JointState
+from std_msgs.msg import ColorRGBA
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from eit_skin.acquisition import RateMeter, pattern_name
+from eit_skin.colour_scale import ColourScale
+from eit_skin.electrode_faults import faulty_electrodes
+from eit_skin.imaging import LayerImager, default_cache_dir
+from eit_skin.mesh import build_mesh
+from eit_skin.node_graph import image_topics
+from eit_skin.patch import Layer, PatchError, load_patch
+from eit_skin.reference import PostureReferences, ReferenceTracker
+from eit_skin.resources import config_path
+
+#: The rviz marker mesh is this many times coarser than the layer's mesh (cheap to send).
+MARKER_EDGE_FACTOR = 2.5
+
+_PARAMETERS: list[tuple[str, object, str]] = [
+    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
+    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
+    ("reference_frames", 0, "frames averaged into the reference; 0: the layer's solver setting"),
+    ("drift_time_constant_s", 60.0, "drift tracking time constant while untouched, s; 0: off"),
+    ("contact_k", 5.0, "a change above contact_k x noise counts as contact (freezes drift)"),
+    ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
+    ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
+    ("pressure_range_pa", 20000.0, "top of the pressure colour scale, Pa"),
+    ("stretch_range", 0.3, "top of the stretch colour scale, strain"),
+    ("marker_period_s", 0.5, "period of skin_marker updates, s; 0: no marker"),
+    ("fault_check_period_s", 1.0, "how often recent frames are checked for faulty electrodes"),
+    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
+]
+
+
+@dataclass
+class LayerState:
+    """Everything the node keeps for one layer."""
+
+    layer: Layer
+    imager: LayerImager
+    tracker: ReferenceTracker
+    quantity: str
+    image_pub: object
+    colour_pub: object
+    scale: ColourScale
+    pattern: str
+    rate: RateMeter = field(default_factory=RateMeter)
+    imaged: int = 0
+    rejected: int = 0
+    dropped: int = 0
+    last_sequence: int | None = None
+    latencies_ms: list[float] = field(default_factory=list)
+    last_values: np.ndarray | None = None
+    last_image: np.ndarray | None = None
+    recent: list[np.ndarray] = field(default_factory=list)
+    faulty: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    excluded: np.ndarray | None = None
+    last_reject: str = ""
+
+
+class ReconstructionNode(Node):
+    """Thin adapter: EitFrame -> LayerImager -> images, markers and diagnostics."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("eit_reconstruction", **kwargs)
+        for name, default, description in _PARAMETERS:
+            self.declare_parameter(
+                name, default, ParameterDescriptor(description=description, read_only=True)
+            )
+        p = {name: self.get_parameter(name).value for name, _, _ in _PARAMETERS}
+        path = config_path(str(p["patch_config"]))
+        self.patch = load_patch(path)
+        cache = str(p["cache_dir"]) or default_cache_dir()
+        joint = str(p["joint_name"])
+        self.joint = joint
+        self.layers: dict[str, LayerState] = {}
+        topics = image_topics(self.patch)
+        for layer in self.patch.layers:
+            started = time.perf_counter()
+            imager = LayerImager.build(layer, cache_dir=cache)
+            self.get_logger().info(
+                f"layer {layer.name}: {imager.mesh.n_triangles} elements, "
+                f"{imager.n_measurements} measurements, grid {imager.grid.shape}, "
+                f"matrix {'from cache' if imager.from_cache else 'built'} in "
+                f"{time.perf_counter() - started:.2f} s"
+            )
+            posture = None
+            if p["posture_references"]:
+                posture = PostureReferences.load(str(p["posture_references"]), layer.name)
+                joint = joint or posture.joint
+            quantity = layer.material.quantity
+            topic = topics[layer.name]
+            top = p["pressure_range_pa"] if quantity == "pressure" else p["stretch_range"]
+            self.layers[layer.name] = LayerState(
+                layer=layer,
+                imager=imager,
+                tracker=ReferenceTracker(
+                    imager.n_measurements,
+                    int(p["reference_frames"]) or layer.solver.reference_frames,
+                    float(p["drift_time_constant_s"]),
+                    float(p["contact_k"]),
+                    posture,
+                ),
+                quantity=quantity,
+                image_pub=self.create_publisher(Image, f"{topic}/image", qos_profile_sensor_data),
+                colour_pub=self.create_publisher(
+                    Image, f"{topic}/image_color", qos_profile_sensor_data
+                ),
+                scale=ColourScale.named(0.0, float(top)),
+                pattern=pattern_name(layer),
+            )
+            self.create_subscription(
+                _frame_type(),
+                f"{layer.name}/frames",
+                lambda msg, name=layer.name: self._on_frame(name, msg),
+                qos_profile_sensor_data,
+            )
+        self.joint = joint
+        if joint:
+            self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
+        self.create_service(Trigger, "~/rezero", self._on_rezero)
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.create_timer(float(p["fault_check_period_s"]), self._check_faults)
+        self.marker_pub = None
+        if float(p["marker_period_s"]) > 0:
+            self.marker_pub = self.create_publisher(Marker, "skin_marker", 1)
+            self._marker_geometry = {
+                name: self._marker_mesh(state) for name, state in self.layers.items()
+            }
+            self.create_timer(float(p["marker_period_s"]), self._publish_markers)
+        self.get_logger().info(
+            f"patch {self.patch.name!r} ({path}): layers {list(self.layers)}; "
+            f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}"
+        )
+
+    # ------------------------------------------------------------------ frames
+    def _reject(self, state: LayerState, reason: str) -> None:
+        state.rejected += 1
+        state.last_reject = reason
+        self.get_logger().error(
+            f"rejected frame on layer {state.layer.name}: {reason}", throttle_duration_sec=5.0
+        )
+
+    def _on_frame(self, name: str, msg) -> None:
+        state = self.layers[name]
+        m = state.imager.n_measurements
+        if len(msg.voltages) != m or msg.n_electrodes != state.layer.n_electrodes:
+            self._reject(
+                state,
+                f"frame has {len(msg.voltages)} values / {msg.n_electrodes} electrodes, "
+                f"patch config {self.patch.name}/{name} expects {m} / {state.layer.n_electrodes}",
+            )
+            return
+        if msg.drive_pattern and msg.drive_pattern != state.pattern:
+            self._reject(
+                state,
+                f"frame drive pattern {msg.drive_pattern!r}, patch config "
+                f"{self.patch.name}/{name} expects {state.pattern!r}",
+            )
+            return
+        if state.last_sequence is not None:
+            gap = (msg.sequence - state.last_sequence) % 2**32
+            if 1 < gap < 2**31:
+                state.dropped += gap - 1
+        state.last_sequence = msg.sequence
+        stamp_s = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        frame = np.asarray(msg.voltages, dtype=np.float64)
+        flags = np.asarray(msg.channel_flags, dtype=np.uint8) if len(msg.channel_flags) else None
+        tracker = state.tracker
+        if not tracker.ready:
+            if tracker.capture(frame, stamp_s):
+                noise = state.imager.relative_change(
+                    tracker.captured_frames, tracker.reference()
+                ).std(axis=0)
+                tracker.set_element_noise(noise)
+                self.get_logger().info(
+                    f"layer {name}: reference captured from {tracker.n_frames} frames"
+                )
+            return
+        state.recent.append(frame)
+        del state.recent[:-50]
+        excluded = flags
+        if state.excluded is not None and state.excluded.any():
+            excluded = (flags if flags is not None else np.zeros(m, np.uint8)) | (
+                state.excluded.astype(np.uint8) * 2
+            )
+        values = state.imager.relative_change(frame, tracker.reference(), excluded)
+        tracker.track(frame, stamp_s, tracker.touching(values))
+        relative = state.imager.images(values)
+        physical = state.imager.physical(relative)
+        self._publish_images(state, msg.header, physical)
+        state.last_values = values
+        state.last_image = physical
+        state.imaged += 1
+        now = time.time_ns()
+        state.rate.tick(now)
+        state.latencies_ms.append((now * 1e-9 - stamp_s) * 1e3)
+        del state.latencies_ms[:-500]
+
+    def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
+        height, width = physical.shape
+        image = Image(header=header, height=height, width=width, encoding="32FC1")
+        image.is_bigendian = int(sys.byteorder == "big")
+        image.step = width * 4
+        image.data = np.ascontiguousarray(physical, dtype=np.float32).tobytes()
+        state.image_pub.publish(image)
+        colour = Image(header=header, height=height, width=width, encoding="rgb8")
+        colour.step = width * 3
+        colour.data = state.scale.to_rgb(physical).tobytes()
+        state.colour_pub.publish(colour)
+
+    # --------------------------------------------------------------- services
+    def _on_rezero(self, request, response):
+        for state in self.layers.values():
+            state.tracker.rezero()
+        response.success = True
+        frames = {name: s.tracker.n_frames for name, s in self.layers.items()}
+        response.message = f"re-taking the reference from the next frames: {frames}"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        if self.joint in msg.name:
+            angle = float(msg.position[list(msg.name).index(self.joint)])
+            for state in self.layers.values():
+                state.tracker.angle_rad = angle
+
+    def _check_faults(self) -> None:
+        for state in self.layers.values():
+            if not state.tracker.ready or len(state.recent) < 10:
+                continue
+            faulty = faulty_electrodes(
+                np.stack(state.recent), state.tracker.reference(), state.imager.protocol
+            )
+            state.faulty = np.asarray(faulty, dtype=np.int64)
+            state.excluded = (
+                state.imager.protocol.touching(state.faulty) if state.faulty.size else None
+            )
+
+    # ------------------------------------------------------------------ rviz
+    def _marker_mesh(self, state: LayerState) -> tuple[list[Point], np.ndarray]:
+        """Display mesh of a layer, coarser than the imaging mesh.
+
+        Returns the points of its triangles on the 3-D surface and, per triangle, the flat
+        index of the image pixel under its centroid (where its colour is read).
+        """
+        layer = state.layer
+        mesh = build_mesh(layer, MARKER_EDGE_FACTOR * layer.mesh.max_edge_m)
+        xyz = self.patch.placement.to_3d(mesh.nodes)[mesh.triangles.reshape(-1)]
+        points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz]
+        grid = state.imager.grid
+        c = mesh.centroids
+        col = np.clip(np.searchsorted(grid.x, c[:, 0]), 0, grid.x.size - 1)
+        row = np.clip(np.searchsorted(grid.y, c[:, 1]), 0, grid.y.size - 1)
+        return points, row * grid.x.size + col
+
+    def _publish_markers(self) -> None:
+        for index, (name, state) in enumerate(self.layers.items()):
+            if state.last_image is None:
+                continue
+            points, pixels = self._marker_geometry[name]
+            rgb = state.scale.to_rgb(state.last_image.reshape(1, -1)[:, pixels])[0] / 255.0
+            colours = [ColorRGBA(r=float(r), g=float(g), b=float(b), a=1.0) for r, g, b in rgb]
+            marker = Marker(ns=name, id=index, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
+            marker.header.frame_id = self.patch.frame_id
+            marker.header.stamp = self.get_clock().now().to_msg()
+            marker.pose.orientation.w = 1.0
+            marker.scale.x = marker.scale.y = marker.scale.z = 1.0
+            marker.points = points
+            marker.colors = [c for c in colours for _ in range(3)]
+            self.marker_pub.publish(marker)
+
+    # ------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self) -> None:
+        now = time.time_ns()
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        for name, state in self.layers.items():
+            tracker = state.tracker
+            latency = np.asarray(state.latencies_ms or [np.nan])
+            values = {
+                "reconstruction_rate_hz": f"{state.rate.rate_hz(now):.1f}",
+                "latency_median_ms": f"{np.median(latency):.2f}",
+                "latency_p99_ms": f"{np.percentile(latency, 99):.2f}",
+                "frames_imaged": str(state.imaged),
+                "frames_dropped": str(state.dropped),
+                "frames_rejected": str(state.rejected),
+                "reference_ready": str(tracker.ready).lower(),
+                "reference_age_s": f"{tracker.age_s(now * 1e-9):.1f}",
+                "drift_updates": str(tracker.drift_updates),
+                "faulty_electrodes": ",".join(str(e) for e in state.faulty),
+                "joint_angle_rad": f"{tracker.angle_rad:.3f}",
+            }
+            if state.rejected and state.last_reject:
+                level, text = 1, f"rejected frames: {state.last_reject}"
+            elif state.faulty.size:
+                level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif not tracker.ready:
+                level, text = 0, "capturing the no-load reference (do not touch)"
+            else:
+                level, text = 0, f"{values['reconstruction_rate_hz']} images/s"
+            msg.status.append(
+                DiagnosticStatus(
+                    level=bytes([level]),
+                    name=f"{self.get_fully_qualified_name()}: {name}",
+                    message=text,
+                    hardware_id=self.patch.name,
+                    values=[KeyValue(key=k, value=v) for k, v in values.items()],
+                )
+            )
+        self.diagnostics.publish(msg)
+
+
+def _frame_type():
+    from eit_skin_msgs.msg import EitFrame
+
+    return EitFrame
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``eit_reconstruction``; exit 2 on a bad configuration."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ReconstructionNode()
+        rclpy.spin(node)
+    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
+        print(f"eit_reconstruction: refusing to start: {error}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,198 @@
+"""eit_driver as a real process over real DDS: serial pty, unplug/replug, record, bad config."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from eit_skin_msgs.msg import EitFrame
+
+from eit_skin.fake_device import FakeDevice
+from eit_skin.patch import load_patch
+from eit_skin.recording import read_mcap_frames
+from eit_skin.resources import config_path
+from test.ros_probe import BIN, Probe, start_node, stop_node
+
+pytestmark = pytest.mark.ros
+
+TOPIC = "/arm/pressure/frames"
+ARM = load_patch(config_path("arm"))
+
+
+def pattern_frames(n: int = 64, m: int = 208, seed: int = 3) -> np.ndarray:
+    return np.random.default_rng(seed).normal(0.0, 0.05, size=(n, m))
+
+
+@pytest.fixture
+def probe():
+    probe = Probe()
+    probe.subscribe(EitFrame, TOPIC)
+    probe.subscribe(DiagnosticArray, "/diagnostics", 10)
+    yield probe
+    probe.close()
+
+
+def _driver_status(probe: Probe) -> list:
+    return [
+        s for _, m in probe.messages["/diagnostics"] for s in m.status if "eit_driver" in s.name
+    ]
+
+
+def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) -> None:
+    frames = pattern_frames()
+    device = FakeDevice(lambda i: frames[i % len(frames)], rate_hz=100.0)
+    device.open()
+    link = tmp_path / "eit_skin_arm"
+    device.link(link)
+    device.start()
+    record = tmp_path / "rec.mcap"
+    node = start_node(
+        "eit_driver",
+        "/arm",
+        {
+            "patch_config": "arm",
+            "port": str(link),
+            "layer": "pressure",
+            "record_path": str(record),
+            "diagnostics_period_s": 0.2,
+        },
+        tmp_path / "driver.log",
+    )
+    try:
+        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 20, 20), (
+            tmp_path / "driver.log"
+        ).read_text()
+        for _, msg in probe.messages[TOPIC][:20]:
+            sent = device.frame(msg.sequence)
+            np.testing.assert_array_equal(
+                np.asarray(msg.voltages, np.float32), sent.voltages_v.astype(np.float32)
+            )
+            assert msg.header.frame_id == "arm_skin_link"
+            assert (msg.patch, msg.layer, msg.n_electrodes) == (ARM.name, "pressure", 16)
+            assert msg.drive_pattern == "adjacent"
+            assert msg.current_a == pytest.approx(1e-3)
+        seqs = [m.sequence for _, m in probe.messages[TOPIC]]
+        assert seqs == sorted(seqs)
+        stamps = [
+            m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for _, m in probe.messages[TOPIC]
+        ]
+        assert np.all(np.diff(stamps) > 0)
+
+        # Unplug: the node keeps running and reports ERROR; replug: frames resume.
+        device.stop()
+        device.unplug()
+        probe.spin_until(
+            lambda: any(s.level == DiagnosticStatus_ERROR for s in _driver_status(probe)[-1:]), 10
+        )
+        assert _driver_status(probe)[-1].level == DiagnosticStatus_ERROR
+        assert node.poll() is None
+        count = len(probe.messages[TOPIC])
+        device.open()
+        device.link(link)
+        device.start()
+        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= count + 10, 20)
+        probe.spin_until(
+            lambda: any(
+                kv.key == "reconnects" and int(kv.value) >= 1
+                for s in _driver_status(probe)[-1:]
+                for kv in s.values
+            ),
+            5,
+        )
+        last = _driver_status(probe)[-1]
+        assert last.level == DiagnosticStatus_OK, last.message
+        values = {kv.key: kv.value for kv in last.values}
+        assert int(values["reconnects"]) >= 1
+        assert values["port"] == str(link)
+    finally:
+        device.stop()
+        device.close()
+        assert stop_node(node) == 0
+    recorded = list(read_mcap_frames(record))
+    assert len(recorded) >= len(probe.messages[TOPIC]) - 5
+    assert {topic for topic, _, _ in recorded} == {TOPIC}
+    by_seq = {r.sequence: r for _, _, r in recorded}
+    for _, msg in probe.messages[TOPIC][:10]:
+        assert (
+            by_seq[msg.sequence].voltages.tobytes()
+            == np.asarray(msg.voltages, np.float32).tobytes()
+        )
+
+
+DiagnosticStatus_OK = b"\x00"
+DiagnosticStatus_ERROR = b"\x02"
+
+
+def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
+    link = tmp_path / "eit_skin_missing"
+    node = start_node(
+        "eit_driver",
+        "/arm",
+        {"patch_config": "arm", "port": str(link), "diagnostics_period_s": 0.2},
+        tmp_path / "driver.log",
+    )
+    try:
+        assert probe.spin_until(lambda: len(_driver_status(probe)) >= 2, 15)
+        status = _driver_status(probe)[-1]
+        assert status.level == DiagnosticStatus_ERROR
+        assert str(link) in status.message
+        frames = pattern_frames(8)
+        device = FakeDevice(lambda i: frames[i % 8], rate_hz=100.0)
+        device.open()
+        device.link(link)
+        device.start()
+        try:
+            assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 5, 20)
+        finally:
+            device.stop()
+            device.close()
+    finally:
+        assert stop_node(node) == 0
+
+
+def test_mismatched_frames_are_counted_not_published(probe: Probe, tmp_path) -> None:
+    frames = pattern_frames(8, m=192)  # opposite-drive sized frames on an adjacent layer
+    device = FakeDevice(lambda i: frames[i % 8], rate_hz=100.0)
+    device.open()
+    link = tmp_path / "eit_skin_arm"
+    device.link(link)
+    device.start()
+    node = start_node(
+        "eit_driver",
+        "/arm",
+        {"patch_config": "arm", "port": str(link), "diagnostics_period_s": 0.2},
+        tmp_path / "driver.log",
+    )
+    try:
+        assert probe.spin_until(
+            lambda: any(
+                kv.key == "frames_mismatched" and int(kv.value) >= 5
+                for s in _driver_status(probe)[-1:]
+                for kv in s.values
+            ),
+            20,
+        )
+        assert probe.messages[TOPIC] == []
+        status = _driver_status(probe)[-1]
+        assert (
+            status.level == b"\x01" and "192 values" in status.message and "208" in status.message
+        )
+    finally:
+        device.stop()
+        device.close()
+        assert stop_node(node) == 0
+
+
+def test_bad_patch_config_refuses_to_start(tmp_path) -> None:
+    import subprocess
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nframe_id: f\nlayers: []\n")
+    result = subprocess.run(
+        [str(BIN / "eit_driver"), "--ros-args", "-p", f"patch_config:={bad}"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 2
+    assert str(bad) in result.stderr and "layers" in result.stderr
