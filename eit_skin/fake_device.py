@@ -24,15 +24,8 @@ from eit_skin.wire import DeviceFrame, PatternId, ValueEncoding, encode_frame
 FrameSource = Callable[[int], np.ndarray]
 """frame index -> voltages, volts, float [M]."""
 
-TEST_PATTERN_LABEL = "TEST PATTERN (constant zeros, not physics; no --frames file given)"
 DEFAULT_VOLTS_PER_COUNT = 3.3 / 4096 / 1000
 """A 3.3 V 12-bit ADC summed over 1000 oversamples: volts per summed count."""
-
-
-def constant_test_pattern(n_values: int = 208) -> FrameSource:
-    """A placeholder source: every frame is ``n_values`` zeros (a TEST PATTERN, not physics)."""
-    zeros = np.zeros(n_values)
-    return lambda _i: zeros
 
 
 def npz_frame_source(path: str | Path) -> tuple[FrameSource, int]:

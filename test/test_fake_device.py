@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.fake_device import FakeDevice, constant_test_pattern
+from eit_skin.fake_device import FakeDevice
 from eit_skin.recording import save_frames_npz
 from eit_skin.serial_link import SerialLink
 from eit_skin.wire import ValueEncoding
@@ -91,7 +91,7 @@ def test_unplug_and_replug_through_the_symlink(tmp_path):
 def test_link_refuses_to_replace_a_regular_file(tmp_path):
     target = tmp_path / "precious"
     target.write_text("keep me")
-    with FakeDevice(constant_test_pattern()) as device, pytest.raises(FileExistsError):
+    with FakeDevice(lambda i: np.zeros(208)) as device, pytest.raises(FileExistsError):
         device.link(target)
     assert target.read_text() == "keep me"
 
@@ -122,12 +122,31 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
         np.testing.assert_array_equal(f.voltages_v, frames[f.sequence % 7].astype(np.float32))
 
 
-def test_cli_without_frames_says_test_pattern(tmp_path):
-    from eit_skin.cli import build_parser
+def test_cli_without_frames_streams_the_simulator(tmp_path):
+    """Without --frames the device sends physics: the arm's pressure layer under a push."""
+    from eit_skin.patch import load_patch
+    from eit_skin.resources import config_path
+    from eit_skin.simulator import SkinSimulator
 
-    help_text = build_parser()._subparsers._group_actions[0].choices["fake-device"].format_help()
-    assert "TEST PATTERN" in " ".join(help_text.split())
-    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--count", "3", "--rate", "100",
-           "--linger", "0"]  # fmt: skip
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=30, check=True).stdout
-    assert "TEST PATTERN" in out and "sent 3 frames" in out
+    link_path = tmp_path / "eit_skin_sim"
+    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--link", str(link_path),
+           "--rate", "100", "--patch", "arm", "--scenario", "push", "--seed", "3"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        assert "fake device on /dev/pts/" in proc.stdout.readline()
+        assert "simulator: patch arm, layer pressure" in proc.stdout.readline()
+        link = SerialLink(str(link_path))
+        wait_connected(link)
+        got = read_frames(link, 10)
+        link.close()
+    finally:
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.communicate(timeout=10)
+    patch = load_patch(config_path("arm"))
+    simulator = SkinSimulator(patch, "push", rate_hz=100, seed=3)
+    layer = patch.layer("pressure")
+    for frame in got:
+        expected = simulator.frame(frame.sequence % simulator.n_frames)["pressure"].voltages_v
+        np.testing.assert_array_equal(frame.voltages_v, expected.astype(np.float32))
+        assert frame.n_electrodes == layer.n_electrodes
+        assert frame.current_a == np.float32(layer.current_a)

@@ -15,9 +15,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frames",
         metavar="IN.npz",
-        help="offline frames file (reference [M], frames [T,M] volts), looped. Without it the "
-        "device sends a TEST PATTERN: constant 208 zeros, not physics",
+        help="offline frames file (reference [M], frames [T,M] volts), looped; "
+        "default: the physics simulator (--patch, --layer, --scenario)",
     )
+    parser.add_argument("--patch", default="arm", help="simulated patch (name or YAML path)")
+    parser.add_argument("--layer", default="", help="simulated layer (default: the first)")
+    parser.add_argument("--scenario", default="demo", help="simulator touch script, looped")
+    parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
     parser.add_argument(
         "--count", type=int, default=0, metavar="N", help="stop after N frames (0 = run forever)"
     )
@@ -27,9 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="volts",
         help="values as float32 volts or int32 ADC counts (default volts)",
     )
-    parser.add_argument("--electrodes", type=int, default=16, help="n_electrodes header field")
     parser.add_argument(
-        "--current", type=float, default=1e-3, metavar="A", help="current_a header field, amperes"
+        "--electrodes", type=int, default=16, help="n_electrodes header field (with --frames)"
+    )
+    parser.add_argument(
+        "--current", type=float, default=1e-3, metavar="A", help="current_a field (with --frames)"
     )
     parser.add_argument(
         "--linger",
@@ -41,19 +47,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.fake_device import (
-        TEST_PATTERN_LABEL,
-        FakeDevice,
-        constant_test_pattern,
-        npz_frame_source,
-    )
+    from eit_skin.fake_device import FakeDevice, npz_frame_source
     from eit_skin.wire import ValueEncoding
 
+    pattern = {}
     if args.frames:
         source, n_values = npz_frame_source(args.frames)
         label = f"frames from {args.frames} ({n_values} values, looped)"
     else:
-        source, label = constant_test_pattern(208), TEST_PATTERN_LABEL
+        source, label, pattern = _simulated_source(args)
+        args.electrodes, args.current = pattern.pop("n_electrodes"), pattern.pop("current_a")
     encoding = (
         ValueEncoding.FLOAT32_VOLTS if args.encoding == "volts" else ValueEncoding.INT32_COUNTS
     )
@@ -63,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         n_electrodes=args.electrodes,
         current_a=args.current,
         value_encoding=encoding,
+        **pattern,
     )
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -84,3 +88,28 @@ def run(args: argparse.Namespace) -> int:
     finally:
         device.unplug()
     return 0
+
+
+def _simulated_source(args: argparse.Namespace):
+    """Frame source of one simulated layer (looped script) and the header fields it implies."""
+    from eit_skin.acquisition import pattern_id
+    from eit_skin.patch import load_patch
+    from eit_skin.resources import config_path
+    from eit_skin.simulator import SkinSimulator
+
+    patch = load_patch(config_path(args.patch))
+    layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+    simulator = SkinSimulator(patch, args.scenario, rate_hz=args.rate, seed=args.seed)
+    n = simulator.n_frames
+
+    def source(index: int):
+        return simulator.frame(index % n)[layer.name].voltages_v
+
+    fields = {
+        "n_electrodes": layer.n_electrodes,
+        "current_a": layer.current_a,
+        "pattern_id": pattern_id(layer),
+        "pattern_param": layer.protocol.drive_skip,
+    }
+    label = f"simulator: patch {patch.name}, layer {layer.name}, scenario {args.scenario} (looped)"
+    return source, label, fields
