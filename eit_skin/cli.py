@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
+    "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
     "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
     "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),

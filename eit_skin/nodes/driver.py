@@ -49,6 +49,7 @@ _PARAMETERS: list[tuple[str, object, str]] = [
     ("record_path", "", "record every published frame to this MCAP file"),
     ("replay_path", "", "replay the EitFrames of this MCAP file instead of acquiring"),
     ("replay_realtime", True, "replay with the recording's timing (false: as fast as possible)"),
+    ("replay_wait_for_subscribers", 0, "replay starts once a frame topic has this many subscribers"),
     ("scenario", "", "simulator touch script: built-in name or YAML path; empty: demo"),
     ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
     ("seed", 0, "simulator random seed"),
@@ -92,7 +93,8 @@ class DriverNode(Node):
 
         if replay:
             self.source = ReplaySource(replay, list(self.factories), bool(p["replay_realtime"]))
-            self.create_timer(0.001, lambda: self.source.tick(self._now_ns(), self.publish))
+            self.replay_waits_for = int(p["replay_wait_for_subscribers"])
+            self.create_timer(0.001, self._replay)
         elif port:
             (layer,) = layers
             self.source = SerialSource(
@@ -124,6 +126,15 @@ class DriverNode(Node):
             faults=faults,
         )
         return SimulatedSource(self.factories, simulator, simulator.n_frames, bool(p["loop"]))
+
+    def _replay(self) -> None:
+        if self.replay_waits_for and all(
+            pub.get_subscription_count() < self.replay_waits_for
+            for pub in self.frame_publishers.values()
+        ):
+            return
+        self.replay_waits_for = 0
+        self.source.tick(self._now_ns(), self.publish)
 
     def _simulate(self) -> None:
         now = self._now_ns()
