@@ -1,0 +1,136 @@
+"""Driver latency: last byte of a frame written to the pty -> EitFrame received over DDS.
+
+A FakeDevice writes wire frames at 100 Hz and 1 kHz into a pseudo-terminal; a real
+``eit_driver`` process reads it and publishes; this process subscribes and compares the
+reception time of every frame with the time its last byte was written (same host clock).
+The figure includes DDS delivery to the subscriber, so it is an upper bound of "last byte
+-> publish". Writes bench/driver.md.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_driver.py [--seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
+
+from eit_skin_msgs.msg import EitFrame
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from eit_skin.fake_device import FakeDevice
+from eit_skin.wire import encode_frame
+from test.ros_probe import Probe, start_node, stop_node
+
+TOPIC = "/bench/pressure/frames"
+
+
+def measure(rate_hz: float, seconds: float, workdir: Path) -> dict[str, float]:
+    volts = np.random.default_rng(1).normal(0, 0.05, (64, 208))
+    device = FakeDevice(lambda i: volts[i % 64], rate_hz=rate_hz)
+    device.open()
+    link = workdir / f"eit_bench_{int(rate_hz)}"
+    device.link(link)
+    written: dict[int, int] = {}
+    probe = Probe("bench_probe")
+    received: dict[int, int] = {}
+    probe.node.create_subscription(
+        EitFrame,
+        TOPIC,
+        lambda m: received.setdefault(m.sequence, time.time_ns()),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
+    node = start_node(
+        "eit_driver", "/bench", {"patch_config": "arm", "port": str(link), "layer": "pressure"},
+        workdir / f"driver_{int(rate_hz)}.log",
+    )  # fmt: skip
+    stop = threading.Event()
+
+    def writer() -> None:
+        period = 1.0 / rate_hz
+        start = time.perf_counter()
+        i = 0
+        while not stop.is_set():
+            data = encode_frame(device.frame(i, device_time_us=int(i * period * 1e6)))
+            view = memoryview(data)
+            while view:  # the pty master is non-blocking: write the whole frame
+                try:
+                    view = view[os.write(device._master, view) :]
+                except BlockingIOError:
+                    time.sleep(0.0001)
+            written[i] = time.time_ns()
+            i += 1
+            delay = start + i * period - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+
+    time.sleep(2.0)  # driver start-up and discovery
+    thread = threading.Thread(target=writer, daemon=True)
+    thread.start()
+    probe.spin_for(seconds)
+    stop.set()
+    thread.join()
+    probe.spin_for(0.5)
+    stop_node(node)
+    probe.close()
+    device.close()
+    if not received:
+        raise SystemExit(f"no frames received; driver log: {workdir}")
+    common = sorted(set(written) & set(received))[int(rate_hz) :]  # skip the first second
+    latency_ms = np.array([(received[k] - written[k]) / 1e6 for k in common])
+    return {
+        "rate_hz": rate_hz,
+        "frames_written": len(written),
+        "frames_received": len(received),
+        "median_ms": float(np.median(latency_ms)),
+        "p99_ms": float(np.percentile(latency_ms, 99)),
+        "max_ms": float(latency_ms.max()),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("driver.md"))
+    args = parser.parse_args()
+    rows = []
+    tmp = Path(tempfile.mkdtemp(prefix="eit_bench_driver_"))
+    for rate in (100.0, 1000.0):
+        rows.append(measure(rate, args.seconds, tmp))
+        r = rows[-1]
+        print(f"{rate:6.0f} Hz: {r['frames_received']}/{r['frames_written']} frames, "
+              f"median {r['median_ms']:.3f} ms, p99 {r['p99_ms']:.3f} ms")  # fmt: skip
+    lines = [
+        "# Driver latency (last byte written to the pty -> EitFrame received)",
+        "",
+        f"`{' '.join(['python', *sys.argv])}` on {platform.node()}: {os.cpu_count()} cores, "
+        f"{platform.processor() or platform.machine()}, Python {platform.python_version()}; "
+        f"{args.seconds:g} s per rate, first second skipped. Includes DDS delivery to a "
+        "subscriber in another process, so it bounds last byte -> publish from above.",
+        "",
+        "| rate | frames written | received | median | p99 | max |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['rate_hz']:.0f} Hz | {r['frames_written']} | {r['frames_received']} | "
+        f"{r['median_ms']:.3f} ms | {r['p99_ms']:.3f} ms | {r['max_ms']:.3f} ms |"
+        for r in rows
+    ]
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
