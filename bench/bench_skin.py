@@ -1,0 +1,295 @@
+"""The running skin: end-to-end latency, patches per reconstruction process, memory.
+
+* latency: simulated frames of the arm (two layers) published at 100 Hz to an
+  ``eit_reconstruction`` process; time from a frame's publish to the reception of its
+  pressure image (matched by stamp), median and p99;
+* throughput: K reconstruction nodes (the face patch, one layer each) in ONE process pinned
+  to one core, each fed at 100 Hz from another process; the largest K with < 1 % frames
+  lost is what one process sustains on one core;
+* memory: one reconstruction process fed at 1 kHz for ``--memory-seconds``; its resident
+  set size sampled every 10 s (growth = last - first after warm-up).
+
+Writes bench/skin.md. Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_skin.py``
+(``--quick`` for a short run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import rclpy  # noqa: E402
+from eit_skin_msgs.msg import EitFrame  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+
+from eit_skin.imaging import LayerImager  # noqa: E402
+from eit_skin.patch import load_patch  # noqa: E402
+from eit_skin.resources import config_path  # noqa: E402
+from eit_skin.simulator import SkinSimulator  # noqa: E402
+from test.ros_probe import Probe, start_node, stop_node  # noqa: E402
+
+BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+def simulated_frames(patch_name: str, n: int) -> dict[str, np.ndarray]:
+    """Per layer ``[n, M]`` float32 frames of the demo script (touches included)."""
+    patch = load_patch(config_path(patch_name))
+    sim = SkinSimulator(patch, "demo", rate_hz=50.0, seed=5)
+    frames = [sim.frame(k % sim.n_frames) for k in range(n)]
+    return {
+        layer: np.stack([f[layer].voltages_v for f in frames]).astype(np.float32)
+        for layer in patch.layer_names
+    }
+
+
+def frame_msg(layer: str, volts: np.ndarray, seq: int, stamp_ns: int) -> EitFrame:
+    import array
+
+    msg = EitFrame(patch="bench", layer=layer, n_electrodes=16, drive_pattern="adjacent")
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    msg.sequence = seq
+    msg.voltages = array.array("f", volts.tobytes())
+    return msg
+
+
+def build_cache(cache: Path, patches: list[str]) -> None:
+    for name in patches:
+        for layer in load_patch(config_path(name)).layers:
+            LayerImager.build(layer, cache_dir=cache)
+
+
+# ---------------------------------------------------------------------------- latency
+def latency(seconds: float, workdir: Path, cache: Path) -> dict[str, float]:
+    frames = simulated_frames("arm", 500)
+    probe = Probe("bench_latency")
+    pubs = {
+        layer: probe.node.create_publisher(EitFrame, f"/arm/{layer}/frames", BEST_EFFORT)
+        for layer in frames
+    }
+    sent: dict[int, int] = {}
+    got: dict[int, int] = {}
+    probe.node.create_subscription(
+        Image,
+        "/arm/pressure/image",
+        lambda m: got.setdefault(
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.time_ns()
+        ),
+        BEST_EFFORT,
+    )
+    node = start_node(
+        "eit_reconstruction", "/arm",
+        {"patch_config": "arm", "cache_dir": str(cache), "marker_period_s": 0.5},
+        workdir / "latency.log",
+    )  # fmt: skip
+    time.sleep(3.0)
+    period = 0.01
+    start = time.perf_counter()
+    k = 0
+    while time.perf_counter() - start < seconds:
+        stamp = time.time_ns()
+        for layer, pub in pubs.items():
+            pub.publish(frame_msg(layer, frames[layer][k % 500], k, stamp))
+        sent[stamp] = k
+        k += 1
+        while time.perf_counter() < start + k * period:
+            probe.executor.spin_once(timeout_sec=max(0.0, start + k * period - time.perf_counter()))
+    probe.spin_for(0.5)
+    stop_node(node)
+    probe.close()
+    ms = np.array([(got[s] - s) / 1e6 for s in sent if s in got][50:])
+    return {"sent": k, "received": len(got), "median_ms": float(np.median(ms)),
+            "p99_ms": float(np.percentile(ms, 99))}  # fmt: skip
+
+
+# ------------------------------------------------------------------------- throughput
+def worker(k: int, cache: str) -> None:
+    """K reconstruction nodes of the face patch in this one process (pinned to CPU 0)."""
+    os.sched_setaffinity(0, {0})
+    from rclpy.executors import SingleThreadedExecutor
+
+    from eit_skin.nodes.reconstruction import ReconstructionNode
+
+    rclpy.init()
+    executor = SingleThreadedExecutor()
+    nodes = []
+    for i in range(k):
+        node = ReconstructionNode(
+            namespace=f"/p{i}",
+            parameter_overrides=[
+                rclpy.parameter.Parameter("patch_config", value="face"),
+                rclpy.parameter.Parameter("cache_dir", value=cache),
+                rclpy.parameter.Parameter("marker_period_s", value=0.0),
+            ],
+        )
+        nodes.append(node)
+        executor.add_node(node)
+    print("ready", flush=True)
+    with contextlib.suppress(KeyboardInterrupt):
+        executor.spin()
+
+
+def throughput(k: int, seconds: float, workdir: Path, cache: Path, frames: np.ndarray) -> float:
+    """Fraction of frames imaged with K patches at 100 Hz each."""
+    os.sched_setaffinity(0, {1})
+    log = (workdir / f"worker_{k}.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, __file__, "--worker", str(k), "--cache", str(cache)],
+        stdout=subprocess.PIPE, stderr=log, text=True,
+    )  # fmt: skip
+    assert proc.stdout.readline().strip() == "ready", (workdir / f"worker_{k}.log").read_text()
+    probe = Probe(f"bench_feed_{k}")
+    pubs = [
+        probe.node.create_publisher(EitFrame, f"/p{i}/pressure/frames", BEST_EFFORT)
+        for i in range(k)
+    ]
+    counts = [0] * k
+    for i in range(k):
+        probe.node.create_subscription(
+            Image,
+            f"/p{i}/pressure/image",
+            lambda m, i=i: counts.__setitem__(i, counts[i] + 1),
+            BEST_EFFORT,
+        )
+    probe.spin_for(2.0)
+    period = 0.01
+    n = 0
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        stamp = time.time_ns()
+        for pub in pubs:
+            pub.publish(frame_msg("pressure", frames[n % len(frames)], n, stamp))
+        n += 1
+        while time.perf_counter() < start + n * period:
+            probe.executor.spin_once(timeout_sec=max(0.0, start + n * period - time.perf_counter()))
+    probe.spin_for(1.0)
+    probe.close()
+    proc.send_signal(2)
+    proc.wait(10)
+    reference_frames = 20  # the first frames of each node become its reference, no image
+    return sum(counts) / (k * max(1, n - reference_frames))
+
+
+# ----------------------------------------------------------------------------- memory
+def memory(seconds: float, workdir: Path, cache: Path) -> list[tuple[float, float]]:
+    frames = simulated_frames("face", 500)["pressure"]
+    probe = Probe("bench_memory")
+    pub = probe.node.create_publisher(EitFrame, "/m/pressure/frames", BEST_EFFORT)
+    node = start_node(
+        "eit_reconstruction", "/m",
+        {"patch_config": "face", "cache_dir": str(cache), "marker_period_s": 0.5},
+        workdir / "memory.log",
+    )  # fmt: skip
+    time.sleep(3.0)
+    samples = []
+    start = time.perf_counter()
+    n = 0
+    next_sample = 0.0
+    while (now := time.perf_counter() - start) < seconds:
+        pub.publish(frame_msg("pressure", frames[n % 500], n, time.time_ns()))
+        n += 1
+        if now >= next_sample:
+            rss = _rss_mb(node.pid)
+            samples.append((now, rss))
+            next_sample += 10.0
+        delay = start + n * 0.001 - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+    samples.append((time.perf_counter() - start, _rss_mb(node.pid)))
+    stop_node(node)
+    probe.close()
+    return samples
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--worker", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument("--cache", default="", help=argparse.SUPPRESS)
+    parser.add_argument("--memory-seconds", type=float, default=600.0)
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("skin.md"))
+    args = parser.parse_args()
+    if args.worker:
+        worker(args.worker, args.cache)
+        return
+    workdir = Path(tempfile.mkdtemp(prefix="eit_bench_skin_"))
+    cache = workdir / "cache"
+    build_cache(cache, ["arm", "face"])
+    seconds = 5.0 if args.quick else 20.0
+    rclpy_lines = []
+
+    lat = latency(seconds, workdir, cache)
+    print(f"latency: {lat}")
+    face = simulated_frames("face", 500)["pressure"]
+    results = []
+    for k in (1, 5, 10, 20, 30, 40) if not args.quick else (1, 10, 20):
+        share = throughput(k, seconds, workdir, cache, face)
+        results.append((k, share))
+        print(f"throughput: {k} patches at 100 Hz -> {100 * share:.1f} % of frames imaged")
+        if share < 0.9:
+            break
+    mem_seconds = 60.0 if args.quick else args.memory_seconds
+    mem = memory(mem_seconds, workdir, cache)
+    print(f"memory: {mem}")
+
+    sustained = max([k for k, share in results if share >= 0.99], default=0)
+    warm = [rss for t, rss in mem if t >= 30.0] or [mem[-1][1]]
+    lines = [
+        "# Running skin: latency, throughput, memory",
+        "",
+        f"`python bench/bench_skin.py{' --quick' if args.quick else ''}` on {platform.node()}: "
+        f"{os.cpu_count()} cores, Python {platform.python_version()}, "
+        "OPENBLAS_NUM_THREADS=1. Other work may share the machine; numbers are one run.",
+        "",
+        "## End-to-end latency (arm, 2 layers, 100 Hz): frame publish -> pressure image received",
+        "",
+        f"{lat['received']}/{lat['sent']} images; median **{lat['median_ms']:.2f} ms**, "
+        f"p99 **{lat['p99_ms']:.2f} ms** (includes DDS both ways and the marker at 2 Hz).",
+        "",
+        "## Patches at 100 Hz per reconstruction process on one core (face, 1 layer each)",
+        "",
+        "| patches | frames imaged |",
+        "|---|---|",
+        *[f"| {k} | {100 * share:.1f} % |" for k, share in results],
+        "",
+        f"Sustained without loss (>= 99 % imaged): **{sustained} patches** "
+        "(the process pinned to CPU 0, the feeder to CPU 1).",
+        "",
+        f"## Memory at 1 kHz for {mem_seconds:.0f} s (face, resident set size)",
+        "",
+        "| t (s) | RSS (MB) |",
+        "|---|---|",
+        *[f"| {t:.0f} | {rss:.1f} |" for t, rss in mem],
+        "",
+        f"Growth after the first 30 s: **{warm[-1] - warm[0]:+.1f} MB**.",
+        *rclpy_lines,
+    ]
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
