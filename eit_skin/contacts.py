@@ -1,0 +1,333 @@
+"""Contact regions in reconstructed images: noise estimate, hysteresis segmentation, tracking.
+
+A reconstructed pressure image (Pa, ``[H, W]``, NaN outside the sheet) is noisy everywhere and
+blurred around a touch. Contacts are found relative to the image noise ``sigma`` (same unit as
+the image), estimated robustly from no-touch frames (:func:`estimate_noise`):
+
+1. hysteresis: connected regions (8-neighbour) of pixels above the low threshold that contain
+   at least one pixel above the high threshold. The thresholds are ``k_low * sigma`` and
+   ``k_high * sigma``, raised to ``artifact_fraction / 2`` and ``artifact_fraction`` of the
+   frame's largest value: a one-step EIT reconstruction of a strong touch rings elsewhere on
+   the sheet with a few per cent of its peak, which no noise threshold removes;
+2. splitting: EIT blur merges nearby fingertips into one region, so each region is split into
+   the separate peaks it holds at ``split_fraction`` of its maximum; every pixel of the region
+   goes to the nearest peak;
+3. each part is a :class:`Contact`: value-weighted centroid (m, patch frame), area (m^2, the
+   pixels above ``k_low * sigma``), peak and mean (image unit).
+
+:class:`ContactTracker` keeps ids across frames: nearest-neighbour assignment (Hungarian) within
+a gate in metres; a track missing for more than ``max_missed`` frames is dropped.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import linear_sum_assignment
+
+MAD_TO_SIGMA = 1.4826
+"""Standard deviation of a normal distribution per median absolute deviation."""
+_EIGHT = np.ones((3, 3), dtype=bool)
+
+
+def estimate_noise(images: np.ndarray) -> float:
+    """Robust noise standard deviation of no-touch images ``[T, H, W]`` (image unit).
+
+    Each pixel's temporal median is removed (the static reconstruction offset), then the
+    median absolute deviation over all finite samples is scaled to a standard deviation, so a
+    brief touch or a few outliers among the frames barely change it. With a single frame
+    ``[H, W]`` the spatial median is removed instead.
+
+    Raises:
+        ValueError: no finite sample, or the noise is zero.
+    """
+    a = np.asarray(images, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[None]
+    if a.ndim != 3:
+        raise ValueError(f"noise estimate needs images [T, H, W], got shape {a.shape}")
+    a = np.where(np.isfinite(a), a, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels outside the sheet
+        if a.shape[0] >= 3:
+            centred = a - np.nanmedian(a, axis=0, keepdims=True)
+        else:
+            centred = a - np.nanmedian(a)
+    values = np.abs(centred[np.isfinite(centred)])
+    if values.size == 0:
+        raise ValueError("noise estimate: no finite pixel in the images")
+    sigma = MAD_TO_SIGMA * float(np.median(values))
+    if not sigma > 0:
+        raise ValueError("noise estimate: the images do not vary (zero noise)")
+    return sigma
+
+
+def estimate_noise_map(images: np.ndarray, window: int = 5) -> np.ndarray:
+    """Per-pixel robust noise ``[H, W]`` of no-touch images ``[T, H, W]`` (image unit).
+
+    EIT image noise is not uniform over the sheet. Each pixel's median absolute deviation over
+    time (scaled to a standard deviation) is averaged over a ``window`` x ``window``
+    neighbourhood (few frames give a noisy per-pixel estimate) and floored at half the global
+    :func:`estimate_noise`. Pixels outside the sheet get the global value.
+    """
+    a = np.asarray(images, dtype=np.float64)
+    if a.ndim != 3 or a.shape[0] < 3:
+        raise ValueError(f"noise map needs >= 3 images [T, H, W], got shape {a.shape}")
+    overall = estimate_noise(a)
+    a = np.where(np.isfinite(a), a, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mad = np.nanmedian(np.abs(a - np.nanmedian(a, axis=0)), axis=0) * MAD_TO_SIGMA
+    ok = np.isfinite(mad)
+    total = ndimage.uniform_filter(np.where(ok, mad, 0.0), window, mode="constant")
+    weight = ndimage.uniform_filter(ok.astype(float), window, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = total / weight
+    smooth = np.where(ok & np.isfinite(smooth), smooth, overall)
+    return np.maximum(smooth, 0.5 * overall)
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """Thresholds of the hysteresis segmentation, as multiples of the noise ``sigma``.
+
+    Attributes:
+        k_high: a region needs a pixel above ``k_high * sigma`` (seed). With Gaussian noise a
+            pixel exceeds 6 sigma with probability 1e-9 per frame.
+        k_low: the region grows over pixels above ``k_low * sigma``.
+        split_fraction: fraction of a region's peak at which separate peaks are split apart.
+        artifact_fraction: a region whose peak is below this fraction of the frame's largest
+            value is a reconstruction artifact (sidelobe), not a contact.
+        min_pixels: regions with fewer pixels above the low threshold are ignored.
+    """
+
+    k_high: float = 6.0
+    k_low: float = 3.0
+    split_fraction: float = 0.5
+    artifact_fraction: float = 0.2
+    min_pixels: int = 2
+
+    def __post_init__(self) -> None:
+        if not 0 < self.k_low <= self.k_high:
+            raise ValueError(f"need 0 < k_low <= k_high, got {self.k_low} and {self.k_high}")
+        if not 0 < self.split_fraction < 1:
+            raise ValueError(f"split_fraction must be in (0, 1), got {self.split_fraction}")
+        if not 0 <= self.artifact_fraction < 1:
+            raise ValueError(f"artifact_fraction must be in [0, 1), got {self.artifact_fraction}")
+        if self.min_pixels < 1:
+            raise ValueError(f"min_pixels must be >= 1, got {self.min_pixels}")
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One contact region of one image.
+
+    Attributes:
+        centroid_m: ``(x, y)`` value-weighted centroid, m, patch frame.
+        area_m2: area of the region's pixels, m^2.
+        peak: largest value in the region (image unit, Pa for pressure).
+        mean: mean value over the region (image unit).
+        n_pixels: pixels in the region.
+    """
+
+    centroid_m: tuple[float, float]
+    area_m2: float
+    peak: float
+    mean: float
+    n_pixels: int
+
+    @property
+    def radius_m(self) -> float:
+        """Radius of the disc of the same area, m."""
+        return float(np.sqrt(self.area_m2 / np.pi))
+
+
+class ContactSegmenter:
+    """Segments contacts in ``[H, W]`` images on a regular pixel grid.
+
+    Args:
+        x: ``[W]`` pixel-centre x, m (uniform spacing).
+        y: ``[H]`` pixel-centre y, m.
+        noise_sigma: image noise standard deviation (image unit), > 0: a scalar or a
+            per-pixel ``[H, W]`` map (:func:`estimate_noise_map`).
+        config: thresholds.
+    """
+
+    def __init__(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        noise_sigma: float | np.ndarray,
+        config: SegmentationConfig | None = None,
+    ) -> None:
+        self.x = np.asarray(x, dtype=np.float64)
+        self.y = np.asarray(y, dtype=np.float64)
+        if self.x.ndim != 1 or self.y.ndim != 1 or self.x.size < 2 or self.y.size < 2:
+            raise ValueError("pixel coordinates x [W] and y [H] need at least 2 entries each")
+        sigma = np.asarray(noise_sigma, dtype=np.float64)
+        if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0)):
+            raise ValueError("noise_sigma must be finite and > 0")
+        if sigma.ndim not in (0, 2) or (sigma.ndim == 2 and sigma.shape != (y.size, x.size)):
+            raise ValueError(f"noise_sigma: a scalar or [H, W] = {(len(y), len(x))} map")
+        self.noise_sigma = float(sigma) if sigma.ndim == 0 else sigma
+        self.config = config or SegmentationConfig()
+        self.pixel_area_m2 = float(abs(self.x[1] - self.x[0]) * abs(self.y[1] - self.y[0]))
+        self._xx, self._yy = np.meshgrid(self.x, self.y)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.y.size, self.x.size)
+
+    @property
+    def high(self) -> float:
+        return self.config.k_high * self.noise_sigma
+
+    @property
+    def low(self) -> float:
+        return self.config.k_low * self.noise_sigma
+
+    def labels(self, image: np.ndarray) -> tuple[np.ndarray, int]:
+        """``([H, W] int32 labels, n)``: 0 is background, 1..n the contacts of ``image``."""
+        img = np.asarray(image, dtype=np.float64)
+        if img.shape != self.shape:
+            raise ValueError(f"image shape {img.shape} does not match the grid {self.shape}")
+        img = np.where(np.isfinite(img), img, -np.inf)
+        top = float(img.max()) if img.size else -np.inf
+        high = np.maximum(self.high, self.config.artifact_fraction * top)
+        low = img > np.maximum(self.low, 0.5 * self.config.artifact_fraction * top)
+        regions, n = ndimage.label(low, structure=_EIGHT)
+        if n == 0:
+            return regions, 0
+        index = np.arange(1, n + 1)
+        peaks = ndimage.maximum(img, regions, index)
+        # seeds: pixels above the (per-pixel) high threshold
+        seeded = ndimage.maximum((img > high).astype(np.int8), regions, index) > 0
+        sizes = np.bincount(regions.ravel(), minlength=n + 1)[1:]
+        keep = np.zeros(n + 1, dtype=bool)
+        keep[1:] = seeded & (sizes >= self.config.min_pixels)
+        regions = np.where(keep[regions], regions, 0)
+        if not keep.any():
+            return np.zeros_like(regions), 0
+        # split every region at split_fraction of its own peak; nearest peak owns each pixel
+        region_peak = np.zeros(n + 1)
+        region_peak[1:] = peaks
+        cores = (regions > 0) & (img > self.config.split_fraction * region_peak[regions])
+        core_labels, n_cores = ndimage.label(cores, structure=_EIGHT)
+        _, (iy, ix) = ndimage.distance_transform_edt(core_labels == 0, return_indices=True)
+        parts = np.where(regions > 0, core_labels[iy, ix], 0).astype(np.int32)
+        return parts, n_cores
+
+    def segment(self, image: np.ndarray) -> list[Contact]:
+        """Contacts of one image ``[H, W]``, strongest peak first."""
+        parts, n = self.labels(image)
+        if n == 0:
+            return []
+        img = np.where(np.isfinite(image), image, 0.0).astype(np.float64)
+        flat = parts.ravel()
+        w = np.where(flat > 0, np.clip(img.ravel(), 0.0, None), 0.0)
+        count = np.bincount(flat, minlength=n + 1)[1:]
+        wsum = np.bincount(flat, weights=w, minlength=n + 1)[1:]
+        vsum = np.bincount(flat, weights=img.ravel(), minlength=n + 1)[1:]
+        cx = np.bincount(flat, weights=w * self._xx.ravel(), minlength=n + 1)[1:]
+        cy = np.bincount(flat, weights=w * self._yy.ravel(), minlength=n + 1)[1:]
+        peak = ndimage.maximum(img, parts, np.arange(1, n + 1))
+        contacts = [
+            Contact(
+                centroid_m=(float(cx[i] / wsum[i]), float(cy[i] / wsum[i])),
+                area_m2=float(count[i] * self.pixel_area_m2),
+                peak=float(peak[i]),
+                mean=float(vsum[i] / count[i]),
+                n_pixels=int(count[i]),
+            )
+            for i in range(n)
+            if count[i] >= self.config.min_pixels and wsum[i] > 0
+        ]
+        contacts.sort(key=lambda c: -c.peak)
+        return contacts
+
+
+@dataclass
+class Track:
+    """A contact followed over frames.
+
+    Attributes:
+        id: track id, unique per tracker.
+        contact: latest contact.
+        first_seen_s, last_seen_s: times of the first and latest frame it was seen, s.
+        start_m: ``(x, y)`` centroid when first seen, m.
+        missed: consecutive frames without a match.
+        frames: frames it was seen in.
+    """
+
+    id: int
+    contact: Contact
+    first_seen_s: float
+    last_seen_s: float
+    start_m: tuple[float, float]
+    missed: int = 0
+    frames: int = 1
+    path: list[tuple[float, float, float]] = field(default_factory=list)
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.asarray(self.contact.centroid_m)
+
+
+class ContactTracker:
+    """Keeps contact ids over frames by gated nearest-neighbour assignment.
+
+    Args:
+        gate_m: largest centroid jump between consecutive frames that keeps an id, m.
+        max_missed: frames a track may go unseen before it is dropped.
+    """
+
+    def __init__(self, gate_m: float, max_missed: int = 2) -> None:
+        if not gate_m > 0:
+            raise ValueError(f"gate_m must be > 0, got {gate_m}")
+        if max_missed < 0:
+            raise ValueError(f"max_missed must be >= 0, got {max_missed}")
+        self.gate_m = float(gate_m)
+        self.max_missed = int(max_missed)
+        self.tracks: list[Track] = []
+        self._next_id = 1
+
+    def update(self, t_s: float, contacts: list[Contact]) -> list[Track]:
+        """Match this frame's contacts to the tracks; returns the tracks seen in this frame."""
+        matched_tracks: set[int] = set()
+        matched_contacts: set[int] = set()
+        if self.tracks and contacts:
+            a = np.array([tr.position for tr in self.tracks])
+            b = np.array([c.centroid_m for c in contacts])
+            d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
+            rows, cols = linear_sum_assignment(np.where(d <= self.gate_m, d, 1e6))
+            for r, c in zip(rows, cols, strict=True):
+                if d[r, c] <= self.gate_m:
+                    tr = self.tracks[r]
+                    tr.contact = contacts[c]
+                    tr.last_seen_s = t_s
+                    tr.missed = 0
+                    tr.frames += 1
+                    tr.path.append((t_s, *contacts[c].centroid_m))
+                    matched_tracks.add(r)
+                    matched_contacts.add(c)
+        survivors = []
+        for i, tr in enumerate(self.tracks):
+            if i not in matched_tracks:
+                tr.missed += 1
+                if tr.missed > self.max_missed:
+                    continue
+            survivors.append(tr)
+        for j, c in enumerate(contacts):
+            if j not in matched_contacts:
+                tr = Track(self._next_id, c, t_s, t_s, c.centroid_m, path=[(t_s, *c.centroid_m)])
+                self._next_id += 1
+                survivors.append(tr)
+        self.tracks = survivors
+        return [tr for tr in self.tracks if tr.missed == 0]
+
+    def reset(self) -> None:
+        """Forget every track (ids keep counting up)."""
+        self.tracks = []

@@ -1,0 +1,57 @@
+"""``eit-skin classify`` end to end on a short simulated elbow push (cached imager)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from eit_skin.cli import main
+from eit_skin.patch import load_patch
+from eit_skin.resources import config_path
+from eit_skin.simulator import SkinSimulator
+
+
+@pytest.fixture(scope="module")
+def elbow_push(tmp_path_factory):
+    out = tmp_path_factory.mktemp("push")
+    patch = load_patch(config_path("elbow"))
+    recording = SkinSimulator(patch, "push", rate_hz=50.0, seed=11).run()
+    recording.save(out)
+    return out, recording.truth[0]
+
+
+def test_classify_prints_the_finished_push(elbow_push, capsys, monkeypatch, tmp_path) -> None:
+    out, truth = elbow_push
+    monkeypatch.setenv("EIT_SKIN_CACHE", str(tmp_path.parent / "imager-cache"))
+    code = main(
+        ["classify", "--patch", "elbow", "--frames", str(out / "pressure.npz"), "--rate", "50"]
+    )
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert code == 0 and len(lines) == 1
+    event = json.loads(lines[0])
+    assert set(event) == {"label", "t_start", "t_end", "confidence", "centroid"}
+    assert event["label"] == "push"
+    assert truth.t_start_s <= event["t_start"] <= truth.t_start_s + 0.15
+    assert event["t_end"] == pytest.approx(truth.t_end_s, abs=0.15)
+    assert event["centroid"] == pytest.approx(list(truth.contacts[0]), abs=0.01)
+    assert 0.0 <= event["confidence"] <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--frames", "/nonexistent.npz", "--rate", "50"], "/nonexistent.npz: no such file"),
+        (["--frames", "{out}/pressure.npz", "--rate", "0"], "--rate: must be > 0"),
+        (
+            ["--frames", "{out}/pressure.npz", "--rate", "50", "--stretch-frames", "x.npz"],
+            "has no layer 'stretch'",
+        ),
+    ],
+)
+def test_bad_input_is_one_line_error(elbow_push, capsys, extra, message) -> None:
+    out, _ = elbow_push
+    args = ["classify", "--patch", "elbow"] + [a.format(out=out) for a in extra]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err and err.startswith("eit-skin classify: error:")
