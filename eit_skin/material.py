@@ -64,29 +64,30 @@ class Material:
     def to_physical(self, relative_change: np.ndarray | float) -> np.ndarray:
         """Physical quantity (Pa or strain) from ``r = dsigma/sigma0``; any shape, same shape out.
 
-        For stretch, ``r <= -1`` (conductivity gone) maps to ``+inf`` strain without warnings.
+        For stretch, ``r <= -1`` (conductivity gone) maps to ``+inf`` strain without warnings;
+        NaN (no sheet there) stays NaN.
         """
         r = np.asarray(relative_change, dtype=float)
         if self.quantity == "pressure":
             return self.pressure_scale_pa * r
         gain = self.gauge_factor
-        positive = r > -1.0
-        safe = np.where(positive, 1.0 + r, 1.0)
-        return np.where(positive, (1.0 / safe - 1.0) / gain, np.inf)
+        gone = r <= -1.0
+        safe = np.where(gone, 1.0, 1.0 + r)
+        return np.where(gone, np.inf, (1.0 / safe - 1.0) / gain)
 
     def from_physical(self, quantity: np.ndarray | float) -> np.ndarray:
         """Relative conductivity change ``r`` from a pressure (Pa) or strain; same shape out.
 
         For stretch, ``strain <= -1/gauge_factor`` would need infinite conductivity and
-        maps to ``+inf``.
+        maps to ``+inf``; NaN stays NaN.
         """
         q = np.asarray(quantity, dtype=float)
         if self.quantity == "pressure":
             return q / self.pressure_scale_pa
         denominator = 1.0 + self.gauge_factor * q
-        positive = denominator > 0
-        safe = np.where(positive, denominator, 1.0)
-        return np.where(positive, 1.0 / safe - 1.0, np.inf)
+        gone = denominator <= 0
+        safe = np.where(gone, 1.0, denominator)
+        return np.where(gone, np.inf, 1.0 / safe - 1.0)
 
     def conductance(self, quantity: np.ndarray | float) -> np.ndarray:
         """Sheet conductance (S) under a pressure (Pa) or strain; same shape out."""

@@ -508,6 +508,11 @@ def test_stretch_material_follows_gauge_law_and_guards_r_minus_one():
     assert np.isinf(out[:2]).all() and out[2] == 0.0
     assert np.isinf(back).all()
     assert not np.isnan(out).any()
+    # NaN marks "no sheet here" in images (holes, outside): it must stay NaN, not +inf
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(m.to_physical(np.array([np.nan]))).all()
+        assert np.isnan(m.from_physical(np.array([np.nan]))).all()
 
 
 @pytest.mark.parametrize(
