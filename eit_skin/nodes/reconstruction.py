@@ -26,7 +26,7 @@ from geometry_msgs.msg import Point
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA
 from std_srvs.srv import Trigger
@@ -41,6 +41,13 @@ from eit_skin.node_graph import image_topics
 from eit_skin.patch import Layer, PatchError, load_patch
 from eit_skin.reference import PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
+
+#: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
+FRAME_QOS = QoSProfile(
+    depth=20,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability,
+)
 
 #: The rviz marker mesh is this many times coarser than the layer's mesh (cheap to send).
 MARKER_EDGE_FACTOR = 2.5
@@ -79,6 +86,7 @@ class LayerState:
     dropped: int = 0
     last_sequence: int | None = None
     latencies_ms: list[float] = field(default_factory=list)
+    processing_ms: list[float] = field(default_factory=list)
     last_values: np.ndarray | None = None
     last_image: np.ndarray | None = None
     recent: list[np.ndarray] = field(default_factory=list)
@@ -142,7 +150,7 @@ class ReconstructionNode(Node):
                 _frame_type(),
                 f"{layer.name}/frames",
                 lambda msg, name=layer.name: self._on_frame(name, msg),
-                qos_profile_sensor_data,
+                FRAME_QOS,
             )
         self.joint = joint
         if joint:
@@ -194,8 +202,9 @@ class ReconstructionNode(Node):
                 state.dropped += gap - 1
         state.last_sequence = msg.sequence
         stamp_s = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        frame = np.asarray(msg.voltages, dtype=np.float64)
-        flags = np.asarray(msg.channel_flags, dtype=np.uint8) if len(msg.channel_flags) else None
+        started = time.perf_counter()
+        frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
+        flags = np.frombuffer(msg.channel_flags, np.uint8) if len(msg.channel_flags) else None
         tracker = state.tracker
         if not tracker.ready:
             if tracker.capture(frame, stamp_s):
@@ -226,6 +235,8 @@ class ReconstructionNode(Node):
         state.rate.tick(now)
         state.latencies_ms.append((now * 1e-9 - stamp_s) * 1e3)
         del state.latencies_ms[:-500]
+        state.processing_ms.append((time.perf_counter() - started) * 1e3)
+        del state.processing_ms[:-500]
 
     def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
         height, width = physical.shape
@@ -312,6 +323,7 @@ class ReconstructionNode(Node):
                 "reconstruction_rate_hz": f"{state.rate.rate_hz(now):.1f}",
                 "latency_median_ms": f"{np.median(latency):.2f}",
                 "latency_p99_ms": f"{np.percentile(latency, 99):.2f}",
+                "processing_median_ms": f"{np.median(state.processing_ms or [np.nan]):.3f}",
                 "frames_imaged": str(state.imaged),
                 "frames_dropped": str(state.dropped),
                 "frames_rejected": str(state.rejected),
