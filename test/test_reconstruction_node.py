@@ -96,7 +96,6 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         assert done, driver_log.read_text() + recon_log.read_text()
         probe.spin_for(0.5)
         images = probe.messages["/arm/pressure/image"]
-        assert len(images) > 100
         frames = {
             m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m.sequence
             for _, m in probe.messages["/arm/pressure/frames"]
