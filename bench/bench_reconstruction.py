@@ -38,9 +38,10 @@ from eit_skin.reconstruction import ReconstructionMatrix
 from test.forward_meshes import disk_mesh
 
 R = 0.05
-NOISE_FIGURE = 0.3
+NOISE_FIGURE = 0.3  # Laplace prior (its previous default)
+GREIT_NOISE_FIGURE = 0.13  # trained matrix, the shipped default
 OUT = Path(__file__).resolve().parent
-SIZES = [0.0066, 0.0047, 0.0033, 0.0023, 0.0016]  # ~0.7k, 1.4k, 2.8k, 5.8k, 11.5k triangles
+SIZES = [0.0066, 0.0047, 0.0036, 0.0033, 0.0023, 0.0016]  # 0.7k, 1.3k, 2.2k, 2.7k, 5.4k, 11k
 SWEEP = [0.012, 0.010, 0.008, 0.0066, 0.0047, 0.0033]  # inverse h over a 2.3 mm forward mesh
 
 
@@ -121,6 +122,10 @@ def main() -> None:
             v = v + rng.normal(0, 0.01 * np.sqrt(np.mean((v - v0) ** 2)), v.size)
             phantoms.append((c, v))
     frames = np.stack([v for _, v in phantoms])
+    # large contrast for Gauss-Newton: x20 conductance, radius 0.2 R, at (-0.3, 0.4) R
+    sig = np.ones(fine.mesh.n_triangles)
+    sig[np.linalg.norm(fine.mesh.centroids - np.array([-0.3, 0.4]) * R, axis=1) < 0.2 * R] = 20.0
+    large = fine.voltages(sig)
     print(f"data mesh {fine.mesh.n_triangles} triangles, {len(phantoms)} phantoms", flush=True)
     sizes = SIZES[:3] if args.quick else SIZES
     rows = []
@@ -129,28 +134,39 @@ def main() -> None:
         grid = ImageGrid.build(mesh, 64)
         t = time.perf_counter()
         fwd = ForwardModel(mesh, protocol, 1e-4)
-        rm = ReconstructionMatrix.build(fwd, prior="laplace", noise_figure=NOISE_FIGURE)
+        rm = ReconstructionMatrix.build(fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE)
         build = time.perf_counter() - t
+        t = time.perf_counter()
+        fwd_l = ForwardModel(mesh, protocol, 1e-4)
+        rm_l = ReconstructionMatrix.build(fwd_l, prior="laplace", noise_figure=NOISE_FIGURE)
+        build_l = time.perf_counter() - t
         frame_t = median_time(lambda rm=rm: rm.reconstruct(frames[0], v0), 50)
         batch_t = median_time(lambda rm=rm: rm.reconstruct(frames, v0), 10) / len(frames)
         ours = merit(grid, rm.reconstruct(frames, v0), phantoms)
-        prior = make_prior("laplace", mesh)
-        big = phantoms[12][1]
-        gn_times, gn_iters = [], 0
-        for _ in range(3):
-            t = time.perf_counter()
-            gn = gauss_newton_difference(
-                fwd, big, v0, prior=prior, hyperparameter=0.03, max_iterations=5, tolerance=0.0
-            )
-            gn_times.append(time.perf_counter() - t)
-            gn_iters = gn.iterations
-        gn_t = float(np.median(gn_times))
+        lap = merit(grid, rm_l.reconstruct(frames, v0), phantoms)
+        gn_ms = []
+        for prior in ("noser", make_prior("laplace", mesh)):
+            gn_times, gn_iters = [], 0
+            for _ in range(5):
+                t = time.perf_counter()
+                gn = gauss_newton_difference(
+                    fwd,
+                    large,
+                    v0,
+                    prior=prior,
+                    hyperparameter=0.01,
+                    max_iterations=5,
+                    tolerance=0.0,
+                )
+                gn_times.append(time.perf_counter() - t)
+                gn_iters = gn.iterations
+            gn_ms.append((float(np.median(gn_times)) * 1e3, gn_iters))
         if mesh.n_triangles <= args.no_pyeit_above:
             py_build, py_frame, py = pyeit_case(mesh, protocol, frames, v0, phantoms, grid)
         else:
             py_build, py_frame, py = float("nan"), float("nan"), (float("nan"),) * 4
-        row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_t * 1e3, gn_iters)
-        row += (*ours, py_build, py_frame * 1000.0, *py)
+        row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_ms[0][0], gn_ms[0][1])
+        row += (*ours, py_build, py_frame * 1000.0, *py, build_l, *lap, *gn_ms[1])
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
     sweep = []
@@ -160,7 +176,7 @@ def main() -> None:
         grid = ImageGrid.build(inv, 64)
         t = time.perf_counter()
         rm = ReconstructionMatrix.build(
-            fwd, prior="laplace", noise_figure=NOISE_FIGURE, inverse_mesh=inv
+            fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE, inverse_mesh=inv
         )
         build = time.perf_counter() - t
         row = (h / R, inv.n_triangles, build, *merit(grid, rm.reconstruct(frames, v0), phantoms))
@@ -179,7 +195,7 @@ def write_report(rows, sweep, sweep_fwd, data_n, quick):
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
     ax[0].loglog(a[:, 0], a[:, 1], "o-", label="eit_skin build")
     ax[0].loglog(a[:, 0], a[:, 10], "s-", label="pyEIT JAC build")
-    ax[0].loglog(a[:, 0], a[:, 4] / 1e3, "^-", label="eit_skin 5 GN iterations")
+    ax[0].loglog(a[:, 0], a[:, 4] / 1e3, "^-", label="eit_skin 5 GN iterations (NOSER)")
     ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame")
     ax[0].loglog(a[:, 0], a[:, 11] / 1e3, "s:", label="pyEIT frame")
     ax[0].set_xlabel("triangles")
@@ -212,25 +228,30 @@ def write_report(rows, sweep, sweep_fwd, data_n, quick):
         ".venv/bin/python bench/bench_reconstruction.py`.",
         "",
         f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
-        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: Laplace prior, "
-        f"noise figure {NOISE_FIGURE}; pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
+        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
+        f"matrix (`prior: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
+        f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
+        "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
         "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
         "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
         "median of 50 (30 for pyEIT) single-frame calls; batched: 30 frames in one call, "
-        "median of 10, per frame. GN: 5 iterations (tolerance 0), median of 3 runs. "
+        "median of 10, per frame. GN: 5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R "
+        "target, median of 5 runs, iterations actually taken in brackets. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
         "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
         "",
-        "| triangles | build s | frame ms | batched ms/frame | 5 GN iters ms | max PE | RES "
-        "| RNG | SD | pyEIT build s | pyEIT frame ms | pyEIT max PE | pyEIT RES | pyEIT RNG "
-        "| pyEIT SD |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| triangles | build s | frame ms | batched ms/frame | max PE | RES | RNG | SD "
+        "| Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
+        "| pyEIT frame ms | pyEIT max PE | pyEIT RES | pyEIT RNG | pyEIT SD "
+        "| 5 GN NOSER ms (iters) | 5 GN Laplace ms (iters) |",
+        "|" + "---|" * 20,
     ]
     for r in rows:
         lines.append(
-            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[4]:.0f} | {r[6]:.4f} | "
-            f"{r[7]:.3f} | {r[8]:.2f} | {r[9]:.2f} | {r[10]:.2f} | {r[11]:.3f} | {r[12]:.4f} | "
-            f"{r[13]:.3f} | {r[14]:.2f} | {r[15]:.2f} |"
+            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[6]:.4f} | {r[7]:.3f} | "
+            f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
+            f"{r[10]:.2f} | {r[11]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | {r[15]:.2f} | "
+            f"{r[4]:.0f} ({r[5]}) | {r[21]:.0f} ({r[22]}) |"
         )
     lines += [
         "",

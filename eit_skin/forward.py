@@ -65,6 +65,24 @@ class ForwardSolution:
 
 
 @dataclass(frozen=True, eq=False)
+class JacobianBasis:
+    """The Jacobian in factored form: ``jacobian = combination @ products`` ``[M, n_triangles]``.
+
+    Every measurement's sensitivity is a signed sum of four element-wise products of the
+    gradients of two unit-current fields (``n_el - 1`` non-zero fields, ground excluded), so
+    only the ``(n_el - 1) n_el / 2`` distinct products are stored.
+
+    Attributes:
+        products: ``[P, n_triangles]`` ``int_t grad w_a . grad w_b dA`` (ohm^2) for the pairs
+            ``a <= b`` of unit-current fields ``w`` (row-major upper triangle).
+        combination: ``[M, P]`` sparse CSR, amperes: ``-current_a`` times the signed pair sums.
+    """
+
+    products: np.ndarray
+    combination: sp.csr_matrix
+
+
+@dataclass(frozen=True, eq=False)
 class _Factorised:
     sigma: np.ndarray  # [n_triangles] the conductance this belongs to
     basis: np.ndarray  # [n_nodes + n_el, n_el] fields for 1 A into electrode l (ground: last)
@@ -371,6 +389,42 @@ class ForwardModel:
                 out[sl] = np.einsum("cdt,cdt->ct", gu, gv)
         out *= -self._current_a
         return out
+
+    def jacobian_basis(self, sigma) -> JacobianBasis:
+        """:meth:`jacobian` factored as ``combination @ products`` (see :class:`JacobianBasis`).
+
+        Uses the same factorisation as :meth:`solve` (cached per conductivity); cheaper than
+        :meth:`jacobian` and lets a Gauss-Newton step work with ``P < M`` rows.
+        """
+        s = self._sigma_array(sigma)
+        n_el, n_t = self._n_el, self.n_elements
+        f = n_el - 1  # the ground electrode's field is identically zero
+        basis = self._factorise(s).basis[: self._n_nodes, :f]  # [n_nodes, f]
+        gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
+        gw = gw * np.sqrt(self._area)  # [f, 2, t]
+        a_idx, b_idx = np.triu_indices(f)
+        products = np.empty((a_idx.size, n_t))  # rows (a, a..f-1) for a = 0..f-1
+        row = 0
+        for a in range(f):  # one block of rows per field (f ~ 15), vectorised over elements
+            block = products[row : row + f - a]
+            np.multiply(gw[a, 0], gw[a:, 0], out=block)
+            block += gw[a, 1] * gw[a:, 1]
+            row += f - a
+        pair = np.full((n_el, n_el), -1, dtype=np.int64)
+        pair[a_idx, b_idx] = np.arange(a_idx.size)
+        pair[b_idx, a_idx] = np.arange(a_idx.size)
+        inj = self._protocol.injections
+        k, p, m = self._protocol.measurements.T
+        src, snk = inj[k, 0], inj[k, 1]
+        rows = np.tile(np.arange(k.size), 4)
+        cols = np.concatenate([pair[src, p], pair[src, m], pair[snk, p], pair[snk, m]])
+        vals = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]) * -self._current_a, k.size)
+        used = cols >= 0
+        combination = sp.csr_matrix(
+            (vals[used], (rows[used], cols[used])), shape=(k.size, a_idx.size)
+        )
+        combination.sum_duplicates()
+        return JacobianBasis(products=products, combination=combination)
 
     def condition_estimate(self, sigma) -> float:
         """1-norm condition number estimate of the scaled, grounded system that is factorised."""

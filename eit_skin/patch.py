@@ -59,7 +59,7 @@ OUTLINE_CIRCLE_SEGMENTS = 128
 HOLE_CIRCLE_SEGMENTS = 16
 MIN_ELECTRODES = 4
 SOLVER_METHODS = ("one_step", "gauss_newton")
-SOLVER_PRIORS = ("laplace", "tikhonov", "noser")
+SOLVER_PRIORS = ("laplace", "tikhonov", "noser", "greit")
 
 
 class PatchError(ValueError):

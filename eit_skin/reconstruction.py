@@ -17,6 +17,9 @@ sparse solves) and an ``M x M`` eigendecomposition are needed, so building scale
 with ``N`` (elements), never ``N^3``. ``lambda^2 = h^2 * trace(J P^-1 J^T) / M`` so
 the hyperparameter ``h`` is dimensionless and comparable between meshes.
 
+``prior="greit"`` builds the GREIT-trained matrix of :mod:`eit_skin.greit` instead, which has
+the same dual form with ``K = Y Y^T`` and ``D Y^T`` from simulated training targets.
+
 Only Cholesky factorisations of the ``M x M`` matrix are used (no eigendecomposition):
 LAPACK's symmetric eigensolver is level-2 BLAS bound and, with a multi-threaded OpenBLAS
 on a busy machine, took ~1 s for ``M = 208`` (a Cholesky factorisation takes ~0.3 ms).
@@ -31,9 +34,13 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from eit_skin.greit import GreitModel, training_set
 from eit_skin.image_grid import locate_points
 from eit_skin.mesh import Mesh
 from eit_skin.priors import Prior, make_prior
+
+#: Methods accepted as ``prior``: the sparse priors and the trained (GREIT) matrix.
+METHODS: tuple[str, ...] = ("laplace", "tikhonov", "noser", "greit")
 
 REFERENCE_FLOOR = 1e-2
 """Channels whose reference is below this fraction of the RMS reference are normalised by it."""
@@ -95,7 +102,8 @@ class ReconstructionMatrix:
         channels: ``[M_used]`` int64 indices of the channels it uses (of ``n_channels``).
         n_channels: ``M``, channels in a full frame.
         hyperparameter: dimensionless ``h`` (see module docstring).
-        prior: the prior it was built with.
+        prior: the prior it was built with, or the :class:`~eit_skin.greit.GreitModel`
+            (training set and simulated responses) of a GREIT-trained matrix.
         jacobian: ``[M, N]`` relative Jacobian (all channels) it was built from.
     """
 
@@ -103,7 +111,7 @@ class ReconstructionMatrix:
     channels: np.ndarray
     n_channels: int
     hyperparameter: float
-    prior: Prior
+    prior: Prior | GreitModel
     jacobian: np.ndarray
     mesh: Mesh | None = None
     _p_inv_jt: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
@@ -125,7 +133,8 @@ class ReconstructionMatrix:
 
         Args:
             forward: the (fine) forward model.
-            prior: ``"tikhonov"``, ``"laplace"`` or ``"noser"``.
+            prior: ``"tikhonov"``, ``"laplace"``, ``"noser"`` or ``"greit"`` (trained matrix,
+                :mod:`eit_skin.greit`).
             hyperparameter: dimensionless ``h``; ``None`` chooses it by ``noise_figure``
                 (:func:`eit_skin.hyperparameter.choose_by_noise_figure`).
             sigma0: reference sheet conductance, siemens, scalar or ``[N_forward]``.
@@ -147,7 +156,7 @@ class ReconstructionMatrix:
         cls,
         jacobian: np.ndarray,
         mesh: Mesh,
-        prior: str | Prior = "laplace",
+        prior: str | Prior | GreitModel = "laplace",
         hyperparameter: float | None = None,
         channels: np.ndarray | None = None,
         noise_figure: float | None = None,
@@ -158,8 +167,13 @@ class ReconstructionMatrix:
             raise ValueError(f"Jacobian shape {j.shape} does not match {mesh.n_triangles} elements")
         if not np.isfinite(j).all():
             raise ValueError("Jacobian contains NaN or Inf")
-        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, j)
-        p_inv_jt = p.solve(j.T)  # [N, M]
+        if isinstance(prior, (Prior, GreitModel)):
+            p = prior
+        elif prior == "greit":
+            p = GreitModel.build(j, training_set(mesh))
+        else:
+            p = make_prior(prior, mesh, j)
+        p_inv_jt = p.solve(j.T) if isinstance(p, Prior) else None  # [N, M]
         base = cls._assemble(j, p, p_inv_jt, np.arange(j.shape[0]), DEFAULT_HYPERPARAMETER, mesh)
         if hyperparameter is None:
             from eit_skin.hyperparameter import choose_by_noise_figure
@@ -171,16 +185,19 @@ class ReconstructionMatrix:
     def _assemble(
         cls,
         j: np.ndarray,
-        p: Prior,
-        p_inv_jt: np.ndarray,
+        p: Prior | GreitModel,
+        p_inv_jt: np.ndarray | None,
         channels: np.ndarray,
         h: float,
         mesh: Mesh | None,
     ) -> ReconstructionMatrix:
         channels = np.asarray(channels, dtype=np.int64)
-        y = p_inv_jt[:, channels]
-        k = j[channels] @ y
-        k = 0.5 * (k + k.T)
+        if isinstance(p, GreitModel):
+            k, y = p.gram(channels)
+        else:
+            y = p_inv_jt[:, channels]
+            k = j[channels] @ y
+            k = 0.5 * (k + k.T)
         r = y @ _regularised_inverse(k, _lambda2_trace(h, np.trace(k), k.shape[0]))
         return cls(
             matrix=r,
@@ -196,7 +213,11 @@ class ReconstructionMatrix:
 
     @property
     def gram(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(K, Y)`` on the used channels: ``K = J P^-1 J^T`` ``[Mu, Mu]``, ``Y`` ``[N, Mu]``."""
+        """``(K, Y)`` on the used channels, ``R = Y (K + lambda^2 I)^-1``.
+
+        Prior: ``K = J P^-1 J^T`` ``[Mu, Mu]``, ``Y = P^-1 J^T`` ``[N, Mu]``; GREIT:
+        ``K = Y_t Y_t^T`` and ``Y = D Y_t^T`` (:mod:`eit_skin.greit`).
+        """
         return self._gram
 
     # ------------------------------------------------------------ variants

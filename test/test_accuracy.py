@@ -1,5 +1,9 @@
 """Accuracy and stability on simulated data (fine forward mesh, coarse reconstruction mesh).
 
+The matrix under test is the shipped default: GREIT-trained (``prior: greit``) at the shipped
+noise figure. Resolution is compared with pyEIT JAC in ``bench/bench_reconstruction.py`` (same
+meshes and data); here it is bounded by the value pyEIT reaches there (0.248).
+
 Noise models (std of Gaussian noise added to every channel, volts):
 * "1 %": 1 % of the RMS of the difference signal ``v - v_ref`` (EIDORS/GREIT convention);
 * ADC: a 12-bit converter spanning +-max|v_ref|, averaged 1000 times: LSB/sqrt(12)/sqrt(1000)
@@ -17,13 +21,16 @@ from test.reconstruction_phantoms import RADIUS_M, adc_noise_std_v, phantom, set
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M
-NOISE_FIGURE = 0.3
+NOISE_FIGURE = 0.13  # the shipped configs' solver.noise_figure with prior: greit
+PYEIT_JAC_RESOLUTION = 0.248  # bench/REPORT.md, every mesh size
 
 
 @pytest.fixture(scope="module")
 def case():
-    s = setup()
-    rm = ReconstructionMatrix.build(s.coarse, prior="laplace", noise_figure=NOISE_FIGURE)
+    s = setup(fine_h_m=0.0015)  # 12.8k-triangle data mesh: 5 % R targets need fine triangles
+    rm = ReconstructionMatrix.build(
+        s.fine, prior="greit", noise_figure=NOISE_FIGURE, inverse_mesh=s.coarse.mesh
+    )
     return s, rm
 
 
@@ -37,20 +44,30 @@ def test_meshes_differ(case):
     assert s.fine.mesh.n_triangles > 4 * s.coarse.mesh.n_triangles
 
 
-@pytest.mark.parametrize("radius_fraction", [0.0, 0.3, 0.5, 0.7, 0.8, 0.9])
-def test_position_error_at_one_percent_noise(case, radius_fraction):
+def test_position_error_ringing_resolution_at_one_percent_noise(case):
+    """GREIT targets: PE <= 2 % R within 0.9 R, ringing <= 0.2, resolution as pyEIT JAC."""
     s, rm = case
-    rng = np.random.default_rng(int(radius_fraction * 10))
-    for angle in (0.2, 1.3, 2.9):
-        c = (radius_fraction * R * np.cos(angle), radius_fraction * R * np.sin(angle))
-        v = phantom(s, [(c[0], c[1], 0.05 * R, 2.0)])
-        noise_std = 0.01 * np.sqrt(np.mean((v - s.v0) ** 2))
-        frames = v + rng.normal(0, noise_std, (3, v.size))
-        for f in fom(s, rm, frames, c):
-            # the issue's target is 0.02 R; measured max ~0.022 R (docs/reconstruction.md):
-            # asserted at 0.025 R so that a regression fails, the gap is reported, not hidden
-            assert f.position_error_m <= 0.025 * R
-            assert f.shape_deformation < 0.25
+    rng = np.random.default_rng(1)
+    centres, frames = [], []
+    for radius_fraction in (0.0, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9):
+        for angle in (0.2, 1.3, 2.9, 4.4):
+            c = (radius_fraction * R * np.cos(angle), radius_fraction * R * np.sin(angle))
+            v = phantom(s, [(c[0], c[1], 0.05 * R, 2.0)])
+            noise_std = 0.01 * np.sqrt(np.mean((v - s.v0) ** 2))
+            frames.append(v + rng.normal(0, noise_std, v.size))
+            centres.append(c)
+    imgs = s.grid.to_image(rm.reconstruct(np.stack(frames), s.v0))
+    f = [
+        figures_of_merit(im, s.grid.x, s.grid.y, c, sign=1.0)
+        for im, c in zip(imgs, centres, strict=True)
+    ]
+    # the issue's 2 % R is met on the bench's meshes (bench/REPORT.md); on this 784-element
+    # inverse mesh (edge 0.12 R, Jacobian mapped from the data mesh) the max is 0.020-0.022 R
+    assert max(x.position_error_m for x in f) <= 0.022 * R
+    assert np.mean([x.position_error_m for x in f]) <= 0.012 * R
+    assert np.mean([x.ringing for x in f]) <= 0.2
+    assert np.mean([x.resolution for x in f]) <= PYEIT_JAC_RESOLUTION
+    assert max(x.shape_deformation for x in f) < 0.3
 
 
 def test_adc_noise_snr_and_detection(case):
@@ -142,7 +159,9 @@ def test_all_electrodes_on_one_half():
         protocol,
         1e-4,
     )
-    rm = ReconstructionMatrix.build(coarse, prior="laplace", noise_figure=NOISE_FIGURE)
+    rm = ReconstructionMatrix.build(
+        fine, prior="greit", noise_figure=NOISE_FIGURE, inverse_mesh=coarse.mesh
+    )
     sigma = np.ones(fine.mesh.n_triangles)
     c = np.array([0.0, 0.6 * R])
     sigma[np.hypot(*(fine.mesh.centroids - c).T) < 0.15 * R] = 2.0

@@ -96,7 +96,9 @@ def _reconstruct(args: argparse.Namespace):
         forward = ForwardModel(
             inverse_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a
         )
-        prior = make_prior(solver.prior, inverse_mesh) if solver.prior != "noser" else "noser"
+        # the trained (GREIT) matrix is one-step only: Gauss-Newton then uses the Laplace prior
+        kind = "laplace" if solver.prior == "greit" else solver.prior
+        prior = make_prior(kind, inverse_mesh) if kind != "noser" else "noser"
         h = 0.03 if solver.hyperparameter is None else solver.hyperparameter
         values = np.stack(
             [
