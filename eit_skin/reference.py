@@ -101,6 +101,42 @@ class PostureReferences:
             raise ValueError(f"{path}: {error}") from error
 
 
+class JointAngleHistory:
+    """Recent joint angles by time stamp, to look up the angle at a frame's acquisition time.
+
+    Joint states and EIT frames travel on different topics with different latencies, so
+    "the latest angle" at a frame's arrival can be several frames off while the joint
+    moves; interpolating at the frame's stamp is not.
+
+    Args:
+        span_ns: how much history to keep, ns.
+    """
+
+    def __init__(self, span_ns: int = 5_000_000_000) -> None:
+        self.span_ns = span_ns
+        self._stamps: list[int] = []
+        self._angles: list[float] = []
+
+    def add(self, stamp_ns: int, angle_rad: float) -> None:
+        if self._stamps and stamp_ns <= self._stamps[-1]:
+            if stamp_ns == self._stamps[-1]:
+                self._angles[-1] = angle_rad
+            return  # out of order: ignore
+        self._stamps.append(stamp_ns)
+        self._angles.append(angle_rad)
+        cut = 0
+        while cut < len(self._stamps) and stamp_ns - self._stamps[cut] > self.span_ns:
+            cut += 1
+        if cut:
+            del self._stamps[:cut], self._angles[:cut]
+
+    def at(self, stamp_ns: int) -> float:
+        """Angle at ``stamp_ns``, rad: linear between samples, held beyond them; NaN if empty."""
+        if not self._stamps:
+            return float("nan")
+        return float(np.interp(stamp_ns, self._stamps, self._angles))
+
+
 class ReferenceTracker:
     """Reference frame of one layer (see the module docstring for the behaviour).
 

@@ -85,7 +85,14 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         driver = start_node(
             "eit_driver",
             "/arm",
-            {"patch_config": "arm", "scenario": "push", "loop": False, "rate_hz": RATE_HZ},
+            # start once both the reconstruction node and this probe listen
+            {
+                "patch_config": "arm",
+                "scenario": "push",
+                "loop": False,
+                "rate_hz": RATE_HZ,
+                "wait_for_subscribers": 2,
+            },
             driver_log,
         )
         end_frame = int(truth.t_end_s * RATE_HZ) + 25
@@ -259,7 +266,12 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
         driver = start_node(
             "eit_driver",
             "/elbow",
-            {"patch_config": "elbow", "scenario": "elbow_bend", "loop": False},
+            {
+                "patch_config": "elbow",
+                "scenario": "elbow_bend",
+                "loop": False,
+                "wait_for_subscribers": 2,
+            },
             tmp_path / "driver.log",
         )
         last = int(8.5 * RATE_HZ)

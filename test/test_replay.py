@@ -55,12 +55,12 @@ def test_driver_replays_frames_identically(recording, tmp_path, realtime: bool) 
     folder, frames, t = recording
     probe = Probe()
     probe.subscribe(EitFrame, TOPIC)
-    # The replaying driver waits for its subscriber before it starts (discovery ~0.3 s).
+    # The replaying driver waits for a subscriber before it starts (wait_for_subscribers: 1).
     node = start_node(
         "eit_driver",
         "/arm",
         {"patch_config": "arm", "replay_path": str(folder / "rec.mcap"),
-         "replay_realtime": realtime, "replay_wait_for_subscribers": 1},
+         "replay_realtime": realtime},
         tmp_path / "driver.log",
     )  # fmt: skip
     try:

@@ -2,9 +2,10 @@
 
 Run it while the skin's driver is publishing and the joint is moved slowly through its
 range WITHOUT touching the skin (on the simulator: the driver running a posture-only
-scenario). Every frame of every layer is paired with the latest angle of ``--joint`` from
-``/joint_states``; frames are averaged per angle bin and written to ``--out``, the file
-the reconstruction node's ``posture_references`` parameter takes.
+scenario). Every frame of every layer is paired with the angle of ``--joint``
+(``/joint_states``) interpolated at the frame's acquisition stamp; frames are averaged per
+angle bin and written to ``--out``, the file the reconstruction node's
+``posture_references`` parameter takes.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from sensor_msgs.msg import JointState
 
     from eit_skin.patch import PatchError, load_patch
-    from eit_skin.reference import bin_posture_frames
+    from eit_skin.reference import JointAngleHistory, bin_posture_frames
     from eit_skin.resources import config_path
 
     try:
@@ -45,15 +46,19 @@ def run(args: argparse.Namespace) -> int:
     namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
     rclpy.init()
     node = rclpy.create_node("eit_posture_calibration")
-    angle = [math.nan]
-    samples: dict[str, list[tuple[float, np.ndarray]]] = {layer: [] for layer in patch.layer_names}
+    history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
+    samples: dict[str, list[tuple[int, np.ndarray]]] = {layer: [] for layer in patch.layer_names}
+
+    def stamp_ns(msg) -> int:
+        return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
     def on_joint(msg: JointState) -> None:
         if args.joint in msg.name:
-            angle[0] = float(msg.position[list(msg.name).index(args.joint)])
+            history.add(stamp_ns(msg), float(msg.position[list(msg.name).index(args.joint)]))
 
     def on_frame(layer: str, msg: EitFrame) -> None:
-        samples[layer].append((angle[0], np.asarray(msg.voltages, dtype=np.float64)))
+        frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
+        samples[layer].append((stamp_ns(msg), frame))
 
     node.create_subscription(JointState, "/joint_states", on_joint, 50)
     for layer in patch.layer_names:
@@ -81,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{layer}: no frames on {namespace}/{layer}/frames", file=sys.stderr)
             code = 1
             continue
-        angles = np.array([a for a, _ in items])
+        # the angle at each frame's acquisition time, not at its arrival
+        angles = np.array([history.at(stamp) for stamp, _ in items])
         frames = np.stack([f for _, f in items])
         try:
             table = bin_posture_frames(

@@ -49,11 +49,11 @@ _PARAMETERS: list[tuple[str, object, str]] = [
     ("record_path", "", "record every published frame to this MCAP file"),
     ("replay_path", "", "replay the EitFrames of this MCAP file instead of acquiring"),
     ("replay_realtime", True, "replay with the recording's timing (false: as fast as possible)"),
-    ("replay_wait_for_subscribers", 0, "replay starts once a frame topic has this many subscribers"),
+    ("wait_for_subscribers", 1, "simulator/replay: start once a frame topic has this many"),
     ("scenario", "", "simulator touch script: built-in name or YAML path; empty: demo"),
     ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
     ("seed", 0, "simulator random seed"),
-    ("sim_joint_name", "elbow", "simulator: joint name of the scripted posture on /joint_states"),
+    ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
     ("faults", "", "simulator faults, comma separated, e.g. dead-electrode:5,saturated:17"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
@@ -90,11 +90,11 @@ class DriverNode(Node):
         self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
         self._record_lock = threading.Lock()
         self.hardware_id = port or ("replay" if replay else "simulator")
+        self.waits_for = int(p["wait_for_subscribers"])
 
         if replay:
             self.source = ReplaySource(replay, list(self.factories), bool(p["replay_realtime"]))
-            self.replay_waits_for = int(p["replay_wait_for_subscribers"])
-            self.create_timer(0.001, self._replay)
+            self.create_timer(0.001, lambda: self._when_subscribed(self.source.tick))
         elif port:
             (layer,) = layers
             self.source = SerialSource(
@@ -107,7 +107,9 @@ class DriverNode(Node):
             self.joint_states = None
             if self.source.simulator.scenario.posture is not None:
                 self.joint_states = self.create_publisher(JointState, "/joint_states", 10)
-            self.create_timer(1.0 / float(p["rate_hz"]), self._simulate)
+            self.create_timer(
+                1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
+            )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}), layers {list(self.factories)}, "
@@ -127,18 +129,21 @@ class DriverNode(Node):
         )
         return SimulatedSource(self.factories, simulator, simulator.n_frames, bool(p["loop"]))
 
-    def _replay(self) -> None:
-        if self.replay_waits_for and all(
-            pub.get_subscription_count() < self.replay_waits_for
-            for pub in self.frame_publishers.values()
+    def _when_subscribed(self, step) -> None:
+        """Run a simulator/replay step, holding the script until someone listens.
+
+        Without this the first frames of a script would be lost to DDS discovery (and a
+        reconstruction node would take its no-load reference in the middle of a touch).
+        """
+        if self.waits_for and all(
+            pub.get_subscription_count() < self.waits_for for pub in self.frame_publishers.values()
         ):
             return
-        self.replay_waits_for = 0
-        self.source.tick(self._now_ns(), self.publish)
+        self.waits_for = 0
+        step(self._now_ns(), self.publish)
 
-    def _simulate(self) -> None:
-        now = self._now_ns()
-        self.source.tick(now, self.publish)
+    def _simulate(self, now: int, sink) -> None:
+        self.source.tick(now, sink)
         angle = self.source.posture_angle()
         if self.joint_states is not None and angle is not None:
             msg = JointState(name=[self.joint_name], position=[angle])

@@ -39,7 +39,7 @@ from eit_skin.imaging import LayerImager, default_cache_dir
 from eit_skin.mesh import build_mesh
 from eit_skin.node_graph import image_topics
 from eit_skin.patch import Layer, PatchError, load_patch
-from eit_skin.reference import PostureReferences, ReferenceTracker
+from eit_skin.reference import JointAngleHistory, PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
 
 #: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
@@ -153,6 +153,7 @@ class ReconstructionNode(Node):
                 FRAME_QOS,
             )
         self.joint = joint
+        self.joint_history = JointAngleHistory()
         if joint:
             self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
         self.create_service(Trigger, "~/rezero", self._on_rezero)
@@ -206,6 +207,9 @@ class ReconstructionNode(Node):
         frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
         flags = np.frombuffer(msg.channel_flags, np.uint8) if len(msg.channel_flags) else None
         tracker = state.tracker
+        if self.joint:
+            angle = self.joint_history.at(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+            tracker.angle_rad = angle if np.isfinite(angle) else tracker.angle_rad
         if not tracker.ready:
             if tracker.capture(frame, stamp_s):
                 noise = state.imager.relative_change(
@@ -262,9 +266,9 @@ class ReconstructionNode(Node):
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self.joint in msg.name:
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
             angle = float(msg.position[list(msg.name).index(self.joint)])
-            for state in self.layers.values():
-                state.tracker.angle_rad = angle
+            self.joint_history.add(stamp or self.get_clock().now().nanoseconds, angle)
 
     def _check_faults(self) -> None:
         for state in self.layers.values():
