@@ -13,6 +13,7 @@ to ``--out``. With the simulator it stops after one pass of the touch script (or
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -51,26 +52,24 @@ def run(args: argparse.Namespace) -> int:
                 scenario=args.scenario,
                 loop=False,
             )
-        duration = args.duration if args.duration is not None else _script_duration(args, specs)
+        script_frames = {} if args.port or args.duration else _script_frames(args, specs)
     except (ValueError, OSError) as error:
         print(f"eit-skin run: {error}", file=sys.stderr)
         return 2
     from eit_skin.nodes.skin_monitor import run_skin
 
-    return run_skin(specs, duration, args.out)
+    return run_skin(specs, args.out, duration_s=args.duration, script_frames=script_frames)
 
 
-def _script_duration(args: argparse.Namespace, specs) -> float | None:
-    """One pass of the touch script (longest over the patches), or None for hardware."""
-    if args.port:
-        return None
+def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:
+    """Frames in one pass of each simulated patch's touch script, by namespace."""
     from eit_skin.patch import load_patch
     from eit_skin.scenario import resolve_scenario
 
-    longest = 0.0
+    frames = {}
     for spec in specs:
         if spec.executable == "eit_driver":
             patch = load_patch(str(spec.parameters["patch_config"]))
             scenario = resolve_scenario(args.scenario, patch, args.seed, None)
-            longest = max(longest, scenario.duration_s)
-    return longest + 1.0
+            frames[spec.namespace] = math.ceil(scenario.duration_s * args.rate)
+    return frames

@@ -42,6 +42,7 @@ class PatchView:
     extent: tuple[float, float, float, float]
     latest: dict[str, np.ndarray] = field(default_factory=dict)
     images: int = 0
+    frames: int = 0  # highest frame sequence seen + 1 (script progress)
     events: list[tuple[float, str, str]] = field(default_factory=list)
     touch_peak: float = -np.inf
     touch_best: dict[str, np.ndarray] | None = None
@@ -51,12 +52,13 @@ class PatchView:
 class SkinMonitor(Node):
     """Subscribes to the patches' outputs; all drawing happens in the main thread."""
 
-    def __init__(self, views: list[PatchView], out: Path) -> None:
+    def __init__(self, views: list[PatchView], out: Path, script_frames: dict[str, int]) -> None:
         super().__init__("eit_skin_run")
-        from eit_skin_msgs.msg import TouchEvent
+        from eit_skin_msgs.msg import EitFrame, TouchEvent
 
         self.views = views
         self.out = out
+        self.script_frames = script_frames
         self.t0: float | None = None
         self.snapshots = 0
         for view in views:
@@ -65,6 +67,13 @@ class SkinMonitor(Node):
                 f"{view.namespace}/touch_events",
                 lambda msg, v=view: self._on_event(v, msg),
                 50,
+            )
+            first_layer = next(iter(view.layers))
+            self.create_subscription(
+                EitFrame,
+                f"{view.namespace}/{first_layer}/frames",
+                lambda msg, v=view: setattr(v, "frames", max(v.frames, msg.sequence + 1)),
+                qos_profile_sensor_data,
             )
             for layer, prefix in view.layers.items():
                 self.create_subscription(
@@ -203,12 +212,22 @@ def _dead(nodes: list[RunningNode]) -> RunningNode | None:
     return next((node for node in nodes if node.process.poll() is not None), None)
 
 
-def run_skin(specs: list[NodeSpec], duration_s: float | None, out: Path) -> int:
-    """Start the nodes, watch them for ``duration_s`` (None: until Ctrl-C), clean up."""
+def run_skin(
+    specs: list[NodeSpec],
+    out: Path,
+    duration_s: float | None = None,
+    script_frames: dict[str, int] | None = None,
+) -> int:
+    """Start the nodes, watch them, clean up.
+
+    Stops after ``duration_s`` seconds, or once every simulated patch has published
+    ``script_frames[namespace]`` frames (one pass of its script) plus a short tail, or on
+    Ctrl-C when neither is given.
+    """
     out.mkdir(parents=True, exist_ok=True)
     logs = out / "logs"
     rclpy.init()
-    monitor = SkinMonitor(_views(specs), out)
+    monitor = SkinMonitor(_views(specs), out, script_frames or {})
     nodes: list[RunningNode] = []
     code = 0
     try:
@@ -220,7 +239,7 @@ def run_skin(specs: list[NodeSpec], duration_s: float | None, out: Path) -> int:
         nodes += [start(spec, logs) for spec in specs if spec.executable == "eit_driver"]
         monitor.t0 = time.monotonic()
         next_gif = next_line = 0.0
-        while duration_s is None or monitor.elapsed() < duration_s:
+        while not _finished(monitor, duration_s):
             rclpy.spin_once(monitor, timeout_sec=0.02)
             dead = _dead(nodes)
             if dead is not None:
@@ -237,9 +256,14 @@ def run_skin(specs: list[NodeSpec], duration_s: float | None, out: Path) -> int:
                 next_gif = now + GIF_PERIOD_S
             if now >= next_line:
                 total = "" if duration_s is None else f"/{duration_s:.0f}"
+                if monitor.script_frames:
+                    done = min(
+                        v.frames / max(1, monitor.script_frames[v.namespace]) for v in monitor.views
+                    )
+                    total = f" s, script {100 * min(done, 1.0):3.0f} %"
                 images = ", ".join(f"{v.name} {v.images}" for v in monitor.views)
                 events = sum(len(v.events) for v in monitor.views)
-                _status(f"  {now:5.1f}{total} s  images: {images}  touches: {events}")
+                _status(f"  {now:5.1f}{total}  images: {images}  touches: {events}")
                 next_line = now + 0.5
     except KeyboardInterrupt:
         pass
@@ -254,6 +278,21 @@ def run_skin(specs: list[NodeSpec], duration_s: float | None, out: Path) -> int:
         monitor.destroy_node()
         rclpy.shutdown()
     return code
+
+
+#: Frames published after the script's end before a one-pass run stops (events end).
+TAIL_FRAMES = 25
+
+
+def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:
+    if duration_s is not None:
+        return monitor.elapsed() >= duration_s
+    if monitor.script_frames:
+        return all(
+            view.frames >= monitor.script_frames[view.namespace] + TAIL_FRAMES
+            for view in monitor.views
+        )
+    return False
 
 
 def _wait_ready(monitor: SkinMonitor, specs: list[NodeSpec], nodes: list[RunningNode]) -> int:

@@ -1,0 +1,74 @@
+"""`eit-skin run`: the whole node graph as separate processes over DDS, like ros2 launch."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+
+import pytest
+from PIL import Image as PilImage
+
+from eit_skin.bringup import find_executable
+from eit_skin.imaging import LayerImager
+from eit_skin.patch import load_patch
+from eit_skin.resources import config_path
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory) -> dict[str, str]:
+    cache = tmp_path_factory.mktemp("cache")
+    for name in ("arm", "face", "elbow"):
+        for layer in load_patch(config_path(name)).layers:
+            LayerImager.build(layer, cache_dir=cache)
+    return dict(os.environ, EIT_SKIN_CACHE=str(cache))
+
+
+def run(args: list[str], env: dict[str, str], timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(find_executable("eit-skin")), "run", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
+
+
+def test_one_pass_of_a_push_prints_the_touch_and_saves_pictures(tmp_path, env) -> None:
+    """No duration given: the run stops by itself after one pass of the script, exit 0."""
+    out = tmp_path / "out"
+    result = run(["--patch", "face", "--scenario", "push", "--out", str(out)], env)
+    assert result.returncode == 0, result.stdout + result.stderr
+    starts = re.findall(r"\] face\s+(\w+)\s+START", result.stdout)
+    ends = re.findall(r"\] face\s+(\w+)\s+END", result.stdout)
+    assert starts and ends, result.stdout
+    assert ends[-1] == "PUSH", result.stdout
+    assert "face:" in result.stdout and "touches: push" in result.stdout
+    written = re.search(r"wrote .*face\.gif \((\d+) frames\)", result.stdout)
+    assert written and int(written.group(1)) >= 10  # 5 frames/s over the script
+    assert PilImage.open(out / "face.gif").n_frames >= 3  # identical frames are merged
+    snapshots = list(out.glob("face_*_push.png"))
+    assert snapshots and PilImage.open(snapshots[0]).size[0] > 100
+    logs = {p.name for p in (out / "logs").iterdir()}
+    assert logs == {"face_eit_driver.log", "face_eit_reconstruction.log", "face_eit_classifier.log"}
+
+
+def test_all_patches_at_once(tmp_path, env) -> None:
+    out = tmp_path / "all"
+    result = run(["--all", "--duration", "10", "--out", str(out)], env)
+    assert result.returncode == 0, result.stdout + result.stderr
+    for name in ("arm", "face", "elbow"):
+        match = re.search(rf"^{name}: (\d+) images", result.stdout, re.MULTILINE)
+        # nine processes share two cores here: every patch must image, at whatever rate
+        assert match and int(match.group(1)) > 0, result.stdout
+        assert (out / f"{name}.gif").is_file()
+    assert len(list((out / "logs").iterdir())) == 9
+
+
+def test_bad_arguments_fail_clearly(tmp_path, env) -> None:
+    result = run(["--all", "--port", "/dev/null", "--out", str(tmp_path)], env, timeout=30)
+    assert result.returncode == 2 and "--all" in result.stderr
+    result = run(["--patch", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)], env, 30)
+    assert result.returncode == 2 and "missing.yaml" in result.stderr
