@@ -19,6 +19,7 @@ GENERATOR := $(if $(shell command -v ninja),-G Ninja,)
 export AMENT_PREFIX_PATH := $(VENV)
 export ROS_LOG_DIR := $(BUILD)/ros_log
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export EIT_SKIN_CACHE ?= $(BUILD)/cache
 export PYTHONDONTWRITEBYTECODE := 1
 
 .PHONY: setup demo test lint bench colcon clean
