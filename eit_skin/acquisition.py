@@ -152,6 +152,7 @@ class SerialSource:
 
     def _on_frames(self, received: list[ReceivedFrame]) -> None:
         expected_m = self.factory.n_measurements
+        good = []
         for item in received:
             frame = item.frame
             if (
@@ -166,7 +167,12 @@ class SerialSource:
                         f"expects {expected_m} / {self.factory.layer.n_electrodes}"
                     )
                 continue
-            stamp = self.clock.update(frame.device_time_us, item.host_time_ns)
+            good.append(item)
+        stamps = self.clock.update_batch(
+            [item.frame.device_time_us for item in good], [item.host_time_ns for item in good]
+        )
+        for item, stamp in zip(good, stamps, strict=True):
+            frame = item.frame
             record = self.factory.record(
                 stamp, frame.sequence, frame.voltages_v, frame.flags, frame.current_a
             )

@@ -62,6 +62,7 @@ class DeviceClock:
         self._cur: tuple[float, float] | None = None
         self._offset_ns = 0.0  # y at x = 0
         self._drift = 0.0  # dimensionless slope of y over x
+        self._last_stamp_ns: int | None = None  # last stamp update_batch returned
 
     @property
     def drift_ppm(self) -> float:
@@ -111,6 +112,32 @@ class DeviceClock:
         if changed:
             self._fit()
         return min(h, h0 + round(x + self._offset_ns + self._drift * x))
+
+    def update_batch(self, device_times_us: list[int], host_times_ns: list[int]) -> list[int]:
+        """``update`` for frames that arrived in one read, mapped after all were observed.
+
+        Frames read together share (nearly) one host time, so mapping each as it is added
+        clamps the later ones to that host time and several frames get the same stamp.
+        Observing the whole batch first puts the envelope under its least-delayed frame;
+        the frames then keep their device-time spacing. After a device reset inside the
+        batch, each frame keeps its own ``update`` result.
+        """
+        resets = self.resets
+        anchored = self._anchor
+        single = [self.update(d, h) for d, h in zip(device_times_us, host_times_ns, strict=True)]
+        if self.resets != resets or (anchored is not None and self._anchor != anchored):
+            self._last_stamp_ns = None
+            return single
+        stamps = []
+        for d, h in zip(device_times_us, host_times_ns, strict=True):
+            stamp = min(h, self.to_host_ns(d))
+            # never backwards: when a less delayed frame lowers the envelope, the first frames
+            # after it are held just after the last stamp instead of jumping back
+            if self._last_stamp_ns is not None and stamp <= self._last_stamp_ns:
+                stamp = self._last_stamp_ns + 1
+            stamps.append(stamp)
+            self._last_stamp_ns = stamp
+        return stamps
 
     def to_host_ns(self, device_time_us: int) -> int:
         """Map a device time with the current estimate (no update, no clamping)."""

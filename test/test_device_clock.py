@@ -91,3 +91,28 @@ def test_config_validation():
         DeviceClockConfig(bin_s=1.0, window_s=1.0)
     with pytest.raises(RuntimeError):
         DeviceClock().to_host_ns(0)
+
+
+def test_frames_read_in_bursts_keep_their_spacing():
+    """A loaded host reads frames in bursts; stamps must still follow the device clock."""
+    clock = DeviceClock()
+    rng = np.random.default_rng(4)
+    period_us = 10_000
+    stamps, truth = [], []
+    k = 0
+    t_host = 1_000_000_000_000
+    while k < 600:
+        burst = int(rng.integers(1, 6))  # 1..5 frames per read
+        device = [(k + i) * period_us for i in range(burst)]
+        k += burst
+        t_host = (
+            max(t_host, 1_000_000_000_000 + device[-1] * 1000) + int(rng.integers(2, 40)) * 10**6
+        )
+        stamps += clock.update_batch(device, [t_host] * burst)
+        truth += [1_000_000_000_000 + d * 1000 for d in device]
+    stamps, truth = np.array(stamps), np.array(truth)
+    assert np.all(np.diff(stamps) > 0)
+    late = stamps - truth  # mapped minus true acquisition time; reads lag 2..40 ms
+    assert late.min() > -1_000_000  # never (much) before the acquisition
+    assert late[100:].max() < 6_000_000  # near the 2 ms minimum delay, not the 40 ms jitter
+

@@ -21,9 +21,7 @@ import threading
 
 import rclpy
 import rclpy.time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -35,11 +33,17 @@ from eit_skin.acquisition import (
     SimulatedSource,
     SourceStatus,
 )
-from eit_skin.patch import PatchError, load_patch
+from eit_skin.nodes.node_runner import (
+    ParameterTable,
+    declare_read_only,
+    diagnostic_status,
+    run_node,
+)
+from eit_skin.patch import load_patch
 from eit_skin.recording import FrameRecord, McapFrameWriter
 from eit_skin.resources import config_path
 
-_PARAMETERS: list[tuple[str, object, str]] = [
+_PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
     ("layer", "", "layer to serve; empty: every layer (simulator, replay) or the first (serial)"),
     ("port", "", "serial device of the skin board, e.g. /dev/eit_skin_arm; empty: simulator"),
@@ -64,11 +68,7 @@ class DriverNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_driver", **kwargs)
-        for name, default, description in _PARAMETERS:
-            self.declare_parameter(
-                name, default, ParameterDescriptor(description=description, read_only=True)
-            )
-        p = {name: self.get_parameter(name).value for name, _, _ in _PARAMETERS}
+        p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         frame_id = str(p["frame_id"]) or self.patch.frame_id
@@ -171,12 +171,12 @@ class DriverNode(Node):
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
-            DiagnosticStatus(
-                level=bytes([status.level]),
-                name=f"{self.get_fully_qualified_name()}: {', '.join(self.factories)}",
-                message=status.message,
-                hardware_id=self.hardware_id,
-                values=[KeyValue(key=k, value=v) for k, v in status.values.items()],
+            diagnostic_status(
+                status.level,
+                f"{self.get_fully_qualified_name()}: {', '.join(self.factories)}",
+                status.message,
+                self.hardware_id,
+                status.values,
             )
         ]
         self.diagnostics.publish(msg)
@@ -197,23 +197,8 @@ def _msg_type():
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``eit_driver``: spin until shutdown; exit 2 on a bad configuration."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = DriverNode()
-        rclpy.spin(node)
-    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
-        print(f"eit_driver: refusing to start: {error}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    """Console script ``eit_driver``; exit 2 on a bad configuration."""
+    return run_node(DriverNode, "eit_driver", args)
 
 
 if __name__ == "__main__":

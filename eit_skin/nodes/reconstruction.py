@@ -20,11 +20,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
@@ -38,7 +35,13 @@ from eit_skin.electrode_faults import faulty_electrodes
 from eit_skin.imaging import LayerImager, default_cache_dir
 from eit_skin.mesh import build_mesh
 from eit_skin.node_graph import image_topics
-from eit_skin.patch import Layer, PatchError, load_patch
+from eit_skin.nodes.node_runner import (
+    ParameterTable,
+    declare_read_only,
+    diagnostic_status,
+    run_node,
+)
+from eit_skin.patch import Layer, load_patch
 from eit_skin.reference import JointAngleHistory, PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
 
@@ -52,7 +55,7 @@ FRAME_QOS = QoSProfile(
 #: The rviz marker mesh is this many times coarser than the layer's mesh (cheap to send).
 MARKER_EDGE_FACTOR = 2.5
 
-_PARAMETERS: list[tuple[str, object, str]] = [
+_PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
     ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
     ("reference_frames", 0, "frames averaged into the reference; 0: the layer's solver setting"),
@@ -100,11 +103,7 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_reconstruction", **kwargs)
-        for name, default, description in _PARAMETERS:
-            self.declare_parameter(
-                name, default, ParameterDescriptor(description=description, read_only=True)
-            )
-        p = {name: self.get_parameter(name).value for name, _, _ in _PARAMETERS}
+        p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)
         cache = str(p["cache_dir"]) or default_cache_dir()
@@ -346,12 +345,12 @@ class ReconstructionNode(Node):
             else:
                 level, text = 0, f"{values['reconstruction_rate_hz']} images/s"
             msg.status.append(
-                DiagnosticStatus(
-                    level=bytes([level]),
-                    name=f"{self.get_fully_qualified_name()}: {name}",
-                    message=text,
-                    hardware_id=self.patch.name,
-                    values=[KeyValue(key=k, value=v) for k, v in values.items()],
+                diagnostic_status(
+                    level,
+                    f"{self.get_fully_qualified_name()}: {name}",
+                    text,
+                    self.patch.name,
+                    values,
                 )
             )
         self.diagnostics.publish(msg)
@@ -365,22 +364,7 @@ def _frame_type():
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``eit_reconstruction``; exit 2 on a bad configuration."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ReconstructionNode()
-        rclpy.spin(node)
-    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
-        print(f"eit_reconstruction: refusing to start: {error}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(ReconstructionNode, "eit_reconstruction", args)
 
 
 if __name__ == "__main__":
