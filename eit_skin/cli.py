@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "simulate",
         "Simulate a touch scenario on a patch and save frames + ground truth.",
     ),
+    "tune": (
+        "tune",
+        "Choose a layer's regularisation by noise figure and write it into the patch file.",
+    ),
 }
 
 

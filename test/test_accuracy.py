@@ -4,6 +4,13 @@ The matrix under test is the shipped default: GREIT-trained (``prior: greit``) a
 noise figure. Resolution is compared with pyEIT JAC in ``bench/bench_reconstruction.py`` (same
 meshes and data); here it is bounded by the value pyEIT reaches there (0.248).
 
+Inverse mesh: chosen the way docs/reconstruction.md chooses the coarsest sufficient model.
+Candidate inverse meshes (edge 0.16 R .. 0.11 R, the range of the bench's inverse-mesh sweep)
+are tried from coarse to fine, each with its own forward model and Jacobian; the first whose
+maximum position error on a *validation* set (other target angles, other noise) is at most
+90 % of the 2 % R target is used. The accuracy test then runs on different targets and noise.
+The data always come from the 12.8k-triangle data mesh, never from a reconstruction mesh.
+
 Noise models (std of Gaussian noise added to every channel, volts):
 * "1 %": 1 % of the RMS of the difference signal ``v - v_ref`` (EIDORS/GREIT convention);
 * ADC: a 12-bit converter spanning +-max|v_ref|, averaged 1000 times: LSB/sqrt(12)/sqrt(1000)
@@ -16,8 +23,18 @@ import numpy as np
 import pytest
 
 from eit_skin.figures_of_merit import figures_of_merit
+from eit_skin.forward import ForwardModel
+from eit_skin.image_grid import ImageGrid
 from eit_skin.reconstruction import ReconstructionMatrix
-from test.reconstruction_phantoms import RADIUS_M, adc_noise_std_v, phantom, setup
+from test.forward_meshes import disk_mesh
+from test.reconstruction_phantoms import (
+    CONTACT_OHM_M,
+    RADIUS_M,
+    Setup,
+    adc_noise_std_v,
+    phantom,
+    setup,
+)
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M
@@ -25,13 +42,50 @@ NOISE_FIGURE = 0.13  # the shipped configs' solver.noise_figure with prior: grei
 PYEIT_JAC_RESOLUTION = 0.248  # bench/REPORT.md, every mesh size
 
 
+PE_TARGET = 0.02  # the issue's position error bound, fraction of R, within 0.9 R at 1 % noise
+CANDIDATE_EDGES = (0.16, 0.132, 0.12, 0.11)  # inverse-mesh edge / R, coarse to fine
+SELECTION_MARGIN = 0.9  # validation max PE must be <= this fraction of PE_TARGET
+
+
+def one_percent_frames(s, angles, seed):
+    """Small (5 % R, x2) targets at 0..0.9 R: centres and noisy frames ``[T, M]`` volts."""
+    rng = np.random.default_rng(seed)
+    centres, frames = [], []
+    for radius_fraction in (0.0, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9):
+        for angle in angles:
+            c = (radius_fraction * R * np.cos(angle), radius_fraction * R * np.sin(angle))
+            v = phantom(s, [(c[0], c[1], 0.05 * R, 2.0)])
+            noise_std = 0.01 * np.sqrt(np.mean((v - s.v0) ** 2))
+            frames.append(v + rng.normal(0, noise_std, v.size))
+            centres.append(c)
+    return centres, np.stack(frames)
+
+
+def merits(s, rm, centres, frames):
+    imgs = s.grid.to_image(rm.reconstruct(frames, s.v0))
+    return [
+        figures_of_merit(im, s.grid.x, s.grid.y, c, sign=1.0)
+        for im, c in zip(imgs, centres, strict=True)
+    ]
+
+
+def coarsest_sufficient_model(data):
+    """The first candidate inverse mesh (coarse to fine) meeting the PE target on validation."""
+    centres, frames = one_percent_frames(data, (0.7, 2.1, 3.6, 5.3), seed=11)
+    for edge in CANDIDATE_EDGES:
+        model = ForwardModel(disk_mesh(R, h_m=edge * R), data.fine.protocol, CONTACT_OHM_M)
+        s = Setup(data.fine, model, ImageGrid.build(model.mesh, 64), data.v0)
+        rm = ReconstructionMatrix.build(model, prior="greit", noise_figure=NOISE_FIGURE)
+        pe = max(f.position_error_m for f in merits(s, rm, centres, frames))
+        if pe <= SELECTION_MARGIN * PE_TARGET * R:
+            return s, rm
+    raise AssertionError("no candidate inverse mesh meets the position-error target")
+
+
 @pytest.fixture(scope="module")
 def case():
-    s = setup(fine_h_m=0.0015)  # 12.8k-triangle data mesh: 5 % R targets need fine triangles
-    rm = ReconstructionMatrix.build(
-        s.fine, prior="greit", noise_figure=NOISE_FIGURE, inverse_mesh=s.coarse.mesh
-    )
-    return s, rm
+    data = setup(fine_h_m=0.0015)  # 12.8k-triangle data mesh: 5 % R targets need fine triangles
+    return coarsest_sufficient_model(data)
 
 
 def fom(s, rm, frames, centre, sign=1.0):
@@ -40,30 +94,17 @@ def fom(s, rm, frames, centre, sign=1.0):
 
 
 def test_meshes_differ(case):
-    s, _ = case
+    s, rm = case
     assert s.fine.mesh.n_triangles > 4 * s.coarse.mesh.n_triangles
+    assert rm.n_elements == s.coarse.mesh.n_triangles  # imaged on the chosen inverse mesh
 
 
 def test_position_error_ringing_resolution_at_one_percent_noise(case):
     """GREIT targets: PE <= 2 % R within 0.9 R, ringing <= 0.2, resolution as pyEIT JAC."""
     s, rm = case
-    rng = np.random.default_rng(1)
-    centres, frames = [], []
-    for radius_fraction in (0.0, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9):
-        for angle in (0.2, 1.3, 2.9, 4.4):
-            c = (radius_fraction * R * np.cos(angle), radius_fraction * R * np.sin(angle))
-            v = phantom(s, [(c[0], c[1], 0.05 * R, 2.0)])
-            noise_std = 0.01 * np.sqrt(np.mean((v - s.v0) ** 2))
-            frames.append(v + rng.normal(0, noise_std, v.size))
-            centres.append(c)
-    imgs = s.grid.to_image(rm.reconstruct(np.stack(frames), s.v0))
-    f = [
-        figures_of_merit(im, s.grid.x, s.grid.y, c, sign=1.0)
-        for im, c in zip(imgs, centres, strict=True)
-    ]
-    # the issue's 2 % R is met on the bench's meshes (bench/REPORT.md); on this 784-element
-    # inverse mesh (edge 0.12 R, Jacobian mapped from the data mesh) the max is 0.020-0.022 R
-    assert max(x.position_error_m for x in f) <= 0.022 * R
+    centres, frames = one_percent_frames(s, (0.2, 1.3, 2.9, 4.4), seed=1)  # not the validation
+    f = merits(s, rm, centres, frames)
+    assert max(x.position_error_m for x in f) <= PE_TARGET * R
     assert np.mean([x.position_error_m for x in f]) <= 0.012 * R
     assert np.mean([x.ringing for x in f]) <= 0.2
     assert np.mean([x.resolution for x in f]) <= PYEIT_JAC_RESOLUTION

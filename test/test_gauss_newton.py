@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.gauss_newton import gauss_newton, gauss_newton_difference
+from eit_skin.gauss_newton import GaussNewtonSolver, gauss_newton, gauss_newton_difference
 from eit_skin.priors import make_prior
 from eit_skin.reconstruction import ReconstructionMatrix
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup
@@ -78,3 +78,78 @@ def test_large_contrast_runs_five_decreasing_iterations(s, prior):
     k = np.argmax(res.relative_change)
     assert res.relative_change[k] > 2.0
     assert np.linalg.norm(s.coarse.mesh.centroids[k] - c) < 0.2 * R
+
+
+@pytest.fixture(scope="module")
+def parameter_mesh():
+    from test.forward_meshes import disk_mesh
+
+    return disk_mesh(R, h_m=0.011)  # ~230 unknowns over the 784-triangle forward mesh
+
+
+@pytest.mark.parametrize("contrast", [1e4, 1e-4])
+def test_coarse_parameter_mesh_large_contrast_bounded_and_located(s, parameter_mesh, contrast):
+    c = np.array([0.5 * R, 0.2 * R])
+    v = phantom(s, [(c[0], c[1], 0.15 * R, contrast)])
+    res = gauss_newton_difference(
+        s.coarse, v, s.v0, prior="laplace", hyperparameter=0.03, parameter_mesh=parameter_mesh
+    )
+    x = res.parameter_change
+    assert x.shape == (parameter_mesh.n_triangles,)
+    assert np.isfinite(x).all() and np.isfinite(res.sigma).all() and (res.sigma > 0).all()
+    assert x.max() < 1e5 and x.min() > -1
+    r = res.relative_residuals
+    assert r[1] < r[0] and r[-1] < 0.1 * r[0]
+    k = np.argmax(np.abs(x))
+    assert np.sign(x[k]) == np.sign(contrast - 1)
+    assert np.linalg.norm(parameter_mesh.centroids[k] - c) < 0.3 * R
+
+
+@pytest.mark.parametrize("prior", ["noser", "laplace"])
+def test_coarse_parameter_mesh_runs_five_decreasing_iterations(s, parameter_mesh, prior):
+    c = np.array([-0.3 * R, 0.4 * R])
+    v = phantom(s, [(c[0], c[1], 0.2 * R, 20.0)])
+    solver = GaussNewtonSolver(s.coarse, 1.0, prior, 0.01, parameter_mesh=parameter_mesh)
+    res = solver.difference(v, s.v0, max_iterations=5, tolerance=0.0)
+    r = res.relative_residuals
+    assert res.iterations == 5 and r.size == 6 and res.forward_solves >= 5
+    # the misfit falls to the coarse model's floor and stays there (the objective, which
+    # includes the prior term, falls at every step)
+    assert r[3] < r[2] < r[1] < r[0] and r[-1] < 0.01 * r[0] and r[-1] <= 1.05 * r.min()
+    k = np.argmax(res.parameter_change)
+    assert res.parameter_change[k] > 2.0
+    assert np.linalg.norm(parameter_mesh.centroids[k] - c) < 0.2 * R
+
+
+def test_parameter_mesh_maps_onto_forward_mesh(s, parameter_mesh):
+    """Each forward element takes the value of the parameter element holding its centroid."""
+    from eit_skin.reconstruction import coarse_to_fine
+
+    v = phantom(s, [(0.2 * R, 0.1 * R, 0.2 * R, 3.0)])
+    res = gauss_newton_difference(
+        s.coarse, v, s.v0, prior="laplace", parameter_mesh=parameter_mesh, max_iterations=2
+    )
+    owner = coarse_to_fine(s.coarse.mesh, parameter_mesh).indices
+    np.testing.assert_allclose(res.relative_change, res.parameter_change[owner], rtol=1e-12)
+    np.testing.assert_allclose(res.sigma, 1.0 + res.relative_change, rtol=1e-12)
+
+
+def test_solver_reuse_is_repeatable_and_matches_one_off(s, parameter_mesh):
+    v = phantom(s, [(0.1 * R, -0.4 * R, 0.15 * R, 5.0)])
+    prior = make_prior("laplace", parameter_mesh)
+    solver = GaussNewtonSolver(s.coarse, 1.0, prior, 0.02, parameter_mesh=parameter_mesh)
+    a = solver.difference(v, s.v0, max_iterations=4)
+    other = phantom(s, [(-0.5 * R, 0.0, 0.1 * R, 0.2)])
+    solver.difference(other, s.v0, max_iterations=4)  # a different frame in between
+    b = solver.difference(v, s.v0, max_iterations=4)
+    np.testing.assert_array_equal(a.sigma, b.sigma)
+    np.testing.assert_array_equal(a.relative_residuals, b.relative_residuals)
+    c = gauss_newton_difference(
+        s.coarse, v, s.v0, 1.0, prior, 0.02, parameter_mesh=parameter_mesh, max_iterations=4
+    )
+    np.testing.assert_allclose(c.sigma, a.sigma, rtol=1e-9)
+
+
+def test_prior_on_the_wrong_mesh_is_rejected(s, parameter_mesh):
+    with pytest.raises(ValueError, match="parameter mesh"):
+        GaussNewtonSolver(s.coarse, 1.0, make_prior("laplace", s.coarse.mesh), 0.03, parameter_mesh)
