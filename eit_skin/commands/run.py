@@ -53,12 +53,33 @@ def run(args: argparse.Namespace) -> int:
                 loop=False,
             )
         script_frames = {} if args.port or args.duration else _script_frames(args, specs)
+        specs = [_monitor_aware(spec) for spec in specs]
     except (ValueError, OSError) as error:
         print(f"eit-skin run: {error}", file=sys.stderr)
         return 2
     from eit_skin.nodes.skin_monitor import run_skin
 
-    return run_skin(specs, args.out, duration_s=args.duration, script_frames=script_frames)
+    return run_skin(
+        specs,
+        args.out,
+        duration_s=args.duration,
+        script_frames=script_frames,
+        first_frame_timeout_s=None if args.port else 120.0,  # a board may be plugged in later
+    )
+
+
+def _monitor_aware(spec):
+    """A simulated driver that waits for two frame subscribers: reconstruction and monitor.
+
+    The run's monitor also listens to the frames; waiting for one subscriber would let
+    the monitor alone start the script, and the reconstruction would miss the untouched
+    frames its reference is taken from.
+    """
+    from dataclasses import replace
+
+    if spec.executable != "eit_driver" or spec.parameters.get("port"):
+        return spec
+    return replace(spec, parameters={**spec.parameters, "wait_for_subscribers": 2})
 
 
 def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:

@@ -9,12 +9,14 @@ end. The nodes themselves are separate processes (:mod:`eit_skin.bringup`).
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -59,6 +61,7 @@ class SkinMonitor(Node):
         self.views = views
         self.out = out
         self.script_frames = script_frames
+        self.pending_snapshots: list[tuple[PatchView, dict[str, np.ndarray], str]] = []
         self.t0: float | None = None
         self.snapshots = 0
         for view in views:
@@ -114,11 +117,16 @@ class SkinMonitor(Node):
             )
         if state == "END":
             view.events.append((self.elapsed(), label, state))
-            if view.touch_best:
-                self.snapshots += 1
-                path = self.out / f"{view.name}_{self.snapshots:02d}_{label}.png"
-                save_snapshot(view, view.touch_best, f"{view.name}: {label}", path)
+            if view.touch_best:  # drawn by the main thread (matplotlib is slow)
+                self.pending_snapshots.append((view, view.touch_best, label))
             view.touch_best = None
+
+    def save_pending_snapshots(self) -> None:
+        while self.pending_snapshots:
+            view, images, label = self.pending_snapshots.pop(0)
+            self.snapshots += 1
+            path = self.out / f"{view.name}_{self.snapshots:02d}_{label}.png"
+            save_snapshot(view, images, f"{view.name}: {label}", path)
 
     def gif_frame(self) -> None:
         for view in self.views:
@@ -212,23 +220,30 @@ def _dead(nodes: list[RunningNode]) -> RunningNode | None:
     return next((node for node in nodes if node.process.poll() is not None), None)
 
 
+#: How long drivers may take to publish their first frame before the run gives up, s.
+FIRST_FRAME_TIMEOUT_S = 120.0
+
+
 def run_skin(
     specs: list[NodeSpec],
     out: Path,
     duration_s: float | None = None,
     script_frames: dict[str, int] | None = None,
+    first_frame_timeout_s: float | None = FIRST_FRAME_TIMEOUT_S,
 ) -> int:
     """Start the nodes, watch them, clean up.
 
-    Stops after ``duration_s`` seconds, or once every simulated patch has published
+    Stops ``duration_s`` seconds after the first frame, or once every simulated patch has published
     ``script_frames[namespace]`` frames (one pass of its script) plus a short tail, or on
-    Ctrl-C when neither is given.
+    Ctrl-C when neither is given. Gives up (exit 1) when no frame arrives within
+    ``first_frame_timeout_s`` (None: wait for a board forever).
     """
     out.mkdir(parents=True, exist_ok=True)
     logs = out / "logs"
     rclpy.init()
     monitor = SkinMonitor(_views(specs), out, script_frames or {})
     nodes: list[RunningNode] = []
+    executor: SingleThreadedExecutor | None = None
     code = 0
     try:
         print(f"eit-skin run: {len(specs)} nodes, output in {out}/", flush=True)
@@ -237,10 +252,30 @@ def run_skin(
         if code:
             return code
         nodes += [start(spec, logs) for spec in specs if spec.executable == "eit_driver"]
-        monitor.t0 = time.monotonic()
+        started = time.monotonic()
         next_gif = next_line = 0.0
+        # callbacks on their own thread, so pictures and the status line keep wall-clock time
+        executor = SingleThreadedExecutor()
+        executor.add_node(monitor)
+        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner.start()
         while not _finished(monitor, duration_s):
-            rclpy.spin_once(monitor, timeout_sec=0.02)
+            time.sleep(0.02)
+            monitor.save_pending_snapshots()
+            if monitor.t0 is None:  # the clock starts with the first frame of any patch
+                if any(view.frames for view in monitor.views):
+                    monitor.t0 = time.monotonic()
+                elif (
+                    first_frame_timeout_s is not None
+                    and time.monotonic() - started > first_frame_timeout_s
+                ):
+                    _clear_status()
+                    print(
+                        f"eit-skin run: no frame within {first_frame_timeout_s:.0f} s; "
+                        f"see the driver logs in {logs}",
+                        file=sys.stderr,
+                    )
+                    return 1
             dead = _dead(nodes)
             if dead is not None:
                 _clear_status()
@@ -270,6 +305,9 @@ def run_skin(
     finally:
         _clear_status()
         codes = stop(nodes)
+        if executor is not None:
+            executor.shutdown()
+        monitor.save_pending_snapshots()
         failed = {label: rc for label, rc in codes.items() if rc not in (0, -2)}
         if failed and not code:
             print(f"eit-skin run: nodes exited with errors: {failed}", file=sys.stderr)
@@ -286,7 +324,7 @@ TAIL_FRAMES = 25
 
 def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:
     if duration_s is not None:
-        return monitor.elapsed() >= duration_s
+        return monitor.t0 is not None and monitor.elapsed() >= duration_s
     if monitor.script_frames:
         return all(
             view.frames >= monitor.script_frames[view.namespace] + TAIL_FRAMES
