@@ -21,6 +21,7 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from eit_skin.launch_actions import ros_nodes
 from eit_skin.node_graph import patch_nodes
 
 
@@ -39,17 +40,7 @@ def _patch_actions(context):
         sim=sim,
         rate_hz=float(LaunchConfiguration("rate_hz").perform(context)),
     )
-    return [
-        Node(
-            package="eit_skin",
-            executable=spec.executable,
-            name=spec.name,
-            namespace=spec.namespace,
-            parameters=[spec.parameters],
-            output="screen",
-        )
-        for spec in specs
-    ]
+    return ros_nodes(specs)
 
 
 def generate_launch_description():
