@@ -45,6 +45,22 @@ def test_reconstruct_writes_images(frames_file, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ["out.npz"]
 
 
+def test_reconstruct_with_gauss_newton(frames_file, tmp_path):
+    """--method gauss_newton: same contract, the doubled-conductance disc found with its sign."""
+    path, centre = frames_file
+    out = tmp_path / "gn.npz"
+    args = ["reconstruct", "--patch", "arm", "--frames", str(path), "--out", str(out)]
+    assert main([*args, "--method", "gauss_newton"]) == 0
+    with np.load(out) as d:
+        images, x, y = d["images"], d["x"], d["y"]
+    assert images.dtype == np.float32 and images.shape == (2, y.size, x.size)
+    assert np.nanmax(np.abs(images[0])) < 1e-6  # reference frame: no change
+    k = np.unravel_index(np.nanargmax(images[1]), images[1].shape)
+    assert np.hypot(x[k[1]] - centre[0], y[k[0]] - centre[1]) < 0.006
+    assert np.nanmax(images[1]) > 0.2  # contrast x2 = +100 %: clearly positive
+    assert np.isfinite(images[1][~np.isnan(images[1])]).all()
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

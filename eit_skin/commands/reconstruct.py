@@ -16,6 +16,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+#: Gauss-Newton regularisation when the layer's stored one belongs to another method.
+GN_HYPERPARAMETER = 0.03
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
@@ -48,11 +51,10 @@ def _reconstruct(args: argparse.Namespace):
 
     from eit_skin.electrode_faults import FaultTolerantReconstructor
     from eit_skin.forward import ForwardModel
-    from eit_skin.gauss_newton import gauss_newton_difference
+    from eit_skin.gauss_newton import GaussNewtonSolver
     from eit_skin.image_grid import ImageGrid
     from eit_skin.mesh import build_mesh
     from eit_skin.patch import load_patch
-    from eit_skin.priors import make_prior
     from eit_skin.protocol import build_protocol
     from eit_skin.reconstruction import ReconstructionMatrix
     from eit_skin.recording import load_frames_npz
@@ -93,24 +95,26 @@ def _reconstruct(args: argparse.Namespace):
         values = imager.reconstruct(frames, reference)
         faulty = imager.last_faulty
     else:
-        forward = ForwardModel(
-            inverse_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a
+        # One solver per layer (prior, parameter map and first step prepared once), the fine
+        # forward mesh for the physics, the inverse mesh for the unknowns. The trained (GREIT)
+        # matrix is one-step only, and its stored h does not suit another prior, so
+        # Gauss-Newton then uses the Laplace prior with its default h.
+        forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+        greit = solver.prior == "greit"
+        solver_gn = GaussNewtonSolver(
+            forward,
+            sigma0,
+            prior="laplace" if greit else solver.prior,
+            hyperparameter=GN_HYPERPARAMETER
+            if greit or solver.hyperparameter is None
+            else solver.hyperparameter,
+            parameter_mesh=None if inverse_mesh is mesh else inverse_mesh,
         )
-        # the trained (GREIT) matrix is one-step only: Gauss-Newton then uses the Laplace prior
-        kind = "laplace" if solver.prior == "greit" else solver.prior
-        prior = make_prior(kind, inverse_mesh) if kind != "noser" else "noser"
-        h = 0.03 if solver.hyperparameter is None else solver.hyperparameter
         values = np.stack(
             [
-                gauss_newton_difference(
-                    forward,
-                    f,
-                    reference,
-                    sigma0,
-                    prior=prior,
-                    hyperparameter=h,
-                    max_iterations=solver.max_iterations,
-                ).relative_change
+                solver_gn.difference(
+                    f, reference, max_iterations=solver.max_iterations
+                ).parameter_change
                 for f in frames
             ]
         )
