@@ -222,9 +222,13 @@ class ContactSegmenter:
 
     def segment(self, image: np.ndarray) -> list[Contact]:
         """Contacts of one image ``[H, W]``, strongest peak first."""
+        return self.segment_with_labels(image)[0]
+
+    def segment_with_labels(self, image: np.ndarray) -> tuple[list[Contact], np.ndarray]:
+        """``(contacts, [H, W] int32 part labels)`` of one image (0: no contact)."""
         parts, n = self.labels(image)
         if n == 0:
-            return []
+            return [], parts
         img = np.where(np.isfinite(image), image, 0.0).astype(np.float64)
         flat = parts.ravel()
         w = np.where(flat > 0, np.clip(img.ravel(), 0.0, None), 0.0)
@@ -246,7 +250,7 @@ class ContactSegmenter:
             if count[i] >= self.config.min_pixels and wsum[i] > 0
         ]
         contacts.sort(key=lambda c: -c.peak)
-        return contacts
+        return contacts, parts
 
 
 @dataclass

@@ -4,22 +4,20 @@
 None)`` and returns :class:`TouchEvent` records. Method (explainable rules on a few features,
 see docs/classifier.md):
 
-* calibration: the first ``calibration_s`` of frames are taken as no-touch; they give the
-  image noise ``sigma`` (:func:`~eit_skin.contacts.estimate_noise`) and a per-pixel baseline
-  that then follows slow drift (time constant ``baseline_tau_s``) while nothing touches;
-* contacts: hysteresis segmentation of ``pressure - baseline`` at multiples of ``sigma``
-  (:class:`~eit_skin.contacts.ContactSegmenter`), tracked with a gate in metres;
-* a touch starts after contacts were seen in ``start_frames`` consecutive frames and ends
-  after ``end_hold_s`` without contact (hysteresis in time); all contacts on the patch
-  belong to the one current touch;
-* features of the touch so far: ``count`` (most contacts seen at once for ``count_frames``
-  frames), ``travel`` (largest distance of the strongest contact from where it started, m),
-  ``closing`` (how much the distance between two contacts shrank, 0..1; two contacts merging
-  into one counts as 1), ``stretch_ratio`` (largest stretch over largest pressure, 1/Pa);
-* rules: ``count >= 3`` -> grab; ``count == 2`` -> pinch if closing, else grab; one contact ->
-  rub if it travels (or, with a stretch layer, stretches the sheet strongly), else push;
-  a single contact that does not travel but stretches the sheet strongly -> pinch (fingers too
-  close to be told apart).
+* calibration: the first ``calibration_s`` of frames are taken as no-touch; they give a
+  per-pixel baseline and noise map, which then keep following slow drift and the noise
+  (time constants ``baseline_tau_s``, ``noise_tau_s``) while nothing touches;
+* contacts: hysteresis segmentation of the mean of the latest ``average_frames`` frames minus
+  the baseline, at multiples of the noise (:class:`~eit_skin.contacts.ContactSegmenter`);
+* a touch starts once a contact stayed in place (one track) for ``start_frames`` frames and
+  ends after ``end_hold_s`` without contact; all contacts on the patch belong to it;
+* per frame, the blob's centroid and principal spreads (:func:`~eit_skin.blob_shape.blob_moments`)
+  over the contact pixels, in units of one fingertip's spread at that place
+  (:func:`~eit_skin.blob_shape.single_contact_spread`);
+* features over the touch's strong frames: ``spread`` (median blob size), ``closing`` (largest
+  relative narrowing of the major axis), ``travel`` (centroid travel);
+* rules: ``closing >= pinch_closing`` -> pinch; ``spread >= grab_spread`` -> grab;
+  ``travel >= rub_travel`` -> rub; else push.
 
 The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
 the evidence so far and may revise it; END carries the final label.
@@ -33,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from eit_skin.blob_shape import blob_moments
 from eit_skin.contacts import (
     Contact,
     ContactSegmenter,
@@ -52,44 +51,72 @@ STATES = ("start", "update", "end")
 class ClassifierConfig:
     """Thresholds and timing of the touch classifier.
 
+    Spreads are measured in units of the spread one fingertip gives at the same place
+    (:func:`~eit_skin.blob_shape.single_contact_spread`), so the rules do not depend on the
+    patch's size, electrode layout or reconstruction prior.
+
     Attributes:
         segmentation: contact thresholds in noise units (see :class:`SegmentationConfig`).
         calibration_s: initial no-touch time used to estimate noise and baseline, s.
         baseline_tau_s: time constant of the drift-following baseline (idle frames only), s.
-        start_frames: consecutive frames with a contact before START.
+        start_frames: consecutive frames with a contact in the same place before START.
+        average_frames: contacts are found in the mean of the latest this many frames (noise
+            down by its square root, at half a frame period of delay per extra frame).
+        noise_tau_s: time constant of the per-pixel noise estimate, which keeps learning from
+            no-touch frames after calibration, s (0: keep the calibration estimate).
         end_hold_s: time without contact before END, s.
         update_period_s: shortest time between UPDATEs of one touch, s.
         count_frames: frames a contact count must be seen to count.
         gate_pixels: tracking gate in pixels of the pressure grid (converted to metres).
-        rub_travel_pixels: travel of a rub in pixels of the pressure grid.
-        pinch_closing: fraction by which two contacts' distance must shrink for a pinch.
-        stretch_ratio_rub: stretch per pascal above which a single contact stretches the sheet
-            like a rub or a pinch (only with a stretch layer), 1/Pa.
+        strong_fraction: frames whose peak is below this fraction of the touch's largest peak
+            (press and release ramps) do not enter the shape features.
+        rub_travel: centroid travel that makes a rub, in single-finger spreads.
+        pinch_closing: relative narrowing of the blob's major axis that makes a pinch (0..1).
+        grab_spread: blob spread (geometric mean of the principal spreads) that makes a grab,
+            in single-finger spreads.
+        contact_spread_m: spread of one fingertip's image, m, used when the classifier is
+            given no per-pixel map.
+        stretch_ratio_rub: stretch per pascal above which a single still contact is a pinch
+            whose fingers cannot be told apart (only with a stretch layer), 1/Pa; 0 disables.
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     calibration_s: float = 0.5
     baseline_tau_s: float = 5.0
     start_frames: int = 2
+    average_frames: int = 2
+    noise_tau_s: float = 10.0
     end_hold_s: float = 0.1
     update_period_s: float = 0.1
     count_frames: int = 3
     gate_pixels: float = 8.0
-    rub_travel_pixels: float = 4.0
+    strong_fraction: float = 0.5
+    rub_travel: float = 1.5
     pinch_closing: float = 0.3
-    stretch_ratio_rub: float = 3.0e-6
+    grab_spread: float = 1.35
+    contact_spread_m: float = 0.005
+    stretch_ratio_rub: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("calibration_s", "baseline_tau_s", "gate_pixels", "rub_travel_pixels"):
+        for name in (
+            "calibration_s",
+            "baseline_tau_s",
+            "gate_pixels",
+            "rub_travel",
+            "grab_spread",
+            "contact_spread_m",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("end_hold_s", "update_period_s", "stretch_ratio_rub"):
+        for name in ("end_hold_s", "update_period_s", "stretch_ratio_rub", "noise_tau_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if self.start_frames < 1 or self.count_frames < 1:
-            raise ValueError("start_frames and count_frames must be >= 1")
+        if self.start_frames < 1 or self.count_frames < 1 or self.average_frames < 1:
+            raise ValueError("start_frames, count_frames and average_frames must be >= 1")
         if not 0 < self.pinch_closing < 1:
             raise ValueError(f"pinch_closing must be in (0, 1), got {self.pinch_closing}")
+        if not 0 <= self.strong_fraction < 1:
+            raise ValueError(f"strong_fraction must be in [0, 1), got {self.strong_fraction}")
 
 
 @dataclass(frozen=True)
@@ -104,7 +131,8 @@ class TouchEvent:
         t_s: time of the frame that produced the event, s.
         t_start_s: first frame of the touch, s.
         t_end_s: last frame with contact (END), else ``t_s``, s.
-        centroid_m: ``(x, y)`` mean of the current contact centroids (END: of the last ones), m.
+        centroid_m: ``(x, y)`` centroid of the whole touch's blob in the latest frame pressed at
+            full strength (at least ``strong_fraction`` of the touch's peak), m.
         area_m2: total contact area, m^2.
         peak_pa: largest pressure of the current contacts, Pa.
         n_contacts: contacts in the frame.
@@ -139,39 +167,57 @@ class TouchEvent:
 
 @dataclass(frozen=True)
 class TouchFeatures:
-    """What the rules look at (see module docstring); units m, 1/Pa."""
+    """What the rules look at (see module docstring).
+
+    Attributes:
+        count: most separate contacts seen together in ``count_frames`` frames.
+        travel: largest distance of the blob centroid from where it settled, in single-finger
+            spreads.
+        closing: largest relative narrowing of the blob's major axis (0..1).
+        spread: median blob spread ``sqrt(major * minor)``, in single-finger spreads.
+        elongation: median ratio of the blob's major to minor spread (>= 1).
+        stretch_ratio: largest stretch over largest pressure, 1/Pa (stretch layer only).
+        frames: strong frames the shape features were computed from.
+    """
 
     count: int
-    travel_m: float
+    travel: float
     closing: float
-    stretch_ratio: float | None
+    spread: float
+    elongation: float
+    stretch_ratio: float | None = None
+    frames: int = 0
 
 
-def decide(features: TouchFeatures, config: ClassifierConfig, pixel_m: float):
+def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, float]:
     """``(label, confidence)`` from the features by the rules of the module docstring.
 
-    The confidence grows with the distance of the deciding feature from its threshold.
+    The confidence grows with the relative distance of the deciding feature(s) from their
+    thresholds (0.5 on a threshold, towards 1 far from it).
     """
-    travel_threshold = config.rub_travel_pixels * pixel_m
 
     def margin(value: float, threshold: float) -> float:
-        return 0.5 + 0.5 * math.tanh(abs(value - threshold) / max(threshold, 1e-12))
+        return 0.5 + 0.5 * math.tanh(2.0 * abs(value - threshold) / threshold)
 
-    if features.count >= 3:
-        return "grab", min(1.0, 0.7 + 0.1 * (features.count - 2))
-    if features.count == 2:
-        if features.closing >= config.pinch_closing:
-            return "pinch", margin(features.closing, config.pinch_closing)
-        return "grab", margin(features.closing, config.pinch_closing)
-    if features.travel_m >= travel_threshold:
-        return "rub", margin(features.travel_m, travel_threshold)
-    ratio = features.stretch_ratio
-    if ratio is not None and config.stretch_ratio_rub > 0 and ratio >= config.stretch_ratio_rub:
-        return "pinch", 0.5 * margin(ratio, config.stretch_ratio_rub)
-    conf = margin(features.travel_m, travel_threshold)
-    if ratio is not None and config.stretch_ratio_rub > 0:
-        conf = min(conf, margin(ratio, config.stretch_ratio_rub))
+    f, c = features, config
+    if f.closing >= c.pinch_closing:
+        return "pinch", margin(f.closing, c.pinch_closing)
+    if f.spread >= c.grab_spread:
+        return "grab", margin(f.spread, c.grab_spread)
+    if f.travel >= c.rub_travel:
+        return "rub", min(margin(f.travel, c.rub_travel), margin(f.closing, c.pinch_closing))
+    ratio = f.stretch_ratio
+    if ratio is not None and c.stretch_ratio_rub > 0 and ratio >= c.stretch_ratio_rub:
+        return "pinch", 0.5 * margin(ratio, c.stretch_ratio_rub)
+    conf = min(
+        margin(f.travel, c.rub_travel),
+        margin(f.closing, c.pinch_closing),
+        margin(f.spread, c.grab_spread),
+    )
     return "push", conf
+
+
+_SHAPE_COLUMNS = 7  # t, peak, cx, cy, major, minor, finger spread at the centroid
 
 
 class _Touch:
@@ -183,13 +229,9 @@ class _Touch:
         self.t_last_s = t_s
         self.t_last_update_s = t_s
         self.counts: list[int] = []
-        self.pair_first_m: float | None = None
-        self.pair_min_m = math.inf
-        self.pair_frames = 0
-        self.merged = False
+        self.shapes: list[np.ndarray] = []
         self.max_pressure = 0.0
         self.max_stretch: float | None = None
-        self.travel_m = 0.0
         self.last_contacts: list[Contact] = []
         self.missing = 0
         self.label = "push"
@@ -202,6 +244,34 @@ class _Touch:
         return int(counts[min(min_frames, counts.size) - 1])
 
 
+def shape_features(
+    shapes: np.ndarray, strong_fraction: float
+) -> tuple[float, float, float, float, int]:
+    """``(travel, closing, spread, elongation, frames)`` of a touch's per-frame blob shapes.
+
+    Args:
+        shapes: ``[T, 7]`` per frame: time (s), peak, centroid x, y (m), major, minor spread
+            (m), one finger's spread at the centroid (m).
+        strong_fraction: frames with a peak below this fraction of the largest are ignored.
+    """
+    s = shapes[np.all(np.isfinite(shapes), axis=1)]
+    if s.shape[0] == 0:
+        return 0.0, 0.0, 1.0, 1.0, 0
+    s = s[s[:, 1] >= strong_fraction * s[:, 1].max()]
+    finger = np.maximum(s[:, 6], 1e-6)
+    unit = float(np.median(finger))
+    major = s[:, 4] / finger
+    spread = float(np.median(np.sqrt(s[:, 4] * s[:, 5]) / finger))
+    elongation = float(np.median(s[:, 4] / np.maximum(s[:, 5], 1e-9)))
+    n = s.shape[0]
+    anchor = np.median(s[: min(3, n), 2:4], axis=0)
+    travel = float(np.max(np.linalg.norm(s[:, 2:4] - anchor, axis=1))) / unit
+    w = min(5, n)  # rolling median of 5 frames against noisy frames
+    smooth = np.median(np.lib.stride_tricks.sliding_window_view(major, w), axis=1)
+    closing = float(np.max(1.0 - smooth / np.maximum.accumulate(smooth)))
+    return travel, closing, spread, elongation, n
+
+
 class TouchClassifier:
     """Stream of images -> touch events (see module docstring).
 
@@ -210,6 +280,9 @@ class TouchClassifier:
         config: thresholds and timing.
         pressure_noise_pa: image noise; ``None``: estimated from the calibration frames.
         stretch_noise: stretch image noise (strain); ``None``: estimated likewise.
+        contact_spread_m: spread of one fingertip's image, m: a ``[H, W]`` map
+            (:func:`~eit_skin.blob_shape.single_contact_spread`) or a scalar; ``None``:
+            ``config.contact_spread_m``.
     """
 
     def __init__(
@@ -219,6 +292,7 @@ class TouchClassifier:
         config: ClassifierConfig | None = None,
         pressure_noise_pa: float | None = None,
         stretch_noise: float | None = None,
+        contact_spread_m: float | np.ndarray | None = None,
     ) -> None:
         self.x = np.asarray(x, dtype=np.float64)
         self.y = np.asarray(y, dtype=np.float64)
@@ -227,6 +301,14 @@ class TouchClassifier:
         self.pressure_noise_pa = pressure_noise_pa
         self.stretch_noise = stretch_noise
         self.segmenter: ContactSegmenter | None = None
+        self._xx, self._yy = np.meshgrid(self.x, self.y)
+        spread = self.config.contact_spread_m if contact_spread_m is None else contact_spread_m
+        spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), self._xx.shape)
+        if not (np.all(np.isfinite(spread)) and np.all(spread > 0)):
+            raise ValueError(
+                f"contact_spread_m: a finite, positive scalar or [H, W] = {self._xx.shape} map"
+            )
+        self.contact_spread_m = spread
         self.tracker = ContactTracker(self.config.gate_pixels * self.pixel_m, max_missed=2)
         self._calibration: list[np.ndarray] = []
         self._calibration_stretch: list[np.ndarray] = []
@@ -236,6 +318,10 @@ class TouchClassifier:
         self.stretch_baseline: np.ndarray | None = None
         self._run = 0
         self._run_start_s = 0.0
+        self._run_shapes: list[np.ndarray] = []
+        self._recent: list[np.ndarray] = []
+        self._noise_var: np.ndarray | None = None
+        self._noise_floor = 0.0
         self._touch: _Touch | None = None
         self._next_id = 1
         self.last_contacts: list[Contact] = []
@@ -265,11 +351,23 @@ class TouchClassifier:
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels outside the sheet
             self.baseline = np.nanmedian(stack, axis=0)
         self.baseline = np.where(np.isfinite(self.baseline), self.baseline, 0.0)
+        n_avg = min(self.config.average_frames, len(stack))
+        self._recent = list(stack[len(stack) - n_avg + 1 :]) if n_avg > 1 else []
+        averaged = _running_mean(stack, n_avg)  # what the segmentation will look at
         if self.pressure_noise_pa:
-            sigma = self.pressure_noise_pa
+            sigma = self.pressure_noise_pa / math.sqrt(n_avg)
         else:
-            sigma = estimate_noise_map(stack) if len(stack) >= 3 else estimate_noise(stack)
             self.pressure_noise_pa = estimate_noise(stack)
+            if len(averaged) >= 3:
+                # conservative start (few frames): the larger of the smoothed map and each
+                # pixel's own spread; then the noise keeps being learnt (_follow_noise)
+                sigma = np.maximum(
+                    estimate_noise_map(averaged, window=3), estimate_noise_map(averaged, window=1)
+                )
+                self._noise_var = sigma**2
+                self._noise_floor = 0.5 * estimate_noise(averaged)
+            else:
+                sigma = estimate_noise(averaged)
         if self._calibration_stretch:
             s_stack = np.stack(self._calibration_stretch)
             with warnings.catch_warnings():
@@ -300,16 +398,50 @@ class TouchClassifier:
             return []
         dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
         self._t_prev = t_s
-        signal = pressure - self.baseline
-        contacts = self.segmenter.segment(signal)
+        self._recent = [*self._recent[-(self.config.average_frames - 1) :], pressure]
+        if self.config.average_frames == 1:
+            self._recent = [pressure]
+        signal = np.mean(self._recent, axis=0) - self.baseline
+        contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
         stretch_peak = None
         if stretch is not None and self.stretch_baseline is not None:
             s = stretch - self.stretch_baseline
             stretch_peak = float(np.nanmax(s)) if np.isfinite(s).any() else None
-        if self._touch is None and not contacts:
-            self._follow_baseline(dt, pressure, stretch)
-        return self._advance(t_s, contacts, stretch_peak)
+        shape = None
+        if contacts:
+            shape = self._shape(t_s, signal, parts > 0)
+        else:
+            self._run_shapes = []
+            if self._touch is None:
+                self._follow_baseline(dt, pressure, stretch)
+                self._follow_noise(dt, signal)
+        return self._advance(t_s, contacts, stretch_peak, shape)
+
+    def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``[7]`` time, peak, centroid, major, minor spread, finger spread at the centroid."""
+        m = blob_moments(signal, self._xx, self._yy, mask=mask)
+        row = np.full(_SHAPE_COLUMNS, np.nan)
+        row[0] = t_s
+        row[1:6] = m[:5]
+        if np.isfinite(m[1]) and np.isfinite(m[2]):
+            j = int(np.clip(np.searchsorted(self.x, m[1]), 0, self.x.size - 1))
+            i = int(np.clip(np.searchsorted(self.y, m[2]), 0, self.y.size - 1))
+            row[6] = self.contact_spread_m[i, j]
+        return row
+
+    def _follow_noise(self, dt: float, signal: np.ndarray) -> None:
+        """Per-pixel noise variance: exponential average of no-touch deviations squared.
+
+        The short calibration cannot see every pixel's noise well (a noisy spot next to an
+        electrode averaged with its quieter neighbours); this keeps learning it.
+        """
+        if self._noise_var is None or self.config.noise_tau_s <= 0:
+            return
+        alpha = 1.0 - math.exp(-dt / self.config.noise_tau_s)
+        ok = np.isfinite(signal)
+        self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
+        self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
 
     def _follow_baseline(self, dt: float, pressure, stretch) -> None:
         alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
@@ -319,7 +451,9 @@ class TouchClassifier:
             ok = np.isfinite(stretch)
             self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
 
-    def _advance(self, t_s: float, contacts: list[Contact], stretch_peak) -> list[TouchEvent]:
+    def _advance(
+        self, t_s: float, contacts: list[Contact], stretch_peak, shape
+    ) -> list[TouchEvent]:
         cfg = self.config
         touch = self._touch
         if touch is None:
@@ -330,13 +464,22 @@ class TouchClassifier:
                 self._run_start_s = t_s
                 self.tracker.reset()
             self._run += 1
+            self._run_shapes = [*self._run_shapes[-50:], shape]
             self._observe_contacts(None, t_s, contacts, stretch_peak)
-            if self._run < cfg.start_frames:
+            # a contact must stay in place (one track) for start_frames frames: noise
+            # crossing the threshold at random places in consecutive frames is no touch
+            steady = [
+                tr for tr in self.tracker.tracks if tr.missed == 0 and tr.frames >= cfg.start_frames
+            ]
+            if not steady:
                 return []
-            touch = self._touch = _Touch(self._next_id, self._run_start_s)
+            t_first = min(tr.first_seen_s for tr in steady)
+            touch = self._touch = _Touch(self._next_id, t_first)
             self._next_id += 1
             self._run = 0
-            self._observe_contacts(touch, t_s, contacts, stretch_peak, track=False)
+            touch.shapes = [row for row in self._run_shapes[:-1] if row[0] >= t_first - 1e-9]
+            self._run_shapes = []
+            self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
             self._relabel(touch)
             return [self._event(touch, "start", t_s)]
         if not contacts:
@@ -348,7 +491,7 @@ class TouchClassifier:
                 return [self._event(touch, "end", t_s)]
             return []
         touch.missing = 0
-        self._observe_contacts(touch, t_s, contacts, stretch_peak)
+        self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
         if t_s - touch.t_last_update_s >= cfg.update_period_s - 1e-9:
             self._relabel(touch)
             touch.t_last_update_s = t_s
@@ -365,57 +508,45 @@ class TouchClassifier:
         return [self._event(touch, "end", touch.t_last_s if t_s is None else t_s)]
 
     # ------------------------------------------------------------------ features
-    def _observe_contacts(self, touch, t_s, contacts, stretch_peak, track: bool = True) -> None:
+    def _observe_contacts(
+        self, touch, t_s, contacts, stretch_peak, shape=None, track: bool = True
+    ) -> None:
         if track:
             self.tracker.update(t_s, contacts)
         if touch is None:
             return
-        for tr in self.tracker.tracks:
-            if tr.missed == 0 and tr.frames >= self.config.count_frames:
-                path = np.asarray(tr.path)[:, 1:]
-                anchor = np.median(path[: self.config.count_frames], axis=0)
-                moved = float(np.linalg.norm(path[-1] - anchor))
-                touch.travel_m = max(touch.travel_m, moved)
         touch.t_last_s = t_s
         touch.last_contacts = contacts
         touch.counts.append(len(contacts))
-        top = max(c.peak for c in contacts)
-        touch.max_pressure = max(touch.max_pressure, top)
+        if shape is not None:
+            touch.shapes.append(shape)
+        touch.max_pressure = max(touch.max_pressure, max(c.peak for c in contacts))
         if stretch_peak is not None:
             touch.max_stretch = max(touch.max_stretch or 0.0, stretch_peak)
-        if len(contacts) >= 2:
-            a, b = np.asarray(contacts[0].centroid_m), np.asarray(contacts[1].centroid_m)
-            d = float(np.linalg.norm(a - b))
-            touch.pair_frames += 1
-            if touch.pair_first_m is None:
-                touch.pair_first_m = d
-            touch.pair_min_m = min(touch.pair_min_m, d)
-        elif touch.pair_frames >= self.config.count_frames and len(contacts) == 1:
-            touch.merged = True
 
     def features(self, touch: _Touch) -> TouchFeatures:
-        count = touch.count(self.config.count_frames)
-        closing = 0.0
-        if touch.pair_first_m:
-            closing = 1.0 - touch.pair_min_m / touch.pair_first_m
-            if touch.merged:
-                closing = 1.0
-        travel = touch.travel_m
+        """Features of a touch on the evidence so far."""
+        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
+        travel, closing, spread, elongation, n = shape_features(shapes, self.config.strong_fraction)
         ratio = None
         if touch.max_stretch is not None and touch.max_pressure > 0:
             ratio = touch.max_stretch / touch.max_pressure
-        if count >= 2 or touch.merged:
-            count = max(count, 2)
-        return TouchFeatures(max(count, 1), travel, closing, ratio)
+        count = max(touch.count(self.config.count_frames), 1)
+        return TouchFeatures(count, travel, closing, spread, elongation, ratio, n)
 
     def _relabel(self, touch: _Touch) -> None:
         features = self.features(touch)
         self.last_features = features
-        touch.label, touch.confidence = decide(features, self.config, self.pixel_m)
+        touch.label, touch.confidence = decide(features, self.config)
 
     def _event(self, touch: _Touch, state: str, t_s: float) -> TouchEvent:
         contacts = touch.last_contacts
         centroid = np.mean([c.centroid_m for c in contacts], axis=0) if contacts else np.zeros(2)
+        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
+        shapes = shapes[np.isfinite(shapes[:, 2]) & np.isfinite(shapes[:, 3])]
+        if shapes.shape[0]:  # the blob centroid of the latest frame pressed at full strength
+            strong = shapes[:, 1] >= self.config.strong_fraction * shapes[:, 1].max()
+            centroid = shapes[np.flatnonzero(strong)[-1], 2:4]
         return TouchEvent(
             touch_id=touch.id,
             state=state,
@@ -431,6 +562,14 @@ class TouchClassifier:
         )
 
 
+def _running_mean(stack: np.ndarray, n: int) -> np.ndarray:
+    """``[T - n + 1, H, W]`` means of ``n`` consecutive frames of ``stack`` ``[T, H, W]``."""
+    if n <= 1:
+        return stack
+    c = np.cumsum(np.concatenate([np.zeros_like(stack[:1]), stack]), axis=0)
+    return (c[n:] - c[:-n]) / n
+
+
 def classify_stream(
     t_s: np.ndarray,
     pressure: np.ndarray,
@@ -438,9 +577,13 @@ def classify_stream(
     y: np.ndarray,
     stretch: np.ndarray | None = None,
     config: ClassifierConfig | None = None,
+    contact_spread_m: float | np.ndarray | None = None,
 ) -> list[TouchEvent]:
-    """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise."""
-    classifier = TouchClassifier(x, y, config)
+    """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise.
+
+    ``contact_spread_m``: one fingertip's spread (see :class:`TouchClassifier`).
+    """
+    classifier = TouchClassifier(x, y, config, contact_spread_m=contact_spread_m)
     events: list[TouchEvent] = []
     for k in range(len(t_s)):
         events += classifier.step(

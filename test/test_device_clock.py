@@ -115,4 +115,3 @@ def test_frames_read_in_bursts_keep_their_spacing():
     late = stamps - truth  # mapped minus true acquisition time; reads lag 2..40 ms
     assert late.min() > -1_000_000  # never (much) before the acquisition
     assert late[100:].max() < 6_000_000  # near the 2 ms minimum delay, not the 40 ms jitter
-

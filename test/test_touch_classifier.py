@@ -5,8 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from eit_skin.blob_shape import blob_moments, single_contact_spread
+from eit_skin.imaging import LayerImager
+from eit_skin.patch import load_patch
+from eit_skin.resources import config_path
+from eit_skin.simulator import SkinSimulator
 from eit_skin.touch_classifier import ClassifierConfig, TouchClassifier, classify_stream
-from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, envelope, sequence
+from test.synthetic_touches import (
+    INSIDE,
+    SIGMA_PA,
+    WIDTH_M,
+    XX,
+    YY,
+    X,
+    Y,
+    blobs,
+    envelope,
+    sequence,
+)
 
 ONSET_S, RELEASE_S = 1.0, 2.2
 
@@ -109,3 +125,107 @@ def test_bad_configuration_is_refused() -> None:
         ClassifierConfig(pinch_closing=1.5)
     with pytest.raises(ValueError, match="start_frames"):
         ClassifierConfig(start_frames=0)
+
+
+# --------------------------------------------------------------------------- blob shape
+
+
+def test_blob_moments_of_an_elliptic_gaussian_are_its_standard_deviations() -> None:
+    x = np.linspace(-0.06, 0.06, 241)
+    xx, yy = np.meshgrid(x, x)
+    sx, sy, angle = 0.008, 0.004, 0.5  # m, m, rad
+    u = (xx - 0.01) * np.cos(angle) + (yy + 0.005) * np.sin(angle)
+    v = -(xx - 0.01) * np.sin(angle) + (yy + 0.005) * np.cos(angle)
+    image = 300.0 * np.exp(-0.5 * ((u / sx) ** 2 + (v / sy) ** 2))
+    peak, cx, cy, major, minor, axis = blob_moments(image, xx, yy, fraction=0.0)
+    assert peak == pytest.approx(300.0)
+    assert (cx, cy) == pytest.approx((0.01, -0.005), abs=1e-6)
+    assert (major, minor) == pytest.approx((sx, sy), rel=1e-3)
+    assert axis == pytest.approx(angle, abs=1e-3)
+    # the weighting above a fraction of the peak does not depend on the amplitude
+    np.testing.assert_allclose(
+        blob_moments(7.0 * image, xx, yy)[1:], blob_moments(image, xx, yy)[1:], rtol=1e-9
+    )
+    # a mask leaves far-away pixels out
+    far = image.copy()
+    far[10, 10] = 200.0
+    masked = blob_moments(far, xx, yy, fraction=0.0, mask=far < 250.0)
+    assert masked[3] > major
+    assert blob_moments(far, xx, yy, fraction=0.0, mask=np.hypot(xx, yy) < 0.05)[3] == (
+        pytest.approx(major, rel=1e-3)
+    )
+
+
+def test_two_blobs_apart_give_the_major_spread_of_half_their_distance() -> None:
+    # two equal narrow blobs 2d apart: second moment along the axis -> d^2 + w^2
+    m = blob_moments(blobs([(-0.012, 0.0), (0.012, 0.0)], 1000.0), XX, YY, fraction=0.0)
+    assert m[3] == pytest.approx(np.hypot(0.012, WIDTH_M), rel=0.05)
+    assert m[4] == pytest.approx(WIDTH_M, rel=0.1)
+
+
+# --------------------------------------------------------------------------- simulated skins
+
+
+@pytest.fixture(scope="module")
+def imager_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("imager-cache")
+
+
+def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
+    """END events of a built-in simulator script on a shipped patch, and its truth."""
+    patch = load_patch(config_path(patch_name))
+    imager = LayerImager.build(patch.layers[0], cache_dir=cache)
+    rec = SkinSimulator(patch, scenario, 50.0, seed=seed).run()
+    layer = rec.layers[patch.layers[0].name]
+    images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
+    spread = single_contact_spread(imager)
+    events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
+    return [e for e in events if e.state == "end"], rec.truth, spread, imager
+
+
+def test_one_fingertip_blurs_least_next_to_the_electrodes(imager_cache) -> None:
+    patch = load_patch(config_path("elbow"))  # electrodes on the long edges x = +-45 mm
+    imager = LayerImager.build(patch.layers[0], cache_dir=imager_cache)
+    spread = single_contact_spread(imager)
+    x, y = imager.grid.x, imager.grid.y
+    row = np.argmin(np.abs(y - 0.0))
+    edge = spread[row, np.argmin(np.abs(x - 0.035))]
+    middle = spread[row, np.argmin(np.abs(x - 0.0))]
+    assert 0.002 < edge < middle < 0.015
+
+
+@pytest.mark.parametrize(
+    ("patch_name", "scenario"), [("elbow", "pinch"), ("elbow", "grab"), ("elbow", "rub")]
+)
+def test_simulated_touch_on_a_pressure_only_knit_gets_its_label(
+    patch_name, scenario, imager_cache
+) -> None:
+    ends, truth, _, _ = simulated_ends(patch_name, scenario, imager_cache)
+    assert [e.label for e in ends] == [scenario]
+    assert ends[0].t_start_s == pytest.approx(truth[0].t_start_s, abs=0.15)
+
+
+def test_simulated_grab_on_the_face_is_one_wide_blob_labelled_grab(imager_cache) -> None:
+    clf_ends, truth, _, _ = simulated_ends("face", "grab", imager_cache)
+    assert [e.label for e in clf_ends] == ["grab"]
+    np.testing.assert_allclose(
+        clf_ends[0].centroid_m, np.mean(truth[0].contacts, axis=0), atol=0.02
+    )
+
+
+def test_noise_keeps_being_learnt_from_no_touch_frames() -> None:
+    # after calibration a patch of the sheet gets three times noisier (a loose electrode)
+    t, images = sequence(lambda t: ([], 0.0), 40.0, seed=6)
+    hot = (np.abs(XX - 0.02) < 0.006) & (np.abs(YY) < 0.006)
+    rng = np.random.default_rng(1)
+    extra = 2.0 * SIGMA_PA * rng.standard_normal(images.shape) * hot
+    images = images + np.where(t[:, None, None] > 0.5, extra, 0.0).astype(np.float32)
+    clf = TouchClassifier(X, Y)
+    for k in range(len(t)):
+        clf.step(t[k], images[k])
+    learnt = clf.segmenter.noise_sigma[hot]
+    # mean of 2 frames: per-pixel sigma sqrt(1 + 2^2) * SIGMA / sqrt(2)
+    assert np.median(learnt) == pytest.approx(np.sqrt(5 / 2) * SIGMA_PA, rel=0.15)
+    assert np.median(clf.segmenter.noise_sigma[INSIDE & ~hot]) == pytest.approx(
+        SIGMA_PA / np.sqrt(2), rel=0.15
+    )

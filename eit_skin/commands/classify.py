@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
 def classify_file(args: argparse.Namespace):
     """Finished touch events (END) of the files named in ``args``."""
+    from eit_skin.blob_shape import single_contact_spread
     from eit_skin.imaging import LayerImager
     from eit_skin.patch import load_patch
     from eit_skin.recording import load_frames_npz
@@ -81,7 +82,8 @@ def classify_file(args: argparse.Namespace):
                 f"{args.stretch_frames}: {stretch.shape[0]} frames, but {args.frames} has "
                 f"{pressure.shape[0]}"
             )
-    classifier = TouchClassifier(imager.grid.x, imager.grid.y)
+    spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+    classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
     for k in range(pressure.shape[0]):
         t = k / args.rate
         for event in classifier.step(t, pressure[k], None if stretch is None else stretch[k]):

@@ -24,9 +24,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
+from eit_skin.blob_shape import single_contact_spread
 from eit_skin.contacts import SegmentationConfig
-from eit_skin.image_grid import ImageGrid
-from eit_skin.mesh import build_mesh
+from eit_skin.imaging import LayerImager, default_cache_dir
 from eit_skin.patch import PatchError, load_patch
 from eit_skin.resources import config_path
 from eit_skin.touch_classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
@@ -44,8 +44,10 @@ _PARAMETERS: list[tuple[str, object, str]] = [
     ("start_frames", _CFG.start_frames, "consecutive frames with contact before START"),
     ("end_hold_s", _CFG.end_hold_s, "time without contact before END, s"),
     ("update_period_s", _CFG.update_period_s, "shortest time between UPDATEs, s"),
-    ("rub_travel_pixels", _CFG.rub_travel_pixels, "travel that makes a rub, pixels"),
-    ("pinch_closing", _CFG.pinch_closing, "relative closing of two contacts for a pinch"),
+    ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
+    ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
+    ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
+    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
     ("pair_timeout_s", 0.1, "wait for the stretch image of the same stamp, s"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
@@ -64,9 +66,9 @@ class ClassifierNode(Node):
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer = self.patch.layers[0]
-        edge = layer.mesh.inverse_max_edge_m
-        mesh = build_mesh(layer, edge) if edge else build_mesh(layer)
-        self.grid = ImageGrid.build(mesh, layer.solver.image_pixels)
+        imager = LayerImager.build(layer, cache_dir=str(p["cache_dir"]) or default_cache_dir())
+        self.grid = imager.grid
+        spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
         config = ClassifierConfig(
             segmentation=SegmentationConfig(
                 k_high=float(p["k_high"]),
@@ -78,11 +80,14 @@ class ClassifierNode(Node):
             start_frames=int(p["start_frames"]),
             end_hold_s=float(p["end_hold_s"]),
             update_period_s=float(p["update_period_s"]),
-            rub_travel_pixels=float(p["rub_travel_pixels"]),
+            rub_travel=float(p["rub_travel"]),
             pinch_closing=float(p["pinch_closing"]),
+            grab_spread=float(p["grab_spread"]),
         )
         noise = float(p["noise_pa"]) or None
-        self.classifier = TouchClassifier(self.grid.x, self.grid.y, config, noise)
+        self.classifier = TouchClassifier(
+            self.grid.x, self.grid.y, config, noise, contact_spread_m=spread
+        )
         self.pressure_layer = layer.name
         self.has_stretch = any(ly.name == "stretch" for ly in self.patch.layers)
         self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
