@@ -19,6 +19,8 @@ os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_skin_ros_log_"))
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+# reconstruction matrices: make test keeps them in build/cache; never in the home folder
+os.environ.setdefault("EIT_SKIN_CACHE", tempfile.mkdtemp(prefix="eit_skin_cache_"))
 
 
 @pytest.fixture(scope="session")

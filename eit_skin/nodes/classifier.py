@@ -16,10 +16,7 @@ import sys
 import time
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -27,13 +24,19 @@ from sensor_msgs.msg import Image
 from eit_skin.blob_shape import single_contact_spread
 from eit_skin.contacts import SegmentationConfig
 from eit_skin.imaging import LayerImager, default_cache_dir
-from eit_skin.patch import PatchError, load_patch
+from eit_skin.nodes.node_runner import (
+    ParameterTable,
+    declare_read_only,
+    diagnostic_status,
+    run_node,
+)
+from eit_skin.patch import load_patch
 from eit_skin.resources import config_path
 from eit_skin.touch_classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
 
 _SEG = SegmentationConfig()
 _CFG = ClassifierConfig()
-_PARAMETERS: list[tuple[str, object, str]] = [
+_PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
     ("k_high", _SEG.k_high, "contact seed threshold, multiples of the image noise"),
     ("k_low", _SEG.k_low, "contact growth threshold, multiples of the image noise"),
@@ -58,11 +61,7 @@ class ClassifierNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_classifier", **kwargs)
-        for name, default, description in _PARAMETERS:
-            self.declare_parameter(
-                name, default, ParameterDescriptor(description=description, read_only=True)
-            )
-        p = {name: self.get_parameter(name).value for name, _, _ in _PARAMETERS}
+        p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer = self.patch.layers[0]
@@ -231,35 +230,20 @@ class ClassifierNode(Node):
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
-            DiagnosticStatus(
-                level=bytes([level]),
-                name=f"{self.get_fully_qualified_name()}: touch classifier",
-                message=message,
-                hardware_id=self.patch.name,
-                values=[KeyValue(key=k, value=v) for k, v in values.items()],
+            diagnostic_status(
+                level,
+                f"{self.get_fully_qualified_name()}: touch classifier",
+                message,
+                self.patch.name,
+                values,
             )
         ]
         self.diagnostics.publish(msg)
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``eit_classifier``: spin until shutdown; exit 2 on a bad configuration."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ClassifierNode()
-        rclpy.spin(node)
-    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
-        print(f"eit_classifier: refusing to start: {error}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    """Console script ``eit_classifier``; exit 2 on a bad configuration."""
+    return run_node(ClassifierNode, "eit_classifier", args)
 
 
 if __name__ == "__main__":
