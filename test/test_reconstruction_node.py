@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
 
 from eit_skin.bringup import find_executable
 from eit_skin.imaging import LayerImager
@@ -72,6 +73,7 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
     probe.subscribe(Image, "/arm/pressure/image_color")
     probe.subscribe(EitFrame, "/arm/pressure/frames")
     probe.subscribe(DiagnosticArray, "/diagnostics", 10)
+    probe.subscribe(Marker, "/arm/skin_marker", 5)
     recon_log, driver_log = tmp_path / "recon.log", tmp_path / "driver.log"
     recon = start_node(
         "eit_reconstruction",
@@ -133,6 +135,17 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         assert np.linalg.norm(found - np.array(truth.contacts[0])) < 0.008
         assert np.isnan(best[~imager.grid.inside]).all()
         assert np.isfinite(best[imager.grid.inside]).all()
+        # rviz marker: coloured triangles lying on the arm's cylinder, in the patch frame
+        markers = [m for _, m in probe.messages["/arm/skin_marker"]]
+        assert {m.ns for m in markers} == {"pressure", "stretch"}
+        marker = next(m for m in reversed(markers) if m.ns == "pressure")
+        assert marker.type == Marker.TRIANGLE_LIST and marker.header.frame_id == patch.frame_id
+        xyz = np.array([(q.x, q.y, q.z) for q in marker.points])
+        assert len(xyz) % 3 == 0 and len(marker.colors) == len(xyz) > 300
+        cylinder = patch.placement
+        radial = xyz - cylinder.origin
+        radial -= np.outer(radial @ cylinder.axis, cylinder.axis)
+        np.testing.assert_allclose(np.linalg.norm(radial, axis=1), cylinder.radius, rtol=1e-9)
         colour = probe.messages["/arm/pressure/image_color"][-1][1]
         assert colour.encoding == "rgb8" and colour.step == 3 * colour.width
         assert probe.messages["/arm/stretch/image"]

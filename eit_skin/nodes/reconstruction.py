@@ -33,7 +33,6 @@ from eit_skin.acquisition import RateMeter, pattern_name
 from eit_skin.colour_scale import ColourScale
 from eit_skin.electrode_faults import faulty_electrodes
 from eit_skin.imaging import LayerImager, default_cache_dir
-from eit_skin.mesh import build_mesh
 from eit_skin.node_graph import image_topics
 from eit_skin.nodes.node_runner import (
     ParameterTable,
@@ -52,8 +51,8 @@ FRAME_QOS = QoSProfile(
     durability=qos_profile_sensor_data.durability,
 )
 
-#: The rviz marker mesh is this many times coarser than the layer's mesh (cheap to send).
-MARKER_EDGE_FACTOR = 2.5
+#: Cells along the long side of a layer's rviz marker (each costs Python objects per update).
+MARKER_PIXELS = 24
 
 _PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
@@ -283,20 +282,31 @@ class ReconstructionNode(Node):
 
     # ------------------------------------------------------------------ rviz
     def _marker_mesh(self, state: LayerState) -> tuple[list[Point], np.ndarray]:
-        """Display mesh of a layer, coarser than the imaging mesh.
+        """Display surface of a layer: two triangles per cell of a coarse pixel grid.
 
-        Returns the points of its triangles on the 3-D surface and, per triangle, the flat
-        index of the image pixel under its centroid (where its colour is read).
+        Returns the points of the triangles on the patch's 3-D surface and, per cell, the
+        flat index of the image pixel it shows. Every marker vertex costs Python objects on
+        each update, so the display uses about MARKER_PIXELS cells along the long side
+        (cells whose centre is off the sheet or in a hole are left out).
         """
-        layer = state.layer
-        mesh = build_mesh(layer, MARKER_EDGE_FACTOR * layer.mesh.max_edge_m)
-        xyz = self.patch.placement.to_3d(mesh.nodes)[mesh.triangles.reshape(-1)]
-        points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz]
         grid = state.imager.grid
-        c = mesh.centroids
-        col = np.clip(np.searchsorted(grid.x, c[:, 0]), 0, grid.x.size - 1)
-        row = np.clip(np.searchsorted(grid.y, c[:, 1]), 0, grid.y.size - 1)
-        return points, row * grid.x.size + col
+        height, width = grid.shape
+        step = max(1, int(np.ceil(max(height, width) / MARKER_PIXELS)))
+        rows, cols = np.meshgrid(
+            np.arange(0, height, step), np.arange(0, width, step), indexing="ij"
+        )
+        keep = grid.inside[rows, cols]
+        rows, cols = rows[keep], cols[keep]
+        half_x = 0.5 * step * (grid.x[1] - grid.x[0]) if width > 1 else 0.0
+        half_y = 0.5 * step * (grid.y[1] - grid.y[0]) if height > 1 else 0.0
+        cx, cy = grid.x[cols], grid.y[rows]
+        corners = np.array([(-1, -1), (1, -1), (1, 1), (-1, -1), (1, 1), (-1, 1)], float)
+        xy = np.stack(
+            [cx[:, None] + corners[:, 0] * half_x, cy[:, None] + corners[:, 1] * half_y], axis=-1
+        ).reshape(-1, 2)
+        xyz = self.patch.placement.to_3d(xy)
+        points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz]
+        return points, rows * width + cols
 
     def _publish_markers(self) -> None:
         for index, (name, state) in enumerate(self.layers.items()):
@@ -311,7 +321,7 @@ class ReconstructionNode(Node):
             marker.pose.orientation.w = 1.0
             marker.scale.x = marker.scale.y = marker.scale.z = 1.0
             marker.points = points
-            marker.colors = [c for c in colours for _ in range(3)]
+            marker.colors = [c for c in colours for _ in range(6)]  # two triangles per cell
             self.marker_pub.publish(marker)
 
     # ------------------------------------------------------------ diagnostics
