@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,23 +46,33 @@ def pattern_id(layer: Layer) -> PatternId:
 
 
 class RateMeter:
-    """Frames per second over a sliding window of host times."""
+    """Frames per second between two queries (O(1) per frame: a counter, monotonic clock).
 
-    def __init__(self, window_s: float = 2.0) -> None:
-        self.window_ns = int(window_s * 1e9)
-        self._times: deque[int] = deque()
+    ``rate_hz`` reports the rate since the previous query (the first query: since the
+    first frame), so with diagnostics every second it is the rate of the last second; a
+    query within ``min_window_s`` of the previous one repeats the last value.
+    """
 
-    def tick(self, now_ns: int) -> None:
-        self._times.append(now_ns)
-        self._trim(now_ns)
+    def __init__(self, min_window_s: float = 0.5) -> None:
+        self.min_window_ns = int(min_window_s * 1e9)
+        self.count = 0
+        self._mark: tuple[int, int] | None = None  # (count, monotonic ns) of the last query
+        self._rate = 0.0
 
-    def _trim(self, now_ns: int) -> None:
-        while self._times and now_ns - self._times[0] > self.window_ns:
-            self._times.popleft()
+    def tick(self) -> None:
+        if self._mark is None:
+            self._mark = (0, time.monotonic_ns())
+        self.count += 1
 
-    def rate_hz(self, now_ns: int) -> float:
-        self._trim(now_ns)
-        return len(self._times) / (self.window_ns * 1e-9)
+    def rate_hz(self) -> float:
+        if self._mark is None:
+            return 0.0
+        count, then = self._mark
+        now = time.monotonic_ns()
+        if now - then >= self.min_window_ns:
+            self._rate = (self.count - count) / ((now - then) * 1e-9)
+            self._mark = (self.count, now)
+        return self._rate
 
 
 @dataclass
@@ -142,6 +151,7 @@ class SerialSource:
         self.published = 0
         self.mismatched = 0
         self.last_mismatch = ""
+        self._reported = (0, 0)  # (published, mismatched) at the last status()
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -179,13 +189,15 @@ class SerialSource:
             self.sink(record)
             with self._lock:
                 self.published += 1
-                self.rate.tick(item.host_time_ns)
+                self.rate.tick()
 
     def status(self) -> SourceStatus:
         link = self.link.status()
-        now = time.time_ns()
         with self._lock:
-            rate = self.rate.rate_hz(now)
+            rate = self.rate.rate_hz()
+            new_frames = self.published - self._reported[0]
+            new_mismatches = self.mismatched - self._reported[1]
+            self._reported = (self.published, self.mismatched)
             values = {
                 "source": "serial",
                 "port": link.port,
@@ -207,10 +219,10 @@ class SerialSource:
             return SourceStatus(
                 2, f"device {link.port} not connected: {link.last_error or 'opening'}", values
             )
-        if self.mismatched and mismatch:
+        if new_mismatches and mismatch:
             return SourceStatus(1, f"frames rejected: {mismatch}", values)
-        if rate == 0.0:
-            return SourceStatus(1, f"connected to {link.port}, no frames yet", values)
+        if not new_frames:
+            return SourceStatus(1, f"connected to {link.port}, no frames since last report", values)
         return SourceStatus(0, f"{rate:.1f} frames/s from {link.port}", values)
 
 
@@ -258,10 +270,10 @@ class SimulatedSource:
             sink(factory.record(now_ns, self.index, sim.voltages_v, sim.flags))
         self.index += 1
         self.published += 1
-        self.rate.tick(now_ns)
+        self.rate.tick()
 
     def status(self) -> SourceStatus:
-        rate = self.rate.rate_hz(time.time_ns())
+        rate = self.rate.rate_hz()
         values = {
             "source": "simulator",
             "frame_rate_hz": f"{rate:.1f}",
@@ -316,7 +328,7 @@ class ReplaySource:
             sink(record)
             self._pending = None
             self.published += 1
-            self.rate.tick(now_ns)
+            self.rate.tick()
 
     def status(self) -> SourceStatus:
         values = {
@@ -324,7 +336,7 @@ class ReplaySource:
             "file": str(self.path),
             "frames_published": str(self.published),
             "finished": str(self.finished).lower(),
-            "frame_rate_hz": f"{self.rate.rate_hz(time.time_ns()):.1f}",
+            "frame_rate_hz": f"{self.rate.rate_hz():.1f}",
         }
         if self.finished:
             return SourceStatus(0, f"replay of {self.path.name} finished", values)

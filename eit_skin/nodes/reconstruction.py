@@ -234,7 +234,7 @@ class ReconstructionNode(Node):
         state.last_image = physical
         state.imaged += 1
         now = time.time_ns()
-        state.rate.tick(now)
+        state.rate.tick()
         state.latencies_ms.append((now * 1e-9 - stamp_s) * 1e3)
         del state.latencies_ms[:-500]
         state.processing_ms.append((time.perf_counter() - started) * 1e3)
@@ -247,10 +247,11 @@ class ReconstructionNode(Node):
         image.step = width * 4
         image.data = np.ascontiguousarray(physical, dtype=np.float32).tobytes()
         state.image_pub.publish(image)
-        colour = Image(header=header, height=height, width=width, encoding="rgb8")
-        colour.step = width * 3
-        colour.data = state.scale.to_rgb(physical).tobytes()
-        state.colour_pub.publish(colour)
+        if state.colour_pub.get_subscription_count():  # rendered only for a viewer
+            colour = Image(header=header, height=height, width=width, encoding="rgb8")
+            colour.step = width * 3
+            colour.data = state.scale.to_rgb(physical).tobytes()
+            state.colour_pub.publish(colour)
 
     # --------------------------------------------------------------- services
     def _on_rezero(self, request, response):
@@ -333,7 +334,7 @@ class ReconstructionNode(Node):
             tracker = state.tracker
             latency = np.asarray(state.latencies_ms or [np.nan])
             values = {
-                "reconstruction_rate_hz": f"{state.rate.rate_hz(now):.1f}",
+                "reconstruction_rate_hz": f"{state.rate.rate_hz():.1f}",
                 "latency_median_ms": f"{np.median(latency):.2f}",
                 "latency_p99_ms": f"{np.percentile(latency, 99):.2f}",
                 "processing_median_ms": f"{np.median(state.processing_ms or [np.nan]):.3f}",
