@@ -116,14 +116,12 @@ def test_adc_noise_snr_and_detection(case):
     std = adc_noise_std_v(s.v0)
     snr_db = 20 * np.log10(np.sqrt(np.mean(s.v0**2)) / std)
     assert 90 < snr_db < 110
-    c = (0.0, 0.0)
     # minimum detectable: a 10 % diameter silver-mesh-like target at the centre, 8 % at the edge
     for centre, diameter in (((0.0, 0.0), 0.10), ((0.8 * R, 0.0), 0.08)):
         v = phantom(s, [(centre[0], centre[1], diameter * R, 1e3)])
         frame = v + np.random.default_rng(5).normal(0, std, v.size)
         (f,) = fom(s, rm, frame, centre)
         assert f.position_error_m < 0.1 * R
-    del c
 
 
 @pytest.mark.parametrize("ratio", [2.0, 3.0])
