@@ -47,7 +47,7 @@ def test_one_pass_of_a_push_prints_the_touch_and_saves_pictures(tmp_path, env) -
     assert ends[-1] == "PUSH", result.stdout
     assert "face:" in result.stdout and "touches: push" in result.stdout
     written = re.search(r"wrote .*face\.gif \((\d+) frames\)", result.stdout)
-    assert written and int(written.group(1)) >= 10  # 5 frames/s over the script
+    assert written and int(written.group(1)) >= 5  # 5 frames/s while images flow
     assert PilImage.open(out / "face.gif").n_frames >= 3  # identical frames are merged
     snapshots = list(out.glob("face_*_push.png"))
     assert snapshots and PilImage.open(snapshots[0]).size[0] > 100
