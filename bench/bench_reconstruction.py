@@ -198,8 +198,8 @@ def gn_section(gn_rows) -> list[str]:
         f"5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R target at (-0.3, 0.4) R; "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; median of "
         f"{GN_REPEATS} runs; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
-        "end of the run (other engineers' tests share the machine: wall times are inflated, "
-        "CPU time less so). One-off: `gauss_newton_difference` with the unknowns on the "
+        "end of the run (this benchmark included; wall times grow with other load, CPU time "
+        "less so). One-off: `gauss_newton_difference` with the unknowns on the "
         "forward mesh (builds everything per call). Solver: `GaussNewtonSolver` built once "
         "(setup column), unknowns on the coarse parameter mesh, then `difference()` per frame; "
         "the per-iteration split is wall time of the forward solves (factorisation + "
@@ -356,8 +356,9 @@ def write_report(rows, sweep, gn_rows, sweep_fwd, data_n, quick):
     lines = [
         "# Reconstruction benchmark",
         "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs (shared "
-        f"with other engineers' test runs), Python {platform.python_version()}, numpy "
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run), "
+        f"Python {platform.python_version()}, numpy "
         f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
         f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
         ".venv/bin/python bench/bench_reconstruction.py`.",

@@ -30,7 +30,7 @@ from eit_skin.patch import load_patch
 LABELS = ("push", "rub", "pinch", "grab")
 STATES = ("START", "UPDATE", "END")
 GIF_PERIOD_S = 0.2
-SCALES = {"pressure": (20000.0, "Pa"), "stretch": (0.3, "")}
+SCALES = {"pressure": (10000.0, "Pa"), "stretch": (0.05, "")}  # as the node's colour scale
 
 
 @dataclass
@@ -160,8 +160,10 @@ def save_snapshot(view: PatchView, images: dict[str, np.ndarray], title: str, pa
     extent = [1e3 * v for v in view.extent]
     for ax, layer in zip(axes[0], layers, strict=True):
         quantity = view.quantities[layer]
-        top, unit = SCALES[quantity]
+        _, unit = SCALES[quantity]
         scale = 1e-3 if quantity == "pressure" else 1.0
+        # a snapshot scales to its own peak so weak touches stay visible
+        top = max(float(np.nanmax(images[layer], initial=0.0)), 1e-9)
         shown = ax.imshow(
             images[layer] * scale,
             origin="lower",
