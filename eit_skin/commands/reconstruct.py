@@ -49,22 +49,16 @@ def run(args: argparse.Namespace) -> int:
 def _reconstruct(args: argparse.Namespace):
     import numpy as np
 
-    from eit_skin.electrode_faults import FaultTolerantReconstructor
     from eit_skin.forward import ForwardModel
     from eit_skin.gauss_newton import GaussNewtonSolver
-    from eit_skin.image_grid import ImageGrid
+    from eit_skin.imaging import LayerImager
     from eit_skin.mesh import build_mesh
     from eit_skin.patch import load_patch
     from eit_skin.protocol import build_protocol
-    from eit_skin.reconstruction import ReconstructionMatrix
     from eit_skin.recording import load_frames_npz
+    from eit_skin.resources import config_path
 
-    patch_path = args.patch
-    if not Path(patch_path).exists():
-        from eit_skin.resources import config_path
-
-        patch_path = config_path(patch_path)
-    patch = load_patch(patch_path)
+    patch = load_patch(config_path(args.patch))
     layer = patch.layers[0] if args.layer is None else patch.layer(args.layer)
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     if not args.frames.exists():
@@ -73,42 +67,28 @@ def _reconstruct(args: argparse.Namespace):
 
     solver = layer.solver
     method = args.method or solver.method
-    sigma0 = layer.material.sheet_conductance_s
-    mesh = build_mesh(layer)
-    inverse_mesh = (
-        mesh
-        if layer.mesh.inverse_max_edge_m is None
-        else build_mesh(layer, layer.mesh.inverse_max_edge_m)
-    )
-    grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
+    # the chain the reconstruction node uses (matrix cached by the layer's content)
+    imager = LayerImager.build(layer)
     if method == "one_step":
-        forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
-        rm = ReconstructionMatrix.build(
-            forward,
-            prior=solver.prior,
-            hyperparameter=solver.hyperparameter,
-            sigma0=sigma0,
-            inverse_mesh=inverse_mesh,
-            noise_figure=solver.noise_figure,
-        )
-        imager = FaultTolerantReconstructor(rm, protocol)
-        values = imager.reconstruct(frames, reference)
-        faulty = imager.last_faulty
+        reconstructor = imager.fault_tolerant()
+        values = reconstructor.reconstruct(frames, reference)
+        faulty = reconstructor.last_faulty
     else:
         # One solver per layer (prior, parameter map and first step prepared once), the fine
         # forward mesh for the physics, the inverse mesh for the unknowns. The trained (GREIT)
         # matrix is one-step only, and its stored h does not suit another prior, so
         # Gauss-Newton then uses the Laplace prior with its default h.
+        mesh = build_mesh(layer)
         forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
         greit = solver.prior == "greit"
         solver_gn = GaussNewtonSolver(
             forward,
-            sigma0,
+            layer.material.sheet_conductance_s,
             prior="laplace" if greit else solver.prior,
             hyperparameter=GN_HYPERPARAMETER
             if greit or solver.hyperparameter is None
             else solver.hyperparameter,
-            parameter_mesh=None if inverse_mesh is mesh else inverse_mesh,
+            parameter_mesh=None if layer.mesh.inverse_max_edge_m is None else imager.mesh,
         )
         values = np.stack(
             [
@@ -119,8 +99,8 @@ def _reconstruct(args: argparse.Namespace):
             ]
         )
         faulty = np.zeros(0, dtype=np.int64)
-    images = grid.to_image(values)
-    return images, grid.x, grid.y, faulty
+    images = imager.images(values)
+    return images, imager.grid.x, imager.grid.y, faulty
 
 
 def _write_atomic(path: Path, **arrays) -> None:
