@@ -298,13 +298,12 @@ class ReplaySource:
             raise FileNotFoundError(f"replay_path {self.path}: no such file")
         self.layers = set(layers)
         self.realtime = realtime
-        self._iter: Iterator = iter(())
         self._pending: tuple[int, FrameRecord] | None = None
         self._t0: tuple[int, int] | None = None  # (first log time, host time at start)
         self.published = 0
         self.finished = False
         self.rate = RateMeter()
-        self._iter = self._records()
+        self._iter: Iterator[tuple[int, FrameRecord]] = self._records()
 
     def _records(self) -> Iterator[tuple[int, FrameRecord]]:
         for topic, log_ns, record in read_mcap_frames(self.path):

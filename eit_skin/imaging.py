@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from eit_skin.mesh import Mesh, build_mesh
 from eit_skin.patch import Layer
 from eit_skin.protocol import Protocol, build_protocol
 from eit_skin.reconstruction import ReconstructionMatrix
+from eit_skin.recording import write_npz_atomic
 
 #: Bumped whenever the cached quantities change meaning.
 CACHE_VERSION = "1"
@@ -96,7 +96,7 @@ class LayerImager:
             noise_figure=solver.noise_figure,
         )
         if path is not None:
-            _save_atomic(path, jacobian=matrix.jacobian, hyperparameter=matrix.hyperparameter)
+            _save_to_cache(path, jacobian=matrix.jacobian, hyperparameter=matrix.hyperparameter)
         grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
         return cls(layer, protocol, inverse_mesh, matrix, grid)
 
@@ -146,13 +146,10 @@ def cache_key(layer: Layer) -> str:
     return f"{layer.name}-{digest[:24]}"
 
 
-def _save_atomic(path: Path, **arrays: np.ndarray | float) -> None:
-    """Write an npz next to ``path`` and rename it into place (never half-written)."""
+def _save_to_cache(path: Path, **arrays: np.ndarray | float) -> None:
+    """Store a cache entry atomically; a read-only cache only costs the rebuild next time."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, **arrays)
-        os.replace(tmp, path)
+        write_npz_atomic(path, **arrays)
     except OSError:
-        pass  # a read-only cache only costs the rebuild next time
+        pass

@@ -409,6 +409,16 @@ def save_frames_npz(
     arrays = {"reference": reference, "frames": frames}
     if t is not None:
         arrays["t"] = t
+    write_npz_atomic(path, **arrays)
+
+
+def write_npz_atomic(path: str | Path, **arrays: np.ndarray | float) -> None:
+    """Write an npz next to ``path`` and rename it into place: complete or absent, never half.
+
+    The name is used as given (no ``.npz`` appended); a failure removes the temporary file
+    and re-raises.
+    """
+    path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
     try:
         with os.fdopen(fd, "wb") as stream:

@@ -74,15 +74,17 @@ class PostureReferences:
 
     def save(self, path: str | Path, layer: str) -> None:
         """Write ``<layer>/angles_rad``, ``<layer>/references_v`` and the joint into an npz."""
+        from eit_skin.recording import write_npz_atomic
+
         path = Path(path)
-        arrays = dict(np.load(path)) if path.is_file() else {}
+        arrays = {}
+        if path.is_file():
+            with np.load(path) as existing:
+                arrays = dict(existing)
         arrays[f"{layer}/angles_rad"] = self.angles_rad
         arrays[f"{layer}/references_v"] = self.references_v
         arrays["joint"] = np.array(self.joint)
-        tmp = path.with_name(f".{path.name}.tmp")
-        with tmp.open("wb") as handle:
-            np.savez(handle, **arrays)
-        tmp.replace(path)
+        write_npz_atomic(path, **arrays)
 
     @classmethod
     def load(cls, path: str | Path, layer: str) -> PostureReferences:

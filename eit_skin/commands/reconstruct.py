@@ -11,9 +11,7 @@ stderr, exit status 1.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 #: Gauss-Newton regularisation when the layer's stored one belongs to another method.
@@ -36,7 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         images, x, y, faulty = _reconstruct(args)
-        _write_atomic(args.out, images=images, x=x, y=y)
+        from eit_skin.recording import write_npz_atomic
+
+        write_npz_atomic(args.out, images=images, x=x, y=y)
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"eit-skin reconstruct: error: {message}", file=sys.stderr)
@@ -101,19 +101,3 @@ def _reconstruct(args: argparse.Namespace):
         faulty = np.zeros(0, dtype=np.int64)
     images = imager.images(values)
     return images, imager.grid.x, imager.grid.y, faulty
-
-
-def _write_atomic(path: Path, **arrays) -> None:
-    import numpy as np
-
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
