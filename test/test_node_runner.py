@@ -1,0 +1,62 @@
+"""The executor every eit_skin process spins with: real nodes, real DDS, both kinds."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from std_msgs.msg import UInt32
+
+from eit_skin.nodes.node_runner import EXECUTOR_ENV, make_executor, spin_nodes
+
+pytestmark = pytest.mark.ros
+
+
+def test_unknown_executor_names_the_variable(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(EXECUTOR_ENV, "fastest")
+    with pytest.raises(ValueError, match=f"{EXECUTOR_ENV}='fastest'"):
+        make_executor()
+
+
+@pytest.mark.parametrize("kind", ["events", "single"])
+def test_spin_nodes_delivers_messages_runs_timers_and_returns_on_shutdown(kind: str) -> None:
+    """Two nodes in one executor: 50 messages arrive in order, the timer ticks, and a
+    shutdown from another thread ends spin_nodes."""
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        sender = rclpy.create_node("sender", context=context)
+        receiver = rclpy.create_node("receiver", context=context)
+        got: list[int] = []
+        ticks: list[int] = []
+        done = threading.Event()
+
+        def on_message(msg: UInt32) -> None:
+            got.append(msg.data)
+            if len(got) == 50:
+                done.set()
+
+        receiver.create_subscription(UInt32, "count", on_message, 100)
+        pub = sender.create_publisher(UInt32, "count", 100)
+        sent = [0]
+
+        def send() -> None:  # reliable QoS: publish once the subscription is matched
+            ticks.append(1)
+            if pub.get_subscription_count() and sent[0] < 50:
+                for _ in range(10):
+                    pub.publish(UInt32(data=sent[0]))
+                    sent[0] += 1
+
+        sender.create_timer(0.02, send)
+        threading.Timer(20.0, done.set).start()  # a hang fails below instead of blocking
+        stopper = threading.Thread(target=lambda: (done.wait(), context.try_shutdown()))
+        stopper.start()
+        spin_nodes([sender, receiver], kind)
+        stopper.join(5.0)
+        assert got == list(range(50))
+        assert len(ticks) >= 5
+        assert not context.ok()
+    finally:
+        context.try_shutdown()
