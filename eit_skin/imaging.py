@@ -132,6 +132,9 @@ class LayerImager:
     def physical(self, relative_images: np.ndarray) -> np.ndarray:
         """Relative change -> the layer's quantity (Pa for pressure, strain for stretch).
 
+        Pointwise, so it applies to element values ``[N]`` as well as to images; the node
+        converts the ``N`` element values and then images them (fewer values than pixels).
+
         Relative changes below :data:`MIN_RELATIVE_CHANGE` (a conductance that all but
         vanished, beyond what the linearised reconstruction can claim) are clipped there,
         so the physical image stays finite; NaN (outside the sheet) stays NaN.

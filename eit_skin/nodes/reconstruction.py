@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -87,11 +88,11 @@ class LayerState:
     rejected: int = 0
     dropped: int = 0
     last_sequence: int | None = None
-    latencies_ms: list[float] = field(default_factory=list)
-    processing_ms: list[float] = field(default_factory=list)
+    latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
+    processing_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
     last_values: np.ndarray | None = None
     last_image: np.ndarray | None = None
-    recent: list[np.ndarray] = field(default_factory=list)
+    recent: deque[np.ndarray] = field(default_factory=lambda: deque(maxlen=50))
     faulty: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     excluded: np.ndarray | None = None
     last_reject: str = ""
@@ -219,7 +220,6 @@ class ReconstructionNode(Node):
                 )
             return
         state.recent.append(frame)
-        del state.recent[:-50]
         excluded = flags
         if state.excluded is not None and state.excluded.any():
             excluded = (flags if flags is not None else np.zeros(m, np.uint8)) | (
@@ -227,8 +227,7 @@ class ReconstructionNode(Node):
             )
         values = state.imager.relative_change(frame, tracker.reference(), excluded)
         tracker.track(frame, stamp_s, tracker.touching(values))
-        relative = state.imager.images(values)
-        physical = state.imager.physical(relative)
+        physical = state.imager.images(state.imager.physical(values))
         self._publish_images(state, msg.header, physical)
         state.last_values = values
         state.last_image = physical
@@ -236,9 +235,7 @@ class ReconstructionNode(Node):
         now = time.time_ns()
         state.rate.tick()
         state.latencies_ms.append((now * 1e-9 - stamp_s) * 1e3)
-        del state.latencies_ms[:-500]
         state.processing_ms.append((time.perf_counter() - started) * 1e3)
-        del state.processing_ms[:-500]
 
     def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
         height, width = physical.shape
