@@ -15,7 +15,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from eit_skin.node_graph import NodeSpec
+from eit_skin.node_graph import NODE_ENVIRONMENT, NodeSpec
 
 
 def find_executable(name: str) -> Path:
@@ -68,9 +68,7 @@ def start(spec: NodeSpec, log_dir: Path) -> RunningNode:
     log_dir.mkdir(parents=True, exist_ok=True)
     log_path = log_dir / f"{spec.namespace.strip('/').replace('/', '_')}_{spec.name}.log"
     command = [str(find_executable(spec.executable)), *ros_arguments(spec)]
-    # One BLAS thread per node: several nodes share few cores, and oversubscribed BLAS
-    # threads were 3-10x slower than one on a 2-core machine.
-    env = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", **os.environ}
+    env = {**NODE_ENVIRONMENT, **os.environ}
     with log_path.open("w") as log:
         process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
     return RunningNode(spec, process, log_path)

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from eit_skin.node_graph import NodeSpec
+from eit_skin.node_graph import NODE_ENVIRONMENT, NodeSpec
 
 
 def ros_nodes(specs: list[NodeSpec]) -> list:
-    """One ``launch_ros.actions.Node`` per spec (package eit_skin, output to the screen)."""
+    """One ``launch_ros.actions.Node`` per spec (package eit_skin, output to the screen).
+
+    Every node gets :data:`~eit_skin.node_graph.NODE_ENVIRONMENT` (one BLAS thread), as in
+    ``eit-skin run``.
+    """
     from launch_ros.actions import Node
 
     return [
@@ -16,6 +20,7 @@ def ros_nodes(specs: list[NodeSpec]) -> list:
             name=spec.name,
             namespace=spec.namespace,
             parameters=[spec.parameters],
+            additional_env=dict(NODE_ENVIRONMENT),
             output="screen",
         )
         for spec in specs

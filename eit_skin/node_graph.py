@@ -14,6 +14,11 @@ ROBOT_PATCHES: tuple[str, ...] = ("arm", "face", "elbow")
 
 ParameterValue = str | int | float | bool
 
+#: Environment of every node process (bring-up and launch files alike): one BLAS thread.
+#: Each frame is one small matrix-vector product; BLAS worker threads only add wake-ups and
+#: spinning, and several nodes share few cores (3-10x slower on a 2-core machine).
+NODE_ENVIRONMENT: dict[str, str] = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+
 
 @dataclass(frozen=True)
 class NodeSpec:

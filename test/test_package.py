@@ -14,6 +14,8 @@ from typing import ClassVar
 
 import pytest
 
+from eit_skin.node_graph import NODE_ENVIRONMENT
+
 
 def console_scripts(repo: Path) -> dict[str, str]:
     """name -> 'module:function' from setup.py's entry_points literal."""
@@ -116,6 +118,7 @@ def test_launch_file_names_only_installed_executables(
         assert node.kwargs["executable"] in scripts, node.kwargs["executable"]
         for params in node.kwargs["parameters"]:
             assert Path(params["patch_config"]).is_file()
+        assert node.kwargs["additional_env"] == NODE_ENVIRONMENT  # as in `eit-skin run`
     rviz = [a for a in actions if isinstance(a, _Node) and a.kwargs["package"] == "rviz2"]
     assert rviz and rviz[0].kwargs["arguments"][1] == str(share / "eit_skin/config/skin.rviz")
     assert (repo / "config" / "skin.rviz").is_file()
