@@ -228,7 +228,7 @@ class ReferenceTracker:
         if self.element_noise is None:
             return True  # unknown noise: never learn into the baseline
         score = np.abs(np.asarray(element_change, dtype=np.float64)) / self.element_noise
-        return bool(np.nanmax(score, initial=0.0) > self.contact_k)
+        return bool(np.fmax.reduce(score, initial=0.0) > self.contact_k)  # NaN ignored
 
     def track(self, frame_v: np.ndarray, t_s: float, touching: bool) -> None:
         """Drift tracking: follow an untouched frame slowly; freeze during a touch."""
