@@ -21,6 +21,7 @@ a gate in metres; a track missing for more than ``max_missed`` frames is dropped
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
 
@@ -335,3 +336,146 @@ class ContactTracker:
     def reset(self) -> None:
         """Forget every track (ids keep counting up)."""
         self.tracks = []
+
+
+LEARN_FRACTION = 0.6
+"""The pooled noise is learnt only from images whose z-scores all stay below this fraction of
+the detector threshold (pure noise nearly always does: its largest pooled z-score over a
+sheet is about 2, rarely above 3.5)."""
+
+
+class PooledDetector:
+    """Early touch detector: the image pooled over a fingertip-sized kernel, in its own noise.
+
+    A fingertip's reconstructed image is a blob much wider than a pixel, while part of the image
+    noise changes from pixel to pixel; a Gaussian-weighted mean over the sheet (a matched filter
+    for a blob of about the kernel's width; normalised convolution, pixels outside the sheet
+    left out) keeps the blob and averages that noise down. The pooled image is thresholded in
+    units of ITS noise ``z = pooled / sigma_pooled`` (per-pixel map estimated from no-touch
+    frames exactly like the image noise, :func:`estimate_noise_map`). Each image's median over
+    the sheet is removed first: pooling averages pixel noise down but keeps a sheet-wide
+    offset (drift the baseline has not caught up with yet) whole; a touch covers far less
+    than half of the sheet.
+
+    Persistence: per pixel, ``run`` counts consecutive frames with ``z > k`` at that pixel or
+    one of its 8 neighbours in the previous frame (a touch may drift by a pixel per frame);
+    a detection is ``run.max() >= frames``, checked by the caller.
+
+    Args:
+        inside: ``[H, W]`` bool, pixels on the sheet.
+        kernel_px: standard deviation of the Gaussian kernel, pixels (> 0).
+        k: threshold, multiples of the pooled image's noise (> 0).
+        frames_per_sample: consecutive images that share noise (the classifier's running
+            mean of ``average_frames`` frames): the noise estimate counts ``1 /
+            frames_per_sample`` independent samples per image.
+    """
+
+    def __init__(
+        self, inside: np.ndarray, kernel_px: float, k: float, frames_per_sample: int = 1
+    ) -> None:
+        inside = np.asarray(inside, dtype=bool)
+        if inside.ndim != 2 or not inside.any():
+            raise ValueError("PooledDetector: inside must be an [H, W] mask with a True pixel")
+        if not kernel_px > 0 or not k > 0:
+            raise ValueError(f"kernel_px and k must be > 0, got {kernel_px} and {k}")
+        self.inside = inside
+        self.kernel_px = float(kernel_px)
+        self.k = float(k)
+        self.frames_per_sample = max(int(frames_per_sample), 1)
+        self._weight = ndimage.gaussian_filter(
+            inside.astype(np.float64), self.kernel_px, mode="constant"
+        )
+        self.noise: np.ndarray | None = None
+        self._noise_var: np.ndarray | None = None
+        self._noise_floor = 0.0
+        self._samples = 0.0
+        self.pooled = np.full(inside.shape, np.nan)
+        self.z = np.zeros(inside.shape)
+        self.run = np.zeros(inside.shape, dtype=np.int64)
+
+    def pool(self, images: np.ndarray) -> np.ndarray:
+        """Gaussian-weighted mean of ``images`` ``[..., H, W]`` over the sheet (NaN outside).
+
+        Each image's median over the sheet is removed first.
+        """
+        a = np.asarray(images, dtype=np.float64)
+        a = np.where(self.inside & np.isfinite(a), a, np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN image
+            a = a - np.nanmedian(a, axis=(-2, -1), keepdims=True)
+        a = np.where(np.isfinite(a), a, 0.0)
+        sigma = (0.0,) * (a.ndim - 2) + (self.kernel_px, self.kernel_px)
+        total = ndimage.gaussian_filter(a, sigma, mode="constant")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.inside, total / self._weight, np.nan)
+
+    def calibrate(self, images: np.ndarray) -> None:
+        """Noise map of the pooled image from >= 3 no-touch (baseline-free) frames ``[T, H, W]``.
+
+        Each pixel's robust estimate (:func:`estimate_noise_map`, floored at half the global
+        one); :meth:`follow_noise` keeps learning it. Neighbouring pooled pixels share most of
+        their noise, so few frames estimate the whole map too low or too high together: the
+        map used is inflated by about two standard errors of an estimate from ``n`` independent
+        samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500).
+        """
+        pooled = self.pool(images)
+        sigma = estimate_noise_map(pooled, window=1)
+        self._noise_floor = 0.5 * estimate_noise(pooled)
+        self._noise_var = sigma**2
+        self._samples = pooled.shape[0] / self.frames_per_sample
+        self._set_noise()
+        self.reset()
+
+    def _set_noise(self) -> None:
+        sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
+        self.noise = sigma * (1.0 + math.sqrt(2.0 / max(self._samples, 1)))
+
+    def update(self, signal: np.ndarray) -> int:
+        """Pool one baseline-free image ``[H, W]``; the longest run (frames) of ``z > k``."""
+        if self.noise is None:
+            raise RuntimeError("PooledDetector.update before calibrate")
+        self.pooled = self.pool(signal)
+        with np.errstate(invalid="ignore"):
+            self.z = np.where(self.inside, self.pooled / self.noise, 0.0)
+        hit = self.z > self.k
+        self.run = np.where(hit, ndimage.maximum_filter(self.run, size=3, mode="constant") + 1, 0)
+        return int(self.run.max())
+
+    @property
+    def quiet(self) -> bool:
+        """No pooled z-score of the latest image above ``LEARN_FRACTION * k``.
+
+        Only such frames teach the noise: a touch building up below ``k`` is no noise.
+        """
+        return bool(np.max(self.z) <= LEARN_FRACTION * self.k)
+
+    @property
+    def hit(self) -> bool:
+        """Some pixel of the latest pooled image is above ``k`` noise sigmas."""
+        return bool(self.run.max() > 0)
+
+    def peak_m(self, x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+        """``(x, y)`` of the largest pooled z-score of the latest image, m."""
+        i, j = np.unravel_index(int(np.argmax(self.z)), self.z.shape)
+        return float(x[j]), float(y[i])
+
+    def follow_noise(self, alpha: float) -> None:
+        """Learn the noise from the latest pooled image (nothing touching, :attr:`quiet`).
+
+        Running mean of its square while fewer than ``2 / alpha`` frames were seen, then an
+        exponential average (weight ``alpha`` per frame); the sample count behind the estimate
+        (for the inflation of :meth:`calibrate`) is capped at ``2 / alpha``.
+        """
+        if self._noise_var is None or not alpha > 0:
+            return
+        step = 1.0 / self.frames_per_sample
+        weight = max(alpha, step / (self._samples + step))
+        ok = np.isfinite(self.pooled)
+        self._noise_var[ok] += weight * (self.pooled[ok] ** 2 - self._noise_var[ok])
+        self._samples = min(self._samples + step, 2.0 * step / alpha)
+        self._set_noise()
+
+    def reset(self) -> None:
+        """Forget the runs (e.g. after a touch, until the pooled image falls silent again)."""
+        self.run = np.zeros(self.inside.shape, dtype=np.int64)
+        self.z = np.zeros(self.inside.shape)

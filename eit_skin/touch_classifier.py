@@ -9,8 +9,14 @@ see docs/classifier.md):
   (time constants ``baseline_tau_s``, ``noise_tau_s``) while nothing touches;
 * contacts: hysteresis segmentation of the mean of the latest ``average_frames`` frames minus
   the baseline, at multiples of the noise (:class:`~eit_skin.contacts.ContactSegmenter`);
-* a touch starts once a contact stayed in place (one track) for ``start_frames`` frames and
-  ends after ``end_hold_s`` without contact; all contacts on the patch belong to it;
+* a touch starts once a contact stayed in place (one track) for ``start_frames`` frames, or
+  earlier, once the image pooled over a fingertip-sized Gaussian kernel (``detect_kernel``
+  single-finger spreads) stays above ``k_detect`` sigmas of ITS noise for ``start_frames``
+  frames in the same place (:class:`~eit_skin.contacts.PooledDetector`: a matched filter
+  that sees weak, slowly pressed touches 50-100 ms before single pixels cross ``k_high``);
+  it ends after ``end_hold_s`` without contact (a touch the pooled detector started ends
+  after ``end_hold_s`` of silent pooled image, or after ``confirm_s`` if no contact has been
+  segmented by then); all contacts on the patch belong to it;
 * per frame, the blob's centroid and principal spreads (:func:`~eit_skin.blob_shape.blob_moments`)
   over the contact pixels, in units of one fingertip's spread at that place
   (:func:`~eit_skin.blob_shape.single_contact_spread`);
@@ -36,6 +42,7 @@ from eit_skin.contacts import (
     Contact,
     ContactSegmenter,
     ContactTracker,
+    PooledDetector,
     SegmentationConfig,
     estimate_noise,
     estimate_noise_map,
@@ -59,7 +66,8 @@ class ClassifierConfig:
         segmentation: contact thresholds in noise units (see :class:`SegmentationConfig`).
         calibration_s: initial no-touch time used to estimate noise and baseline, s.
         baseline_tau_s: time constant of the drift-following baseline (idle frames only), s.
-        start_frames: consecutive frames with a contact in the same place before START.
+        start_frames: consecutive frames with a contact (or a pooled detection) in the same
+            place before START.
         average_frames: contacts are found in the mean of the latest this many frames (noise
             down by its square root, at half a frame period of delay per extra frame).
         noise_tau_s: time constant of the per-pixel noise estimate, which keeps learning from
@@ -78,6 +86,14 @@ class ClassifierConfig:
             given no per-pixel map.
         stretch_ratio_rub: stretch per pascal above which a single still contact is a pinch
             whose fingers cannot be told apart (only with a stretch layer), 1/Pa; 0 disables.
+        detect_kernel: standard deviation of the Gaussian kernel of the early START detector
+            (:class:`~eit_skin.contacts.PooledDetector`), in single-finger spreads (median of
+            the map over the sheet); about the width of one fingertip's whole reconstructed
+            blob. 0 disables it (START on segmented contacts only).
+        k_detect: threshold of the pooled image, multiples of the pooled image's own noise
+            (estimated like the image noise from the calibration frames, then learnt).
+        confirm_s: a touch started by the pooled detector with no segmented contact after
+            this time ends (then the detector waits for a silent pooled image), s.
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -96,6 +112,9 @@ class ClassifierConfig:
     grab_spread: float = 1.35
     contact_spread_m: float = 0.005
     stretch_ratio_rub: float = 0.0
+    detect_kernel: float = 2.5
+    k_detect: float = 5.5
+    confirm_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -108,7 +127,16 @@ class ClassifierConfig:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("end_hold_s", "update_period_s", "stretch_ratio_rub", "noise_tau_s"):
+        for name in ("k_detect", "confirm_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in (
+            "end_hold_s",
+            "update_period_s",
+            "stretch_ratio_rub",
+            "noise_tau_s",
+            "detect_kernel",
+        ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.start_frames < 1 or self.count_frames < 1 or self.average_frames < 1:
@@ -236,6 +264,7 @@ class _Touch:
         self.missing = 0
         self.label = "push"
         self.confidence = 0.5
+        self.detect_centroid_m = (0.0, 0.0)
 
     def count(self, min_frames: int) -> int:
         if not self.counts:
@@ -323,6 +352,9 @@ class TouchClassifier:
         self._noise_var: np.ndarray | None = None
         self._noise_floor = 0.0
         self._touch: _Touch | None = None
+        self.detector: PooledDetector | None = None
+        self._armed = True
+        self._times: list[float] = []
         self._next_id = 1
         self.last_contacts: list[Contact] = []
         self.last_features: TouchFeatures | None = None
@@ -377,6 +409,12 @@ class TouchClassifier:
             if self.stretch_noise is None:
                 self.stretch_noise = estimate_noise(s_stack)
         self.segmenter = ContactSegmenter(self.x, self.y, sigma, self.config.segmentation)
+        inside = np.isfinite(stack).any(axis=0)
+        if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():
+            finger_m = float(np.median(self.contact_spread_m[inside]))
+            kernel_px = self.config.detect_kernel * finger_m / self.pixel_m
+            self.detector = PooledDetector(inside, kernel_px, self.config.k_detect, n_avg)
+            self.detector.calibrate(averaged - self.baseline)
         self._calibration = []
         self._calibration_stretch = []
 
@@ -402,6 +440,13 @@ class TouchClassifier:
         if self.config.average_frames == 1:
             self._recent = [pressure]
         signal = np.mean(self._recent, axis=0) - self.baseline
+        self._times = [*self._times[-50:], t_s]
+        detected = None  # time of the first frame of a pooled detection, if there is one
+        if self.detector is not None:
+            run = self.detector.update(signal)
+            self._armed = self._armed or not self.detector.hit
+            if self._armed and run >= self.config.start_frames:
+                detected = self._times[-min(run, len(self._times))]
         contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
         stretch_peak = None
@@ -416,7 +461,7 @@ class TouchClassifier:
             if self._touch is None:
                 self._follow_baseline(dt, pressure, stretch)
                 self._follow_noise(dt, signal)
-        return self._advance(t_s, contacts, stretch_peak, shape)
+        return self._advance(t_s, contacts, stretch_peak, shape, detected)
 
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """``[7]`` time, peak, centroid, major, minor spread, finger spread at the centroid."""
@@ -436,9 +481,15 @@ class TouchClassifier:
         The short calibration cannot see every pixel's noise well (a noisy spot next to an
         electrode averaged with its quieter neighbours); this keeps learning it.
         """
-        if self._noise_var is None or self.config.noise_tau_s <= 0:
+        if self.config.noise_tau_s <= 0:
             return
         alpha = 1.0 - math.exp(-dt / self.config.noise_tau_s)
+        if self.detector is not None:
+            if not self.detector.quiet:  # possibly a weak touch building up: not noise
+                return
+            self.detector.follow_noise(alpha)
+        if self._noise_var is None:
+            return
         ok = np.isfinite(signal)
         self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
@@ -452,60 +503,83 @@ class TouchClassifier:
             self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
 
     def _advance(
-        self, t_s: float, contacts: list[Contact], stretch_peak, shape
+        self, t_s: float, contacts: list[Contact], stretch_peak, shape, detected=None
     ) -> list[TouchEvent]:
         cfg = self.config
         touch = self._touch
         if touch is None:
-            if not contacts:
+            starts = [] if detected is None else [detected]
+            if contacts:
+                if self._run == 0:
+                    self._run_start_s = t_s
+                    self.tracker.reset()
+                self._run += 1
+                self._run_shapes = [*self._run_shapes[-50:], shape]
+                self._observe_contacts(None, t_s, contacts, stretch_peak)
+                # a contact must stay in place (one track) for start_frames frames: noise
+                # crossing the threshold at random places in consecutive frames is no touch
+                starts += [
+                    tr.first_seen_s
+                    for tr in self.tracker.tracks
+                    if tr.missed == 0 and tr.frames >= cfg.start_frames
+                ]
+            else:
                 self._run = 0
+            if not starts:
                 return []
-            if self._run == 0:
-                self._run_start_s = t_s
-                self.tracker.reset()
-            self._run += 1
-            self._run_shapes = [*self._run_shapes[-50:], shape]
-            self._observe_contacts(None, t_s, contacts, stretch_peak)
-            # a contact must stay in place (one track) for start_frames frames: noise
-            # crossing the threshold at random places in consecutive frames is no touch
-            steady = [
-                tr for tr in self.tracker.tracks if tr.missed == 0 and tr.frames >= cfg.start_frames
-            ]
-            if not steady:
-                return []
-            t_first = min(tr.first_seen_s for tr in steady)
+            t_first = min(starts)
             touch = self._touch = _Touch(self._next_id, t_first)
             self._next_id += 1
             self._run = 0
             touch.shapes = [row for row in self._run_shapes[:-1] if row[0] >= t_first - 1e-9]
             self._run_shapes = []
-            self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
+            if contacts:
+                self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
+            else:  # the pooled detector saw it first: no contact segmented yet
+                self.tracker.reset()
+                touch.t_last_s = t_s
+                touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
             self._relabel(touch)
             return [self._event(touch, "start", t_s)]
         if not contacts:
             touch.missing += 1
             self.tracker.update(t_s, [])
+            pending = not touch.counts  # started by the pooled detector, no contact yet
+            if pending and self.detector is not None:
+                if self.detector.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
+                    touch.t_last_s = t_s
+                    touch.missing = 0
+                    touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
+                    return self._maybe_update(touch, t_s)
+                if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
+                    return self._end(touch, t_s)
             if t_s - touch.t_last_s >= cfg.end_hold_s - 1e-9:
-                self._touch = None
-                self._relabel(touch)
-                return [self._event(touch, "end", t_s)]
+                return self._end(touch, t_s)
             return []
         touch.missing = 0
         self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
-        if t_s - touch.t_last_update_s >= cfg.update_period_s - 1e-9:
+        return self._maybe_update(touch, t_s)
+
+    def _maybe_update(self, touch: _Touch, t_s: float) -> list[TouchEvent]:
+        if t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
             self._relabel(touch)
             touch.t_last_update_s = t_s
             return [self._event(touch, "update", t_s)]
         return []
+
+    def _end(self, touch: _Touch, t_s: float) -> list[TouchEvent]:
+        """END; the pooled detector waits for a silent pooled image before it starts again."""
+        self._touch = None
+        self._armed = False
+        self._relabel(touch)
+        return [self._event(touch, "end", t_s)]
 
     def finish(self, t_s: float | None = None) -> list[TouchEvent]:
         """End a touch still going on at the end of a stream (END at its last contact)."""
         touch = self._touch
         if touch is None:
             return []
-        self._touch = None
-        self._relabel(touch)
-        return [self._event(touch, "end", touch.t_last_s if t_s is None else t_s)]
+        return self._end(touch, touch.t_last_s if t_s is None else t_s)
 
     # ------------------------------------------------------------------ features
     def _observe_contacts(
@@ -541,7 +615,10 @@ class TouchClassifier:
 
     def _event(self, touch: _Touch, state: str, t_s: float) -> TouchEvent:
         contacts = touch.last_contacts
-        centroid = np.mean([c.centroid_m for c in contacts], axis=0) if contacts else np.zeros(2)
+        if contacts:
+            centroid = np.mean([c.centroid_m for c in contacts], axis=0)
+        else:
+            centroid = np.asarray(touch.detect_centroid_m)
         shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
         shapes = shapes[np.isfinite(shapes[:, 2]) & np.isfinite(shapes[:, 3])]
         if shapes.shape[0]:  # the blob centroid of the latest frame pressed at full strength

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from eit_skin.blob_shape import blob_moments, single_contact_spread
+from eit_skin.contacts import PooledDetector, SegmentationConfig
 from eit_skin.imaging import LayerImager
 from eit_skin.patch import load_patch
 from eit_skin.resources import config_path
@@ -229,3 +231,91 @@ def test_noise_keeps_being_learnt_from_no_touch_frames() -> None:
     assert np.median(clf.segmenter.noise_sigma[INSIDE & ~hot]) == pytest.approx(
         SIGMA_PA / np.sqrt(2), rel=0.15
     )
+
+
+# --------------------------------------------------------------------------- early START detector
+
+
+LATE_ONSET_S = 2.0  # the pooled noise has been learnt from 2 s of frames
+
+
+def ramp_touch(amplitude_pa: float, ramp_s: float = 0.3, hold_s: float = 1.0):
+    """A blob at (5, -5) mm pressed linearly over ``ramp_s`` from LATE_ONSET_S, held, released."""
+
+    def script(t):
+        rise = np.clip((t - LATE_ONSET_S) / ramp_s, 0.0, 1.0)
+        fall = np.clip((LATE_ONSET_S + 2 * ramp_s + hold_s - t) / ramp_s, 0.0, 1.0)
+        return [(0.005, -0.005)], amplitude_pa * min(rise, fall)
+
+    return script
+
+
+def test_pooling_a_white_noise_image_divides_its_noise_as_the_kernel_says() -> None:
+    # all pixels inside: a Gaussian kernel of s pixels keeps sigma / (2 sqrt(pi) s) of white
+    # noise and A w^2 / (w^2 + s^2) of a Gaussian blob of width w pixels at its centre
+    inside = np.ones((64, 64), dtype=bool)
+    s, w = 4.0, 3.0
+    detector = PooledDetector(inside, kernel_px=s, k=5.0)
+    rng = np.random.default_rng(11)
+    frames = SIGMA_PA * rng.standard_normal((400, 64, 64))
+    centre = detector.pool(frames)[:, 24:40, 24:40]
+    assert np.std(centre) == pytest.approx(SIGMA_PA / (2 * np.sqrt(np.pi) * s), rel=0.05)
+    i = np.arange(64) - 32.0
+    blob = 300.0 * np.exp(-(i[:, None] ** 2 + i[None, :] ** 2) / (2 * w**2))
+    assert detector.pool(blob)[32, 32] == pytest.approx(300.0 * w**2 / (w**2 + s**2), rel=0.02)
+    # a sheet-wide offset (drift the baseline has not followed yet) is removed
+    assert np.abs(detector.pool(blob + 50.0) - detector.pool(blob)).max() < 1e-9
+    # the noise map from 400 frames: that noise, inflated by 1 + sqrt(2 / 400)
+    detector.calibrate(frames)
+    expected = SIGMA_PA / (2 * np.sqrt(np.pi) * s) * (1 + np.sqrt(2 / 400))
+    assert np.median(detector.noise[24:40, 24:40]) == pytest.approx(expected, rel=0.1)
+
+
+def test_weak_slow_touch_starts_within_150_ms_only_with_the_pooled_detector() -> None:
+    # 60 Pa = 6 pixel sigmas at full force, 0.3 s linear press: one pixel of the 2-frame mean
+    # (sigma 10 / sqrt(2) Pa) crosses k_high = 6 sigmas only at 71 % of the ramp (> 210 ms);
+    # the pooled image (kernel 2.5 x 5 mm, white noise down ~26x, blob kept ~14 %) at ~20 %
+    t, images = sequence(ramp_touch(60.0), 4.0, seed=12)
+    spread = 0.005
+    early = classify_stream(t, images, X, Y, contact_spread_m=spread)
+    late = classify_stream(
+        t, images, X, Y, config=ClassifierConfig(detect_kernel=0), contact_spread_m=spread
+    )
+    start, _, end = one_touch(early)
+    assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.15
+    assert start.n_contacts == 0  # before any pixel crosses k_high
+    np.testing.assert_allclose(start.centroid_m, (0.005, -0.005), atol=0.004)
+    assert end.label == "push" and end.n_contacts >= 1
+    assert late[0].state == "start" and late[0].t_s > LATE_ONSET_S + 0.18
+
+
+def test_touch_too_weak_to_segment_ends_after_confirm_s_and_does_not_restart() -> None:
+    # 30 Pa held for 1.5 s: the pooled detector sees it; no pixel of the 2-frame mean crosses
+    # k_high = 9 sigmas = 64 Pa (it would take 4.8 sigmas of noise on top of the touch)
+    t, images = sequence(ramp_touch(30.0, hold_s=1.5), 4.5, seed=13)
+    config = ClassifierConfig(confirm_s=0.4, segmentation=SegmentationConfig(k_high=9.0))
+    events = classify_stream(t, images, X, Y, config=config)
+    start, _, end = one_touch(events)
+    assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.2
+    assert end.t_s - start.t_start_s == pytest.approx(0.4, abs=0.021)
+    assert end.n_contacts == 0
+
+
+@pytest.mark.parametrize(("seed", "correlation_px"), [(21, 0.0), (22, 3.0)])
+def test_noise_alone_starts_nothing_over_a_minute(seed, correlation_px) -> None:
+    # white or spatially correlated noise of the measured sigma, 3000 frames (60 s)
+    rng = np.random.default_rng(seed)
+    n = 3000
+    noise = rng.standard_normal((n, *XX.shape)).astype(np.float32)
+    if correlation_px:
+        noise = ndimage.gaussian_filter(noise, (0, correlation_px, correlation_px))
+        noise /= noise[:, 8:40, 8:40].std()
+    images = np.where(INSIDE, SIGMA_PA * noise, np.nan)
+    t = np.arange(n) / 50.0
+    clf = TouchClassifier(X, Y)
+    zmax = 0.0
+    for k in range(n):
+        assert clf.step(t[k], images[k]) == []
+        if clf.detector is not None:
+            zmax = max(zmax, float(clf.detector.z.max()))
+    assert 3.0 < zmax < clf.config.k_detect  # the detector ran, below its threshold
