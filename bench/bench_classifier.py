@@ -45,13 +45,17 @@ LATENCY_TARGET_S = 0.150
 SECONDS = 40.0
 IDLE_SECONDS = 150.0
 BENT_ANGLE_RAD = 1.5
-#: seeds of the random touch scripts (also noise and drift), per use; never overlapping
+#: seeds of the random touch scripts (also noise and drift), per use; never overlapping.
+#: The first evaluation set (101-107, bent 111-112, fault 121, idle 201) was looked at in the
+#: START-latency failure analysis of the pooled detector, so it is retired (neither tuning nor
+#: evaluation any more); the evaluation seeds below were first run with the final detector.
 TUNING_SEEDS = (1, 2, 3, 4, 5, 6)
 TUNING_BENT_SEEDS = (11,)
-EVAL_SEEDS = (101, 102, 103, 104, 105, 106, 107)
-EVAL_BENT_SEEDS = (111, 112)
-EVAL_FAULT_SEEDS = (121,)
-IDLE_SEEDS = {"tuning": 7, "eval": 201}
+RETIRED_SEEDS = (101, 102, 103, 104, 105, 106, 107, 111, 112, 121, 201)
+EVAL_SEEDS = (301, 302, 303, 304, 305, 306, 307)
+EVAL_BENT_SEEDS = (311, 312)
+EVAL_FAULT_SEEDS = (321,)
+IDLE_SEEDS = {"tuning": 7, "eval": 401}
 FAULT = "dead-electrode:5"
 
 
@@ -271,6 +275,7 @@ def main() -> None:
             matrices += matrix_lines(f"{name}, {title}", cm_c)
     if args.out is None:
         return
+    cfg = ClassifierConfig()
     report = [
         "# Touch classifier: accuracy in simulation",
         "",
@@ -295,6 +300,8 @@ def main() -> None:
         f"* **Evaluation seeds** (this report; never used for tuning): {list(EVAL_SEEDS)}, elbow",
         f"  bent {list(EVAL_BENT_SEEDS)}, dead electrode {list(EVAL_FAULT_SEEDS)}, idle "
         f"{IDLE_SEEDS['eval']} ({args.idle_seconds:g} s of no-touch data per patch).",
+        f"* **Retired seeds** {list(RETIRED_SEEDS)}: the previous evaluation set; it was looked",
+        "  at while analysing the START latency of weak touches, so it no longer counts as unseen.",
         "",
         *table,
         "",
@@ -307,10 +314,13 @@ def main() -> None:
         "* 100 % here means the four simulated touch kinds are geometrically distinct (a",
         "  simulated grab always spreads 3-5 fingers over 30-90 mm, a simulated pinch always",
         "  closes by 50-70 %); real touches are not that tidy. Expect far less on people.",
-        "* START latency is limited by the signal-to-noise ratio of weak touches on the knit",
-        "  patches (face, elbow: ~90-200 Pa image noise): a 1-2 N finger with a 0.3 s force ramp",
-        "  crosses the 6-sigma threshold only 150-200 ms after first contact. The target 'first",
-        "  START within 150 ms' is NOT met for those (see 'within 150 ms').",
+        "* START comes from the pooled (matched-filter) detector: the image averaged over a",
+        f"  Gaussian kernel of {cfg.detect_kernel:g} single-finger spreads, above "
+        f"{cfg.k_detect:g} sigmas of ITS noise for {cfg.start_frames}",
+        "  frames. On the knit patches (face, elbow: ~90-200 Pa image noise) a weak 1-2 N finger",
+        "  with a 0.3 s force ramp reaches it 50-100 ms before a single pixel crosses the 6-sigma",
+        "  segmentation threshold (which alone gave up to ~200 ms on the tuning seeds).",
+        "  Latency is counted from the first frame of force (onset of the simulated ramp).",
         "",
         "Extra conditions (not part of the targets above):",
         "",
