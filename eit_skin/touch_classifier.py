@@ -124,10 +124,9 @@ class ClassifierConfig:
             "rub_travel",
             "grab_spread",
             "contact_spread_m",
+            "k_detect",
+            "confirm_s",
         ):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("k_detect", "confirm_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         for name in (
