@@ -27,10 +27,10 @@ setup(
     extras_require={"test": ["pytest"]},
     entry_points={
         "console_scripts": [
-            "eit-skin = eit_skin.cli:main",
-            "eit_driver = eit_skin.nodes.driver:main",
-            "eit_reconstruction = eit_skin.nodes.reconstruction:main",
-            "eit_classifier = eit_skin.nodes.classifier:main",
+            "eit-skin = eit_skin.cli.main:main",
+            "eit_driver = eit_skin.ros.driver:main",
+            "eit_reconstruction = eit_skin.ros.reconstruction:main",
+            "eit_classifier = eit_skin.ros.classifier:main",
         ],
     },
 )

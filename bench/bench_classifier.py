@@ -2,7 +2,7 @@
 
 For every shipped patch: ``random`` touch scripts of the simulator, every layer reconstructed
 with the patch's imager (whatever ``solver.prior`` the config says), classified by
-:class:`~eit_skin.touch_classifier.TouchClassifier`; plus a no-touch recording (drift and
+:class:`~eit_skin.touch.classifier.TouchClassifier`; plus a no-touch recording (drift and
 noise only) for the false-event rate; for the elbow also touches with the joint held bent
 (reference = the no-touch frames at that posture, i.e. posture-compensated), and on every patch
 one run with a dead electrode (fault-tolerant reconstruction). Prints the tables and writes
@@ -31,14 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from eit_skin.blob_shape import single_contact_spread
-from eit_skin.imaging import LayerImager
-from eit_skin.patch import Patch, load_patch
+from eit_skin.patch.model import Patch, load_patch
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.scenario import Scenario, SheetFrame, random_scenario
-from eit_skin.simulator import SkinSimulator
-from eit_skin.stimuli import PostureTrack
-from eit_skin.touch_classifier import LABELS, ClassifierConfig, classify_stream
+from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario
+from eit_skin.sim.simulator import SkinSimulator
+from eit_skin.sim.stimuli import PostureTrack
+from eit_skin.touch.classifier import LABELS, ClassifierConfig, classify_stream
+from eit_skin.touch.shapes import single_contact_spread
 
 RATE_HZ = 50.0
 LATENCY_TARGET_S = 0.150

@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
@@ -30,9 +29,9 @@ os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
 from eit_skin_msgs.msg import EitFrame
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from eit_skin.fake_device import FakeDevice
-from eit_skin.wire import encode_frame
-from test.ros_probe import Probe, start_node, stop_node
+from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.hardware.wire import encode_frame
+from eit_skin.ros.probe import Probe, start_node, stop_node
 
 TOPIC = "/bench/pressure/frames"
 
@@ -68,7 +67,7 @@ def in_process(rate_hz: float, seconds: float, workdir: Path) -> dict[str, float
     import rclpy
     from rclpy.parameter import Parameter
 
-    from eit_skin.nodes.driver import DriverNode
+    from eit_skin.ros.driver import DriverNode
 
     volts = np.random.default_rng(2).normal(0, 0.05, (64, 208))
     device = FakeDevice(lambda i: volts[i % 64], rate_hz=rate_hz)

@@ -12,14 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.mesh import build_mesh
+from eit_skin.patch.model import load_patch
+from eit_skin.patch.protocol import build_protocol
 
-from eit_skin.forward import ForwardModel  # noqa: E402
-from eit_skin.mesh import build_mesh  # noqa: E402
-from eit_skin.patch import load_patch  # noqa: E402
-from eit_skin.protocol import build_protocol  # noqa: E402
-from test.forward_meshes import disk_mesh  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 
 def best_of(fn, repeats: int = 5) -> float:

@@ -9,7 +9,7 @@ writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
 * Same meshes for both packages: pyEIT gets our nodes and triangles and a point electrode at
   each electrode's middle boundary node; our frames are mapped to pyEIT's measurement order
   (pyEIT's ``std`` parser measures ``V(m+1) - V(m)``, ours ``V(m) - V(m+1)``: sign flipped).
-* Figures of merit (GREIT, :mod:`eit_skin.figures_of_merit`) on the same 64 x 64 pixel grid.
+* Figures of merit (GREIT, :mod:`eit_skin.inverse.figures_of_merit`) on the same 64 x 64 pixel grid.
 * Timings: build once per mesh (pyEIT's 11k build takes minutes); frame times are the median
   of repeated calls (other engineers use the same 2 cores).
 * Inverse-mesh sweep: fixed fine forward mesh, coarser inverse meshes (``inverse_mesh=``).
@@ -27,22 +27,19 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from eit_skin.figures_of_merit import figures_of_merit
-from eit_skin.forward import ForwardModel
-from eit_skin.gauss_newton import GaussNewtonSolver, gauss_newton_difference
-from eit_skin.image_grid import ImageGrid
-from eit_skin.priors import make_prior
-from eit_skin.protocol import ProtocolSpec, build_protocol
-from eit_skin.reconstruction import ReconstructionMatrix
-from test.forward_meshes import disk_mesh
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.inverse.figures_of_merit import figures_of_merit
+from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton_difference
+from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.priors import make_prior
+from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
 R = 0.05
 NOISE_FIGURE = 0.3  # Laplace prior (its previous default)

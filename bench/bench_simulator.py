@@ -7,9 +7,9 @@ import os
 import time
 from pathlib import Path
 
-from eit_skin.patch import load_patch
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from eit_skin.simulator import SkinSimulator
+from eit_skin.sim.simulator import SkinSimulator
 
 CASES = [("arm", "demo"), ("arm", "random"), ("face", "demo"), ("elbow", "elbow_bend")]
 DURATION_S = 20.0

@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
@@ -39,11 +38,11 @@ from eit_skin_msgs.msg import EitFrame  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
-from eit_skin.imaging import LayerImager  # noqa: E402
-from eit_skin.patch import load_patch  # noqa: E402
+from eit_skin.patch.model import load_patch  # noqa: E402
+from eit_skin.pipeline.builder import LayerImager  # noqa: E402
 from eit_skin.resources import config_path  # noqa: E402
-from eit_skin.simulator import SkinSimulator  # noqa: E402
-from test.ros_probe import Probe, start_node, stop_node  # noqa: E402
+from eit_skin.ros.probe import Probe, start_node, stop_node  # noqa: E402
+from eit_skin.sim.simulator import SkinSimulator  # noqa: E402
 
 BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -136,8 +135,8 @@ def latency(seconds: float, workdir: Path, cache: Path) -> dict[str, float]:
 def worker(k: int, cache: str) -> None:
     """K reconstruction nodes of the face patch in this one process (pinned to CPU 0)."""
     os.sched_setaffinity(0, {0})
-    from eit_skin.nodes.node_runner import spin_nodes
-    from eit_skin.nodes.reconstruction import ReconstructionNode
+    from eit_skin.ros.node_runner import spin_nodes
+    from eit_skin.ros.reconstruction import ReconstructionNode
 
     rclpy.init()
     nodes = []

@@ -6,7 +6,7 @@ Arguments:
   rviz     also start rviz2 with config/skin.rviz [false]
 
 On hardware, start one skin_patch.launch.py per board with its port instead.
-The nodes come from eit_skin.node_graph, the same place `eit-skin run --all` takes them from.
+The nodes come from eit_skin.ros.node_graph, the same place `eit-skin run --all` takes them from.
 """
 
 import os
@@ -18,8 +18,8 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eit_skin.launch_actions import ros_nodes
-from eit_skin.node_graph import robot_nodes
+from eit_skin.ros.launch_actions import ros_nodes
+from eit_skin.ros.node_graph import robot_nodes
 
 
 def _robot_actions(context):

@@ -9,7 +9,7 @@ Arguments:
   rviz       also start rviz2 with config/skin.rviz [false]
 
 Example: ros2 launch eit_skin skin_patch.launch.py patch:=elbow port:=/dev/eit_skin_elbow
-The nodes come from eit_skin.node_graph, the same place `eit-skin run` takes them from.
+The nodes come from eit_skin.ros.node_graph, the same place `eit-skin run` takes them from.
 """
 
 import os
@@ -21,8 +21,8 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from eit_skin.launch_actions import ros_nodes
-from eit_skin.node_graph import patch_nodes
+from eit_skin.ros.launch_actions import ros_nodes
+from eit_skin.ros.node_graph import patch_nodes
 
 
 def _truthy(text: str) -> bool:

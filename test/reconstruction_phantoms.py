@@ -11,10 +11,10 @@ from functools import cache
 
 import numpy as np
 
-from eit_skin.forward import ForwardModel
-from eit_skin.image_grid import ImageGrid
-from eit_skin.protocol import ProtocolSpec, build_protocol
-from test.forward_meshes import disk_mesh
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
 RADIUS_M = 0.05
 CONTACT_OHM_M = 1e-4

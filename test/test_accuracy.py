@@ -22,11 +22,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.figures_of_merit import figures_of_merit
-from eit_skin.forward import ForwardModel
-from eit_skin.image_grid import ImageGrid
-from eit_skin.reconstruction import ReconstructionMatrix
-from test.forward_meshes import disk_mesh
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.inverse.figures_of_merit import figures_of_merit
+from eit_skin.inverse.one_step import ReconstructionMatrix
 from test.reconstruction_phantoms import (
     CONTACT_OHM_M,
     RADIUS_M,
@@ -182,9 +182,9 @@ def test_heavy_noise_and_repeatability(case):
 
 
 def test_all_electrodes_on_one_half():
-    from eit_skin.forward import ForwardModel
-    from eit_skin.protocol import ProtocolSpec, build_protocol
-    from test.forward_meshes import disk_mesh
+    from eit_skin.fem.disk import disk_mesh
+    from eit_skin.fem.forward import ForwardModel
+    from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
     angles = np.linspace(0.1, np.pi - 0.1, 16)
     protocol = build_protocol(ProtocolSpec(), 16)
@@ -213,7 +213,7 @@ def test_all_electrodes_on_one_half():
 
 def test_dead_electrode_and_nan_reference(case):
     s, rm = case
-    from eit_skin.electrode_faults import FaultTolerantReconstructor
+    from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 
     c = (-0.4 * R, 0.3 * R)
     v = phantom(s, [(c[0], c[1], 0.1 * R, 2.0)])

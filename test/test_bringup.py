@@ -9,10 +9,10 @@ import subprocess
 import pytest
 from PIL import Image as PilImage
 
-from eit_skin.bringup import find_executable
-from eit_skin.imaging import LayerImager
-from eit_skin.patch import load_patch
+from eit_skin.patch.model import load_patch
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
+from eit_skin.ros.bringup import find_executable
 
 pytestmark = pytest.mark.ros
 

@@ -11,11 +11,11 @@ from eit_skin_msgs.msg import ContactArray, TouchEvent
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
-from eit_skin.image_grid import ImageGrid
-from eit_skin.mesh import build_mesh
-from eit_skin.patch import load_patch
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.fem.mesh import build_mesh
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from test.ros_probe import Probe, start_node, stop_node
+from eit_skin.ros.probe import Probe, start_node, stop_node
 
 pytestmark = pytest.mark.ros
 

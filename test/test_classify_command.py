@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from eit_skin.cli import main
-from eit_skin.patch import load_patch
+from eit_skin.cli.main import main
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from eit_skin.simulator import SkinSimulator
+from eit_skin.sim.simulator import SkinSimulator
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from eit_skin.contacts import (
+from eit_skin.touch.contacts import (
     Contact,
     ContactSegmenter,
     ContactTracker,

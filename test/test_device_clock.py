@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.device_clock import DeviceClock, DeviceClockConfig
+from eit_skin.hardware.device_clock import DeviceClock, DeviceClockConfig
 
 HOST0 = 1_700_000_000_000_000_000
 MIN_DELAY_S = 200e-6

@@ -7,11 +7,11 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
 
-from eit_skin.fake_device import FakeDevice
-from eit_skin.patch import load_patch
-from eit_skin.recording import read_mcap_frames
+from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.io.recording import read_mcap_frames
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from test.ros_probe import BIN, Probe, start_node, stop_node
+from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
 
 pytestmark = pytest.mark.ros
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.electrode_faults import bad_channels, excluded_channels, faulty_electrodes
-from eit_skin.protocol import ProtocolSpec, build_protocol
+from eit_skin.inverse.electrode_faults import bad_channels, excluded_channels, faulty_electrodes
+from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
 pytestmark = pytest.mark.filterwarnings("error")
 PROTOCOL = build_protocol(ProtocolSpec(), 16)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.fake_device import FakeDevice
-from eit_skin.recording import save_frames_npz
-from eit_skin.serial_link import SerialLink
-from eit_skin.wire import ValueEncoding
+from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.hardware.serial_link import SerialLink
+from eit_skin.hardware.wire import ValueEncoding
+from eit_skin.io.recording import save_frames_npz
 
 
 def source(i: int) -> np.ndarray:
@@ -101,7 +101,7 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
     npz = tmp_path / "in.npz"
     save_frames_npz(npz, frames[0], frames)
     link_path = tmp_path / "eit_skin_test"
-    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--link", str(link_path),
+    cmd = [sys.executable, "-m", "eit_skin.cli.main", "fake-device", "--link", str(link_path),
            "--rate", "200", "--frames", str(npz)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     try:
@@ -124,12 +124,12 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
 
 def test_cli_without_frames_streams_the_simulator(tmp_path):
     """Without --frames the device sends physics: the arm's pressure layer under a push."""
-    from eit_skin.patch import load_patch
+    from eit_skin.patch.model import load_patch
     from eit_skin.resources import config_path
-    from eit_skin.simulator import SkinSimulator
+    from eit_skin.sim.simulator import SkinSimulator
 
     link_path = tmp_path / "eit_skin_sim"
-    cmd = [sys.executable, "-m", "eit_skin.cli", "fake-device", "--link", str(link_path),
+    cmd = [sys.executable, "-m", "eit_skin.cli.main", "fake-device", "--link", str(link_path),
            "--rate", "100", "--patch", "arm", "--scenario", "push", "--seed", "3"]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     try:

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from eit_skin.forward import ForwardModel
-from eit_skin.mesh import Mesh
-from eit_skin.protocol import ProtocolSpec, build_protocol
-from test.forward_meshes import disk_mesh
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.mesh import Mesh
+from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
 R = 0.05  # disk radius, m
 W = 0.2  # electrode width, rad (10 mm)
@@ -266,8 +266,8 @@ def test_factorisation_is_reused_across_calls(coarse):
 
 
 def test_patch_mesh_with_holes_from_build_mesh():
-    from eit_skin.mesh import build_mesh
-    from eit_skin.patch import patch_from_dict
+    from eit_skin.fem.mesh import build_mesh
+    from eit_skin.patch.model import patch_from_dict
 
     patch = patch_from_dict(
         {

@@ -3,9 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.gauss_newton import GaussNewtonSolver, gauss_newton, gauss_newton_difference
-from eit_skin.priors import make_prior
-from eit_skin.reconstruction import ReconstructionMatrix
+from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton, gauss_newton_difference
+from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.priors import make_prior
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 pytestmark = pytest.mark.filterwarnings("error")
@@ -82,7 +82,7 @@ def test_large_contrast_runs_five_decreasing_iterations(s, prior):
 
 @pytest.fixture(scope="module")
 def parameter_mesh():
-    from test.forward_meshes import disk_mesh
+    from eit_skin.fem.disk import disk_mesh
 
     return disk_mesh(R, h_m=0.011)  # ~230 unknowns over the 784-triangle forward mesh
 
@@ -123,7 +123,7 @@ def test_coarse_parameter_mesh_runs_five_decreasing_iterations(s, parameter_mesh
 
 def test_parameter_mesh_maps_onto_forward_mesh(s, parameter_mesh):
     """Each forward element takes the value of the parameter element holding its centroid."""
-    from eit_skin.reconstruction import coarse_to_fine
+    from eit_skin.inverse.one_step import coarse_to_fine
 
     v = phantom(s, [(0.2 * R, 0.1 * R, 0.2 * R, 3.0)])
     res = gauss_newton_difference(

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.greit import GreitModel, equivalent_radius, training_set
-from eit_skin.reconstruction import ReconstructionMatrix, _lambda2_trace
-from test.forward_meshes import disk_mesh
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.inverse.greit import GreitModel, equivalent_radius, training_set
+from eit_skin.inverse.one_step import ReconstructionMatrix, _lambda2_trace
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = 0.05

@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.image_grid import ImageGrid, locate_points
-from eit_skin.mesh import Mesh
+from eit_skin.fem.image_grid import ImageGrid, locate_points
+from eit_skin.fem.mesh import Mesh
 
 
 def square_with_hole() -> Mesh:

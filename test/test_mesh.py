@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin import geometry
-from eit_skin.mesh import build_mesh
-from eit_skin.patch import Layer, load_patch, patch_from_dict
+from eit_skin.fem.mesh import build_mesh
+from eit_skin.patch import geometry
+from eit_skin.patch.model import Layer, load_patch, patch_from_dict
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 LAYERS = [

@@ -9,7 +9,7 @@ import rclpy
 from rclpy.context import Context
 from std_msgs.msg import UInt32
 
-from eit_skin.nodes.node_runner import EXECUTOR_ENV, make_executor, spin_nodes
+from eit_skin.ros.node_runner import EXECUTOR_ENV, make_executor, spin_nodes
 
 pytestmark = pytest.mark.ros
 

@@ -14,7 +14,7 @@ from typing import ClassVar
 
 import pytest
 
-from eit_skin.node_graph import NODE_ENVIRONMENT
+from eit_skin.ros.node_graph import NODE_ENVIRONMENT
 
 
 def console_scripts(repo: Path) -> dict[str, str]:

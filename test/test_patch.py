@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
-from eit_skin import geometry
-from eit_skin.material import Material
-from eit_skin.patch import PatchError, load_patch, patch_from_dict
-from eit_skin.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
-from eit_skin.protocol import build_protocol
+from eit_skin.patch import geometry
+from eit_skin.patch.material import Material
+from eit_skin.patch.model import PatchError, load_patch, patch_from_dict
+from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
+from eit_skin.patch.protocol import build_protocol
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 RADIUS = 0.04

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from eit_skin.cli import main
+from eit_skin.cli.main import main
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from eit_skin.protocol import Protocol, ProtocolSpec, build_protocol
+from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
 
 
 def test_canonical_adjacent_16_gives_208_in_documented_order():

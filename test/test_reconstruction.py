@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.hyperparameter import choose_by_gcv, choose_by_noise_figure, noise_figure
-from eit_skin.priors import element_adjacency, laplace_matrix, make_prior
-from eit_skin.reconstruction import (
+from eit_skin.inverse.hyperparameter import choose_by_gcv, choose_by_noise_figure, noise_figure
+from eit_skin.inverse.one_step import (
     ReconstructionMatrix,
     _lambda2,
     reference_scale,
     relative_difference,
 )
+from eit_skin.inverse.priors import element_adjacency, laplace_matrix, make_prior
 from test.test_image_grid import square_with_hole
 
 pytestmark = pytest.mark.filterwarnings("error")

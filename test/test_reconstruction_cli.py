@@ -3,11 +3,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.cli import main
-from eit_skin.forward import ForwardModel
-from eit_skin.mesh import build_mesh
-from eit_skin.patch import load_patch
-from eit_skin.protocol import build_protocol
+from eit_skin.cli.main import main
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.mesh import build_mesh
+from eit_skin.patch.model import load_patch
+from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
 
 

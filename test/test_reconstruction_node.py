@@ -14,13 +14,13 @@ from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from eit_skin.bringup import find_executable
-from eit_skin.imaging import LayerImager
-from eit_skin.patch import load_patch
-from eit_skin.reference import ReferenceTracker
+from eit_skin.patch.model import load_patch
+from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.reference import ReferenceTracker
 from eit_skin.resources import config_path
-from eit_skin.scenario import resolve_scenario
-from test.ros_probe import Probe, start_node, stop_node
+from eit_skin.ros.bringup import find_executable
+from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.sim.scenario import resolve_scenario
 
 pytestmark = pytest.mark.ros
 

@@ -8,7 +8,7 @@ from mcap.reader import make_reader
 from mcap_ros2._dynamic import serialize_dynamic
 from mcap_ros2.decoder import DecoderFactory
 
-from eit_skin.recording import (
+from eit_skin.io.recording import (
     EIT_FRAME_SCHEMA,
     FrameRecord,
     McapFrameWriter,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.reference import (
+from eit_skin.pipeline.reference import (
     JointAngleHistory,
     PostureReferences,
     ReferenceTracker,

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from eit_skin_msgs.msg import EitFrame
 
-from eit_skin.bringup import find_executable
-from eit_skin.recording import load_frames_npz, read_mcap_frames, save_frames_npz
-from test.ros_probe import Probe, start_node, stop_node
+from eit_skin.io.recording import load_frames_npz, read_mcap_frames, save_frames_npz
+from eit_skin.ros.bringup import find_executable
+from eit_skin.ros.probe import Probe, start_node, stop_node
 
 pytestmark = pytest.mark.ros
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from eit_skin.patch import load_patch
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from eit_skin.scenario import (
+from eit_skin.sim.scenario import (
     BUILTIN_SCENARIOS,
     EDGE_MARGIN_M,
     ScenarioError,

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.serial_link import LinkState, SerialLink
-from eit_skin.wire import DeviceFrame, PatternId, encode_frame
+from eit_skin.hardware.serial_link import LinkState, SerialLink
+from eit_skin.hardware.wire import DeviceFrame, PatternId, encode_frame
 
 
 def frame(seq: int) -> DeviceFrame:

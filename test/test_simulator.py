@@ -8,15 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.adc import FLAG_SATURATED, AdcConfig, AdcModel
-from eit_skin.cli import main
-from eit_skin.forward_update import LocalForwardUpdate
-from eit_skin.patch import load_patch
-from eit_skin.recording import load_frames_npz
+from eit_skin.cli.main import main
+from eit_skin.fem.forward_update import LocalForwardUpdate
+from eit_skin.io.recording import load_frames_npz
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
-from eit_skin.scenario import builtin_scenario
-from eit_skin.simulator import NO_DRIFT, DriftModel, Fault, SkinSimulator
-from eit_skin.stimuli import Push
+from eit_skin.sim.adc import FLAG_SATURATED, AdcConfig, AdcModel
+from eit_skin.sim.scenario import builtin_scenario
+from eit_skin.sim.simulator import NO_DRIFT, DriftModel, Fault, SkinSimulator
+from eit_skin.sim.stimuli import Push
 
 RATE = 10.0
 

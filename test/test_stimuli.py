@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from eit_skin.stimuli import (
+from eit_skin.sim.stimuli import (
     RUB_TRAIL_TAU_S,
     Grab,
     Pinch,

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from eit_skin.blob_shape import blob_moments, single_contact_spread
-from eit_skin.contacts import PooledDetector, SegmentationConfig
-from eit_skin.imaging import LayerImager
-from eit_skin.patch import load_patch
+from eit_skin.patch.model import load_patch
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.simulator import SkinSimulator
-from eit_skin.touch_classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.sim.simulator import SkinSimulator
+from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
+from eit_skin.touch.shapes import blob_moments, single_contact_spread
 from test.synthetic_touches import (
     INSIDE,
     SIGMA_PA,

@@ -8,9 +8,9 @@ from dataclasses import replace
 import pytest
 import yaml
 
-from eit_skin.cli import main
-from eit_skin.commands.tune import set_solver_hyperparameter
-from eit_skin.patch import load_patch
+from eit_skin.cli.main import main
+from eit_skin.cli.tune import set_solver_hyperparameter
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 
 
@@ -26,11 +26,11 @@ def _solver_lines(text):
 
 
 def test_write_stores_the_noise_figure_choice_and_keeps_everything_else(arm_copy, capsys):
-    from eit_skin.forward import ForwardModel
-    from eit_skin.hyperparameter import noise_figure
-    from eit_skin.mesh import build_mesh
-    from eit_skin.protocol import build_protocol
-    from eit_skin.reconstruction import ReconstructionMatrix
+    from eit_skin.fem.forward import ForwardModel
+    from eit_skin.fem.mesh import build_mesh
+    from eit_skin.inverse.hyperparameter import noise_figure
+    from eit_skin.inverse.one_step import ReconstructionMatrix
+    from eit_skin.patch.protocol import build_protocol
 
     before_text = arm_copy.read_text()
     before = load_patch(arm_copy)

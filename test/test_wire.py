@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.wire import (
+from eit_skin.hardware.wire import (
     FLAG_INVALID,
     FLAG_SATURATED,
     HEADER_SIZE,

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from eit_skin.wire import DeviceFrame, FrameParser, PatternId, ValueEncoding, encode_frame
+from eit_skin.hardware.wire import DeviceFrame, FrameParser, PatternId, ValueEncoding, encode_frame
 
 FUZZ = settings(
     derandomize=True,

@@ -1,0 +1,1 @@
+"""The ``eit-skin`` command line: ``main`` builds the parser, one module per sub-command."""

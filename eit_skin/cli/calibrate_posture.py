@@ -1,0 +1,103 @@
+"""``eit-skin calibrate-posture``: record no-load references across a joint's range.
+
+Run it while the skin's driver is publishing and the joint is moved slowly through its
+range WITHOUT touching the skin (on the simulator: the driver running a posture-only
+scenario). Every frame of every layer is paired with the angle of ``--joint``
+(``/joint_states``) interpolated at the frame's acquisition stamp; frames are averaged per
+angle bin and written to ``--out``, the file the reconstruction node's
+``posture_references`` parameter takes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", default="elbow", help="patch name or YAML path")
+    parser.add_argument("--namespace", default="", help="ROS namespace (default: patch name)")
+    parser.add_argument("--joint", required=True, help="joint name in /joint_states")
+    parser.add_argument("--duration", type=float, default=30.0, help="recording time, s")
+    parser.add_argument("--bin-deg", type=float, default=10.0, help="angle bin width, degrees")
+    parser.add_argument("--min-frames", type=int, default=5, help="frames needed per bin")
+    parser.add_argument("--out", type=Path, required=True, help="output npz")
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import rclpy
+    from eit_skin_msgs.msg import EitFrame
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
+
+    from eit_skin.patch.model import PatchError, load_patch
+    from eit_skin.pipeline.reference import JointAngleHistory, bin_posture_frames
+    from eit_skin.resources import config_path
+
+    try:
+        patch = load_patch(config_path(args.patch))
+    except (PatchError, OSError) as error:
+        print(f"eit-skin calibrate-posture: {error}", file=sys.stderr)
+        return 2
+    namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
+    rclpy.init()
+    node = rclpy.create_node("eit_posture_calibration")
+    history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
+    samples: dict[str, list[tuple[int, np.ndarray]]] = {layer: [] for layer in patch.layer_names}
+
+    def stamp_ns(msg) -> int:
+        return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
+    def on_joint(msg: JointState) -> None:
+        if args.joint in msg.name:
+            history.add(stamp_ns(msg), float(msg.position[list(msg.name).index(args.joint)]))
+
+    def on_frame(layer: str, msg: EitFrame) -> None:
+        frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
+        samples[layer].append((stamp_ns(msg), frame))
+
+    node.create_subscription(JointState, "/joint_states", on_joint, 50)
+    for layer in patch.layer_names:
+        node.create_subscription(
+            EitFrame,
+            f"{namespace}/{layer}/frames",
+            lambda msg, name=layer: on_frame(name, msg),
+            qos_profile_sensor_data,
+        )
+    print(
+        f"recording {args.duration:.0f} s: move joint {args.joint!r} slowly through its range "
+        "without touching the skin",
+        flush=True,
+    )
+    end = time.monotonic() + args.duration
+    try:
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    code = 0
+    for layer, items in samples.items():
+        if not items:
+            print(f"{layer}: no frames on {namespace}/{layer}/frames", file=sys.stderr)
+            code = 1
+            continue
+        # the angle at each frame's acquisition time, not at its arrival
+        angles = np.array([history.at(stamp) for stamp, _ in items])
+        frames = np.stack([f for _, f in items])
+        try:
+            table = bin_posture_frames(
+                args.joint, angles, frames, math.radians(args.bin_deg), args.min_frames
+            )
+        except ValueError as error:
+            print(f"{layer}: {error}", file=sys.stderr)
+            code = 1
+            continue
+        table.save(args.out, layer)
+        degrees = ", ".join(f"{math.degrees(a):.0f}" for a in table.angles_rad)
+        print(f"{layer}: {len(items)} frames -> references at {degrees} deg in {args.out}")
+    return code

@@ -1,0 +1,57 @@
+"""The ``eit-skin`` command: one sub-command per module in ``eit_skin.cli``.
+
+Each command module defines ``add_arguments(parser)`` and ``run(args) -> int``
+and keeps heavy imports (rclpy, matplotlib, the solver) inside ``run`` so that
+building the parser stays cheap.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module under eit_skin.cli, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    # "name": ("module", "help"),  one line per command, kept alphabetical
+    "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
+    "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
+    "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
+    "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
+    "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
+    "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
+    "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),
+    "simulate": (
+        "simulate",
+        "Simulate a touch scenario on a patch and save frames + ground truth.",
+    ),
+    "tune": (
+        "tune",
+        "Choose a layer's regularisation by noise figure and write it into the patch file.",
+    ),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="eit-skin", description="EIT robot skin: patches, reconstruction, simulator, bring-up."
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module_name, help_text) in COMMANDS.items():
+        module = importlib.import_module(f"eit_skin.cli.{module_name}")
+        sub_parser = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(sub_parser)
+        sub_parser.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,96 @@
+"""``eit-skin run``: the whole skin, end to end, without ros2 launch.
+
+Starts, for one patch (default: the simulated arm) or all of them, the same nodes as
+``launch/skin_patch.launch.py`` / ``robot_skin.launch.py`` (from
+:mod:`eit_skin.ros.node_graph`): reconstruction and classifier first, the driver once the
+reconstruction matrices are ready (so the no-load reference is taken from untouched
+frames). It prints the touch events as they happen and writes PNG snapshots of the
+pressure and stretch images at every touch, an animated GIF per patch and the node logs
+to ``--out``. With the simulator it stops after one pass of the touch script (or after
+``--duration`` seconds) and exits 0; with ``--port`` it runs until ``--duration`` or Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+PATCH_HELP = "patch: arm, face, elbow or a YAML path (default: arm)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", default="arm", help=PATCH_HELP)
+    parser.add_argument("--all", action="store_true", help="run arm, face and elbow at once")
+    parser.add_argument("--port", default="", help="serial device of a skin board (no simulator)")
+    parser.add_argument(
+        "--duration", type=float, default=None, help="stop after SECONDS (default: one script pass)"
+    )
+    parser.add_argument("--out", type=Path, default=Path("eit_skin_run"), help="output folder")
+    parser.add_argument("--rate", type=float, default=50.0, help="simulator frame rate, Hz")
+    parser.add_argument("--scenario", default="demo", help="simulator touch script (name or YAML)")
+    parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
+
+
+def run(args: argparse.Namespace) -> int:
+    from eit_skin.ros.node_graph import ROBOT_PATCHES, patch_nodes
+
+    if args.all and args.port:
+        print("eit-skin run: --all simulates every patch; --port serves one", file=sys.stderr)
+        return 2
+    patches = list(ROBOT_PATCHES) if args.all else [args.patch]
+    try:
+        specs = []
+        for patch in patches:
+            specs += patch_nodes(
+                patch,
+                namespace=Path(patch).stem if args.all else "",
+                port=args.port,
+                sim=not args.port,
+                rate_hz=args.rate,
+                scenario=args.scenario,
+                loop=False,
+            )
+        script_frames = {} if args.port or args.duration else _script_frames(args, specs)
+        specs = [_monitor_aware(spec) for spec in specs]
+    except (ValueError, OSError) as error:
+        print(f"eit-skin run: {error}", file=sys.stderr)
+        return 2
+    from eit_skin.ros.skin_monitor import run_skin
+
+    return run_skin(
+        specs,
+        args.out,
+        duration_s=args.duration,
+        script_frames=script_frames,
+        first_frame_timeout_s=None if args.port else 120.0,  # a board may be plugged in later
+    )
+
+
+def _monitor_aware(spec):
+    """A simulated driver that waits for two frame subscribers: reconstruction and monitor.
+
+    The run's monitor also listens to the frames; waiting for one subscriber would let
+    the monitor alone start the script, and the reconstruction would miss the untouched
+    frames its reference is taken from.
+    """
+    from dataclasses import replace
+
+    if spec.executable != "eit_driver" or spec.parameters.get("port"):
+        return spec
+    return replace(spec, parameters={**spec.parameters, "wait_for_subscribers": 2})
+
+
+def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:
+    """Frames in one pass of each simulated patch's touch script, by namespace."""
+    from eit_skin.patch.model import load_patch
+    from eit_skin.sim.scenario import resolve_scenario
+
+    frames = {}
+    for spec in specs:
+        if spec.executable == "eit_driver":
+            patch = load_patch(str(spec.parameters["patch_config"]))
+            scenario = resolve_scenario(args.scenario, patch, args.seed, None)
+            frames[spec.namespace] = math.ceil(scenario.duration_s * args.rate)
+    return frames

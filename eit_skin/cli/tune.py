@@ -1,0 +1,359 @@
+"""``eit-skin tune``: choose a layer's regularisation by noise figure, optionally store it.
+
+Builds the layer's one-step matrix exactly as the reconstruction does (forward mesh, inverse
+mesh, prior of ``solver``), chooses the hyperparameter ``h`` whose noise figure equals the
+target (:func:`eit_skin.inverse.hyperparameter.choose_by_noise_figure`; the target is
+``--noise-figure`` or the layer's ``solver.noise_figure``), rounds it to 4 significant
+digits and prints it with the figures it gives: the noise figure, and the GREIT position
+error, resolution and ringing on about a dozen small simulated targets spread over the sheet,
+centres at least 1.5 target radii from its outline (radius 10 % of the sheet's equivalent
+radius ``R``, conductance x2, 1 % noise, fixed seed), simulated on a finer mesh than the
+reconstruction's (edge at most 40 % of the target radius, so every target covers several
+triangles).
+
+``--write`` stores ``hyperparameter: <h>`` in that layer's ``solver`` mapping by editing the
+file's text at the positions PyYAML reports (a flow mapping ``{...}`` gets a new entry before
+its closing brace, a block mapping a new line; an existing value is replaced), so comments
+and formatting elsewhere are kept. The edited text is validated (``load_patch``: same patch
+apart from that value) before it atomically replaces the file. Shipped configs are only
+written when given by path, never by name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+#: Significant digits of the stored hyperparameter.
+DIGITS = 4
+#: Simulated targets: count, radius (fraction of the equivalent radius), conductance ratio.
+N_TARGETS = 12
+TARGET_RADIUS = 0.10
+TARGET_CONTRAST = 2.0
+NOISE = 0.01
+#: Minimum distance of a target centre from the outline and holes, in target radii.
+EDGE_CLEARANCE = 1.5
+#: Data mesh edge: this fraction of the forward mesh edge, at most this fraction of the target
+#: radius.
+DATA_MESH_FRACTION = 0.7
+DATA_MESH_PER_TARGET_RADIUS = 0.4
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
+    parser.add_argument(
+        "--noise-figure",
+        type=float,
+        default=None,
+        metavar="NF",
+        help="target noise figure (default: the layer's solver.noise_figure)",
+    )
+    parser.add_argument(
+        "--write",
+        action="store_true",
+        help="store the chosen value as solver.hyperparameter in the patch file",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        path, by_name = _patch_path(args.patch)
+        if args.write and by_name:
+            raise ValueError(
+                f"{args.patch}: a shipped config is never written by name; "
+                "copy it and give the copy's path"
+            )
+        result = tune_layer(path, args.layer, args.noise_figure)
+        print(result.summary())
+        if args.write:
+            write_hyperparameter(path, result.layer, result.hyperparameter)
+            print(f"wrote hyperparameter: {result.text} to {path} (layer {result.layer}, solver)")
+        else:
+            print("not written (add --write to store it as solver.hyperparameter)")
+    except (ValueError, KeyError, OSError) as exc:
+        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"eit-skin tune: error: {message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _patch_path(name_or_path: str) -> tuple[Path, bool]:
+    """``(path, resolved_by_name)``: an existing path as given, else a shipped config."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path, False
+    from eit_skin.resources import config_path
+
+    resolved = config_path(name_or_path)
+    return resolved, resolved != path
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """The chosen hyperparameter of one layer and what it gives.
+
+    Attributes:
+        layer: layer name.
+        prior: the layer's ``solver.prior``.
+        target_noise_figure: the noise figure asked for.
+        hyperparameter: chosen ``h`` rounded to :data:`DIGITS` significant digits.
+        text: ``h`` as written to the file.
+        noise_figure: noise figure at the rounded ``h``.
+        n_elements: inverse-mesh elements.
+        radius_m: equivalent radius ``R`` of the sheet, metres.
+        max_position_error: over the simulated targets, fraction of ``R``.
+        mean_position_error: fraction of ``R``.
+        mean_resolution: GREIT resolution (dimensionless).
+        mean_ringing: GREIT ringing (dimensionless).
+        n_targets: simulated targets.
+        data_triangles: triangles of the mesh the targets were simulated on.
+    """
+
+    layer: str
+    prior: str
+    target_noise_figure: float
+    hyperparameter: float
+    text: str
+    noise_figure: float
+    n_elements: int
+    radius_m: float
+    max_position_error: float
+    mean_position_error: float
+    mean_resolution: float
+    mean_ringing: float
+    n_targets: int
+    data_triangles: int
+
+    def summary(self) -> str:
+        return (
+            f"layer {self.layer}: prior {self.prior}, {self.n_elements} elements, target noise "
+            f"figure {self.target_noise_figure:g}\n"
+            f"hyperparameter {self.text} (noise figure {self.noise_figure:.4g})\n"
+            f"{self.n_targets} simulated targets (radius {TARGET_RADIUS:.0%} R, conductance "
+            f"x{TARGET_CONTRAST:g}, {NOISE:.0%} noise, {self.data_triangles}-triangle data mesh; "
+            f"R = {self.radius_m * 1e3:.1f} mm): position error max "
+            f"{self.max_position_error:.2%} R, mean {self.mean_position_error:.2%} R; "
+            f"resolution {self.mean_resolution:.3f}; ringing {self.mean_ringing:.2f}"
+        )
+
+
+def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -> Tuning:
+    """Choose the hyperparameter of a layer of the patch file ``path`` (see module doc)."""
+    import numpy as np
+
+    from eit_skin.fem.forward import ForwardModel
+    from eit_skin.fem.image_grid import ImageGrid
+    from eit_skin.fem.mesh import build_mesh
+    from eit_skin.inverse.figures_of_merit import figures_of_merit
+    from eit_skin.inverse.greit import equivalent_radius, target_centres
+    from eit_skin.inverse.hyperparameter import choose_by_noise_figure
+    from eit_skin.inverse.hyperparameter import noise_figure as nf_of
+    from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
+    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.protocol import build_protocol
+
+    patch = load_patch(path)
+    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    solver = layer.solver
+    target_nf = solver.noise_figure if noise_figure is None else float(noise_figure)
+    if not (np.isfinite(target_nf) and target_nf > 0):
+        raise ValueError(f"--noise-figure must be > 0, got {noise_figure}")
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    sigma0 = layer.material.sheet_conductance_s
+    forward_mesh = build_mesh(layer)
+    inverse_edge = layer.mesh.inverse_max_edge_m
+    inverse_mesh = forward_mesh if inverse_edge is None else build_mesh(layer, inverse_edge)
+    forward = ForwardModel(forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+    base = ReconstructionMatrix.build(
+        forward,
+        prior=solver.prior,
+        hyperparameter=1.0,  # replaced below; the build caches what the choice needs
+        sigma0=sigma0,
+        inverse_mesh=None if inverse_edge is None else inverse_mesh,
+    )
+    h = choose_by_noise_figure(base, target_nf)
+    text = f"{h:.{DIGITS}g}"
+    rm = base.with_hyperparameter(float(text))
+
+    # simulated targets on a finer, different mesh
+    radius = equivalent_radius(inverse_mesh)
+    data_edge = min(
+        DATA_MESH_FRACTION * layer.mesh.max_edge_m,
+        DATA_MESH_PER_TARGET_RADIUS * TARGET_RADIUS * radius,
+    )
+    data_mesh = build_mesh(layer, data_edge)
+    data = ForwardModel(data_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+    centres = target_centres(inverse_mesh, 2 * N_TARGETS)
+    # targets not cut by the outline (for a disk: centres within 0.85 R); they may overlap holes
+    clear = _outline_distance(layer.outline, centres) >= EDGE_CLEARANCE * TARGET_RADIUS * radius
+    centres = centres[clear]
+    if centres.shape[0] == 0:
+        raise ValueError(f"layer {layer.name}: no room for a simulated target")
+    v_ref = data.voltages(sigma0)
+    rng = np.random.default_rng(0)
+    frames = []
+    for c in centres:
+        sigma = np.full(data_mesh.n_triangles, sigma0)
+        inside = np.linalg.norm(data_mesh.centroids - c, axis=1) < TARGET_RADIUS * radius
+        sigma[inside] *= TARGET_CONTRAST
+        v = data.voltages(sigma)
+        frames.append(v + rng.normal(0.0, NOISE * np.sqrt(np.mean((v - v_ref) ** 2)), v.size))
+    grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
+    images = grid.to_image(rm.solve(relative_difference(np.stack(frames), v_ref)))
+    merits = [
+        figures_of_merit(im, grid.x, grid.y, c, sign=1.0)
+        for im, c in zip(images, centres, strict=True)
+    ]
+    pe = np.array([f.position_error_m for f in merits]) / radius
+    return Tuning(
+        layer=layer.name,
+        prior=solver.prior,
+        target_noise_figure=target_nf,
+        hyperparameter=float(text),
+        text=text,
+        noise_figure=nf_of(rm),
+        n_elements=rm.n_elements,
+        radius_m=radius,
+        max_position_error=float(pe.max()),
+        mean_position_error=float(pe.mean()),
+        mean_resolution=float(np.mean([f.resolution for f in merits])),
+        mean_ringing=float(np.mean([f.ringing for f in merits])),
+        n_targets=len(merits),
+        data_triangles=data_mesh.n_triangles,
+    )
+
+
+def _outline_distance(outline: Any, points: Any) -> Any:
+    """``[K]`` distance (m) of ``points`` ``[K, 2]`` to the closed polygon ``outline`` (m)."""
+    import numpy as np
+
+    a = np.asarray(outline, dtype=np.float64)
+    ab = np.roll(a, -1, axis=0) - a  # [E, 2]
+    ap = points[:, None, :] - a[None]  # [K, E, 2]
+    s = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(ap - s[..., None] * ab, axis=-1).min(axis=1)
+
+
+# ------------------------------------------------------------------------ writing the file
+def write_hyperparameter(path: Path, layer_name: str, value: float) -> None:
+    """Store ``solver.hyperparameter: value`` of layer ``layer_name`` in the file ``path``.
+
+    Only the text of that entry changes; the result is validated with ``load_patch`` and then
+    atomically replaces the file.
+    """
+    from eit_skin.patch.model import load_patch
+
+    path = Path(path)
+    before = load_patch(path)
+    text = path.read_text(encoding="utf-8")
+    new_text = set_solver_hyperparameter(text, layer_name, value, source=str(path))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".yaml", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(new_text)
+        after = load_patch(tmp)
+        _check_only_hyperparameter_changed(before, after, layer_name, value, str(path))
+        os.chmod(tmp, path.stat().st_mode & 0o7777)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _check_only_hyperparameter_changed(before, after, layer_name, value, source) -> None:
+    """Raise unless ``after`` is ``before`` with that one hyperparameter set (content hashes)."""
+    from dataclasses import replace
+
+    got = after.layer(layer_name).solver.hyperparameter
+    if got != float(value):
+        raise ValueError(f"{source}: edit failed, read back hyperparameter {got}, not {value}")
+    expected = replace(
+        before,
+        layers=tuple(
+            replace(lay, solver=replace(lay.solver, hyperparameter=float(value)))
+            if lay.name == layer_name
+            else lay
+            for lay in before.layers
+        ),
+    )
+    if expected.content_hash != after.content_hash:
+        raise ValueError(f"{source}: edit changed more than the hyperparameter; not written")
+
+
+def set_solver_hyperparameter(
+    text: str, layer_name: str, value: float, source: str = "<text>"
+) -> str:
+    """``text`` (patch YAML) with ``layers[name == layer_name].solver.hyperparameter = value``.
+
+    Raises:
+        ValueError: the text has no ``layers`` sequence or no such layer.
+    """
+    import yaml
+
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
+    layers = _get(root, "layers")
+    if not isinstance(layers, yaml.SequenceNode):
+        raise ValueError(f"{source}: no 'layers' list")
+    layer = next(
+        (
+            item
+            for item in layers.value
+            if isinstance(item, yaml.MappingNode)
+            and getattr(_get(item, "name"), "value", None) == layer_name
+        ),
+        None,
+    )
+    if layer is None:
+        raise ValueError(f"{source}: no layer named {layer_name!r}")
+    number = f"{float(value):.{DIGITS}g}"
+    solver = _get(layer, "solver")
+    if solver is None:
+        return _insert_entry(text, layer, "solver", f"{{hyperparameter: {number}}}")
+    if not isinstance(solver, yaml.MappingNode):
+        raise ValueError(f"{source}: layers[{layer_name}].solver is not a mapping")
+    old = _get(solver, "hyperparameter")
+    if old is not None:
+        return text[: old.start_mark.index] + number + text[old.end_mark.index :]
+    return _insert_entry(text, solver, "hyperparameter", number)
+
+
+def _get(mapping: Any, key: str) -> Any:
+    """Value node of ``key`` in a YAML mapping node, or ``None``."""
+    import yaml
+
+    if not isinstance(mapping, yaml.MappingNode):
+        return None
+    for k, v in mapping.value:
+        if isinstance(k, yaml.ScalarNode) and k.value == key:
+            return v
+    return None
+
+
+def _insert_entry(text: str, mapping: Any, key: str, value_text: str) -> str:
+    """Add ``key: value_text`` as the last entry of the mapping node ``mapping``."""
+    if not mapping.value:
+        if mapping.flow_style:  # "{}"
+            at = text.index("}", mapping.start_mark.index)
+            return text[:at] + f"{key}: {value_text}" + text[at:]
+        raise ValueError("cannot add to an empty block mapping")
+    last = mapping.value[-1][1]
+    if mapping.flow_style:
+        at = last.end_mark.index
+        return text[:at] + f", {key}: {value_text}" + text[at:]
+    indent = mapping.value[0][0].start_mark.column
+    end = last.end_mark
+    if end.column == 0:  # a nested block ends at the start of the next line
+        at = end.index
+    else:
+        newline = text.find("\n", end.index)
+        at = len(text) if newline < 0 else newline + 1
+        if newline < 0:
+            text += "\n"
+            at += 1
+    return text[:at] + " " * indent + f"{key}: {value_text}\n" + text[at:]

@@ -1,1 +1,0 @@
-"""Sub-commands of the ``eit-skin`` command line, one module each."""

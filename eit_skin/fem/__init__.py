@@ -1,0 +1,16 @@
+"""Finite elements on the sheet: mesh, complete-electrode forward model, image grid.
+
+Modules: ``mesh`` (triangle meshes of a layer), ``forward`` (:class:`ForwardModel`: sparse CEM
+assembly, one factorisation for every injection, voltages and Jacobian), ``forward_update``
+(exact Woodbury updates for local changes), ``image_grid`` (element values -> ``[H, W]``
+pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic checks).
+"""
+
+from __future__ import annotations
+
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.forward_update import LocalForwardUpdate
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.fem.mesh import Mesh, build_mesh
+
+__all__ = ["ForwardModel", "ImageGrid", "LocalForwardUpdate", "Mesh", "build_mesh"]

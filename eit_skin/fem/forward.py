@@ -1,0 +1,465 @@
+"""Complete-electrode-model forward solver: sheet conductance -> electrode voltages, Jacobian.
+
+Physics (2-D sheet, SI units): ``div(sigma grad u) = 0`` in the sheet, ``sigma`` the sheet
+conductance per triangle (siemens, i.e. 1 / (ohm per square)); on electrode ``l`` (boundary
+edges ``e_l``) ``sigma du/dn = (U_l - u) / z_l`` with contact impedance ``z_l`` (ohm*metre:
+current per unit boundary length = voltage drop / z), ``int_{e_l} (U_l - u) / z_l ds = I_l``
+(current entering the sheet through electrode ``l``, amperes), and ``sigma du/dn = 0`` on the
+free boundary (including holes).
+
+Discretisation: linear triangles; unknowns are the node potentials ``u`` and the electrode
+potentials ``U``. The system matrix ``K = [[A + B, -C], [-C^T, D]]`` (stiffness ``A`` scales
+with sigma, ``B``, ``C``, ``D`` are the constant contact terms) is symmetric and positive
+semi-definite with the constants as null space.
+
+Ground: the last electrode's potential is fixed to 0 V while solving (its row and column are
+dropped, which leaves a symmetric positive-definite matrix); the reported potentials are then
+shifted so that **the electrode potentials of every injection sum to zero**. Voltage
+differences (the measurements) do not depend on this choice.
+
+Solving: the grounded matrix is scaled symmetrically by its diagonal
+(``S K S`` with ``S = diag(K)^(-1/2)``), which removes the scale of sigma and of ``1/z`` and
+keeps the factorisation accurate at large conductivity contrasts, then factorised
+once per conductivity with SuperLU (``scipy.sparse.linalg.splu``) using the minimum-degree
+ordering of ``K^T + K`` (``MMD_AT_PLUS_A``, right for a symmetric matrix) with diagonal pivoting
+(no row interchanges are needed for an SPD matrix, so the fill-reducing order is kept).
+One solve with ``n_el - 1`` right-hand sides (unit current into each non-ground electrode)
+gives a field basis ``W``; every injection and every measurement "lead field" is a
+difference of two basis columns, so ``solve`` and ``jacobian`` share a single factorisation.
+
+Jacobian (adjoint / reciprocity): for measurement ``V = U_p - U_q`` during injection ``i``,
+``dV/dsigma_t = -int_t grad u_i . grad v_pq dA`` where ``v_pq`` is the field for a unit current
+entering at ``p`` and leaving at ``q``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg as spla
+
+from eit_skin.fem.mesh import Mesh
+from eit_skin.patch.protocol import Protocol
+
+
+@dataclass(frozen=True, eq=False)
+class ForwardSolution:
+    """Result of one forward solve.
+
+    Attributes:
+        node_potentials: ``[n_inj, n_nodes]`` V (NaN on nodes no triangle uses).
+        electrode_potentials: ``[n_inj, n_el]`` V, summing to zero per injection.
+        electrode_currents: ``[n_inj, n_el]`` A entering the sheet through each electrode,
+            computed back from the potentials (Kirchhoff check: ``+current_a`` at the
+            source, ``-current_a`` at the sink, 0 elsewhere).
+        voltages: ``[M]`` V in protocol order.
+    """
+
+    node_potentials: np.ndarray
+    electrode_potentials: np.ndarray
+    electrode_currents: np.ndarray
+    voltages: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class JacobianBasis:
+    """The Jacobian in factored form: ``jacobian = combination @ products`` ``[M, n_triangles]``.
+
+    Every measurement's sensitivity is a signed sum of four element-wise products of the
+    gradients of two unit-current fields (``n_el - 1`` non-zero fields, ground excluded), so
+    only the ``(n_el - 1) n_el / 2`` distinct products are stored.
+
+    Attributes:
+        products: ``[P, n_triangles]`` ``int_t grad w_a . grad w_b dA`` (ohm^2) for the pairs
+            ``a <= b`` of unit-current fields ``w`` (row-major upper triangle).
+        combination: ``[M, P]`` sparse CSR, amperes: ``-current_a`` times the signed pair sums.
+    """
+
+    products: np.ndarray
+    combination: sp.csr_matrix
+
+
+@dataclass(eq=False)
+class _Factorised:
+    sigma: np.ndarray  # [n_triangles] the conductance this belongs to
+    basis: np.ndarray  # [n_nodes + n_el, n_el] fields for 1 A into electrode l (ground: last)
+    lu: spla.SuperLU  # of the symmetrically permuted, scaled matrix
+    scale: np.ndarray  # [n_unknowns] diagonal scaling S
+    order: np.ndarray  # [n_unknowns] fill-reducing order: the factor is of Ks[order][:, order]
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``Ks^-1 b`` for the scaled matrix (``b`` ``[n]`` or ``[n, k]``)."""
+        x = np.empty_like(b, dtype=np.float64)
+        x[self.order] = self.lu.solve(np.ascontiguousarray(b[self.order]))
+        return x
+
+
+class ForwardModel:
+    """Sparse CEM finite-element forward model of one sheet.
+
+    Args:
+        mesh: the sheet's triangle mesh with its electrodes.
+        protocol: drive and measurement pairs (``protocol.n_electrodes == mesh.n_electrodes``).
+        contact_impedance_ohm_m: contact impedance ``z`` per electrode, ohm*metre, scalar or
+            ``[n_el]``, each > 0.
+        current_a: injected current amplitude, amperes (> 0).
+    """
+
+    def __init__(
+        self,
+        mesh: Mesh,
+        protocol: Protocol,
+        contact_impedance_ohm_m: float | np.ndarray,
+        current_a: float = 1e-3,
+    ) -> None:
+        nodes = np.asarray(mesh.nodes, dtype=np.float64)
+        tri = np.asarray(mesh.triangles, dtype=np.int64)
+        n_nodes, n_el = nodes.shape[0], mesh.n_electrodes
+        if nodes.ndim != 2 or nodes.shape[1] != 2 or not np.all(np.isfinite(nodes)):
+            raise ValueError(f"mesh.nodes: expected finite [n, 2], got shape {nodes.shape}")
+        if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0:
+            raise ValueError(f"mesh.triangles: expected [t, 3], got shape {tri.shape}")
+        if tri.min() < 0 or tri.max() >= n_nodes:
+            raise ValueError("mesh.triangles: node index out of range")
+        if protocol.n_electrodes != n_el:
+            raise ValueError(
+                f"protocol: made for {protocol.n_electrodes} electrodes, mesh has {n_el}"
+            )
+        z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,))
+        if not np.all(np.isfinite(z)) or np.any(z <= 0):
+            raise ValueError(f"contact_impedance_ohm_m: must be finite and > 0, got {z}")
+        if not (np.isfinite(current_a) and current_a > 0):
+            raise ValueError(f"current_a: must be finite and > 0, got {current_a}")
+
+        self._mesh = mesh
+        self._protocol = protocol
+        self._current_a = float(current_a)
+        self._z = z.copy()
+        self._n_nodes = n_nodes
+        self._n_el = n_el
+
+        # --- element geometry: gradients of the hat functions, areas --------------------
+        p = nodes[tri]  # [t, 3, 2]
+        e1 = p[:, 2] - p[:, 1]  # edge opposite node 0
+        e2 = p[:, 0] - p[:, 2]
+        e3 = p[:, 1] - p[:, 0]
+        area = 0.5 * (e3[:, 0] * (-e2[:, 1]) - e3[:, 1] * (-e2[:, 0]))
+        if np.any(area <= 0):
+            bad = int(np.flatnonzero(area <= 0)[0])
+            raise ValueError(
+                f"mesh.triangles: triangle {bad} is degenerate or clockwise (area {area[bad]:g})"
+            )
+        edges = np.stack([e1, e2, e3], axis=1)  # [t, 3, 2]
+        # grad phi_j = perp(edge opposite j) / (2 area), perp(x, y) = (-y, x)
+        grads = np.stack([-edges[..., 1], edges[..., 0]], axis=1) / (2 * area)[:, None, None]
+        self._tri = tri
+        self._area = area
+        self._grads = grads  # [t, 2, 3], 1/m
+        local = area[:, None, None] * np.einsum("tdi,tdj->tij", grads, grads)  # [t, 3, 3]
+
+        # --- electrode (contact) terms: constant --------------------------------------
+        erows, ecols, evals = [], [], []
+        n_unknown = n_nodes + n_el
+        el_len = np.zeros(n_el)
+        for el_i, edge_arr in enumerate(mesh.electrode_edges):
+            ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
+            if ed.shape[0] == 0:
+                raise ValueError(f"mesh.electrode_edges[{el_i}]: electrode has no boundary edge")
+            if ed.min() < 0 or ed.max() >= n_nodes:
+                raise ValueError(f"mesh.electrode_edges[{el_i}]: node index out of range")
+            length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)
+            if np.any(length <= 0):
+                raise ValueError(f"mesh.electrode_edges[{el_i}]: zero-length edge")
+            el_len[el_i] = length.sum()
+            a, b = ed[:, 0], ed[:, 1]
+            w = 1.0 / z[el_i]
+            # edge mass matrix (1/z) * L/6 [[2, 1], [1, 2]]
+            erows += [a, b, a, b]
+            ecols += [a, b, b, a]
+            evals += [w * length / 3, w * length / 3, w * length / 6, w * length / 6]
+            # coupling -(1/z) int phi_i ds = -(1/z) L/2 at both nodes, symmetric
+            el = np.full(len(a), n_nodes + el_i)
+            erows += [a, b, el, el]
+            ecols += [el, el, a, b]
+            evals += [-w * length / 2] * 4
+            erows.append(np.array([n_nodes + el_i]))
+            ecols.append(np.array([n_nodes + el_i]))
+            evals.append(np.array([el_len[el_i] * w]))
+        self._el_len = el_len
+        erows = np.concatenate(erows)
+        ecols = np.concatenate(ecols)
+        evals = np.concatenate(evals)
+        # C^T rows [n_el, n_nodes]: electrode current I_l = D_l U_l - (C^T u)_l
+        coupling = (erows >= n_nodes) & (ecols < n_nodes)
+        self._ct = sp.csr_matrix(
+            (-evals[coupling], (erows[coupling] - n_nodes, ecols[coupling])),
+            shape=(n_el, n_nodes),
+        )
+
+        # --- nodes no triangle uses: identity row keeps the matrix regular ---------------
+        used = np.zeros(n_nodes, dtype=bool)
+        used[tri.ravel()] = True
+        unused = np.flatnonzero(~used)
+        self._unused = unused
+
+        # --- connectivity: every piece of the sheet must touch an electrode ---------------
+        adj = sp.coo_matrix(
+            (np.ones(3 * len(tri)), (tri.ravel(), np.roll(tri, 1, axis=1).ravel())),
+            shape=(n_nodes, n_nodes),
+        )
+        n_comp, label = csgraph.connected_components(adj, directed=False)
+        el_nodes = np.unique(np.concatenate([np.ravel(e) for e in mesh.electrode_edges]))
+        touched = np.zeros(n_comp, dtype=bool)
+        touched[label[el_nodes]] = True
+        if not np.all(touched[np.unique(label[used])]):
+            raise ValueError(
+                "mesh: a connected part of the sheet has no electrode; its potential is undefined"
+            )
+
+        # --- sparsity pattern of the grounded system, assembled once ----------------------
+        ground = n_nodes + n_el - 1
+        srows = np.repeat(tri, 3, axis=1).ravel()
+        scols = np.tile(tri, (1, 3)).ravel()
+        rows = np.concatenate([srows, erows, unused])
+        cols = np.concatenate([scols, ecols, unused])
+        keep = (rows != ground) & (cols != ground)
+        n_stiff = srows.size
+        keep_stiff = keep[:n_stiff]
+        n_sys = n_unknown - 1
+        key = rows[keep] * n_sys + cols[keep]
+        uniq, inverse = np.unique(key, return_inverse=True)
+        self._n_sys = n_sys
+        self._slot_stiff = inverse[: int(keep_stiff.sum())]  # data slot of each kept stiff entry
+        self._stiff_elem = np.repeat(np.arange(len(tri)), 9)[keep_stiff]
+        self._stiff_vals = local.reshape(-1)[keep_stiff]
+        const = np.bincount(
+            inverse[int(keep_stiff.sum()) :],
+            weights=np.concatenate([evals, np.ones(len(unused))])[keep[n_stiff:]],
+            minlength=len(uniq),
+        )
+        self._const_data = const
+        self._indices = (uniq % n_sys).astype(np.int32)
+        row_of = uniq // n_sys
+        self._indptr = np.searchsorted(row_of, np.arange(n_sys + 1)).astype(np.int32)
+        self._row_of = row_of
+        self._diag_slot = np.flatnonzero(row_of == self._indices)
+        if self._diag_slot.size != n_sys:
+            raise ValueError("mesh: some unknown has no diagonal entry (isolated node?)")
+        self._cache: _Factorised | None = None
+        self._order: np.ndarray | None = None  # fill-reducing order, found once
+        self._permuted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def mesh(self) -> Mesh:
+        return self._mesh
+
+    @property
+    def protocol(self) -> Protocol:
+        return self._protocol
+
+    @property
+    def n_measurements(self) -> int:
+        return self._protocol.n_measurements
+
+    @property
+    def n_elements(self) -> int:
+        """Number of triangles (conductivity unknowns)."""
+        return int(self._tri.shape[0])
+
+    @property
+    def n_electrodes(self) -> int:
+        return self._n_el
+
+    @property
+    def current_a(self) -> float:
+        return self._current_a
+
+    @property
+    def contact_impedance_ohm_m(self) -> np.ndarray:
+        """``[n_el]`` contact impedance, ohm*metre."""
+        return self._z.copy()
+
+    # ------------------------------------------------------------------ assembly
+    def _sigma_array(self, sigma) -> np.ndarray:
+        s = np.asarray(sigma, dtype=np.float64)
+        if s.ndim == 0:
+            s = np.full(self.n_elements, float(s))
+        if s.shape != (self.n_elements,):
+            raise ValueError(
+                f"sigma: expected a scalar or shape [{self.n_elements}] (one per triangle), "
+                f"got shape {s.shape}"
+            )
+        if not np.all(np.isfinite(s)):
+            raise ValueError("sigma: contains NaN or inf")
+        if np.any(s <= 0):
+            raise ValueError(f"sigma: sheet conductance must be > 0 S, min is {s.min():g}")
+        return s
+
+    def system_matrix(self, sigma) -> sp.csr_matrix:
+        """Grounded CEM matrix ``[n_nodes + n_el - 1]^2`` (last electrode at 0 V), unscaled."""
+        s = self._sigma_array(sigma)
+        return self._matrix(s)
+
+    def _matrix(self, s: np.ndarray) -> sp.csr_matrix:
+        data = self._const_data + np.bincount(
+            self._slot_stiff,
+            weights=self._stiff_vals * s[self._stiff_elem],
+            minlength=self._const_data.size,
+        )
+        return sp.csr_matrix(
+            (data, self._indices, self._indptr), shape=(self._n_sys, self._n_sys), copy=False
+        )
+
+    def _factorise(self, s: np.ndarray) -> _Factorised:
+        cache = self._cache
+        if cache is not None and np.array_equal(cache.sigma, s):
+            return cache
+        K = self._matrix(s)
+        scale = 1.0 / np.sqrt(K.data[self._diag_slot])
+        Ks = sp.csc_matrix(
+            (K.data * scale[self._row_of] * scale[self._indices], K.indices, K.indptr),
+            shape=K.shape,
+        )  # symmetric, so the CSR arrays read as CSC are the same matrix
+        if self._order is None:
+            # The sparsity pattern never changes: find the minimum-degree order once (from a
+            # first factorisation) and factorise the pre-permuted matrix in natural order
+            # afterwards, which halves the factorisation time (no ordering per call).
+            first = spla.splu(
+                Ks,
+                permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True},
+            )
+            self._order = np.argsort(first.perm_c)
+            template = sp.csc_matrix(
+                (np.arange(Ks.nnz, dtype=np.float64) + 1.0, Ks.indices, Ks.indptr),
+                shape=Ks.shape,
+            )[self._order][:, self._order].tocsc()
+            template.sort_indices()
+            self._permuted = (template.indices, template.indptr, template.data.astype(np.int64) - 1)
+        indices, indptr, source = self._permuted
+        lu = spla.splu(
+            sp.csc_matrix((Ks.data[source], indices, indptr), shape=Ks.shape),
+            permc_spec="NATURAL",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        n, n_el = self._n_nodes, self._n_el
+        rhs = np.zeros((self._n_sys, n_el - 1))
+        rhs[n + np.arange(n_el - 1), np.arange(n_el - 1)] = 1.0
+        factor = _Factorised(sigma=s.copy(), basis=None, lu=lu, scale=scale, order=self._order)
+        sol = scale[:, None] * factor.solve(scale[:, None] * rhs)
+        basis = np.zeros((n + n_el, n_el))
+        basis[: self._n_sys, : n_el - 1] = sol  # ground electrode: zero column and row
+        if not np.all(np.isfinite(basis)):
+            raise FloatingPointError("forward: factorisation produced non-finite potentials")
+        factor.basis = basis
+        self._cache = factor
+        return factor
+
+    # ------------------------------------------------------------------ public solves
+    def solve(self, sigma) -> ForwardSolution:
+        """Potentials and voltages for sheet conductance ``sigma`` (S, scalar or [n_triangles])."""
+        s = self._sigma_array(sigma)
+        basis = self._factorise(s).basis
+        inj = self._protocol.injections
+        fields = self._current_a * (basis[:, inj[:, 0]] - basis[:, inj[:, 1]]).T  # [n_inj, N]
+        u = fields[:, : self._n_nodes]
+        U = fields[:, self._n_nodes :]
+        shift = U.mean(axis=1, keepdims=True)
+        u = u - shift
+        U = U - shift
+        currents = U * (self._el_len / self._z) - (self._ct @ u.T).T
+        if self._unused.size:
+            u[:, self._unused] = np.nan
+        return ForwardSolution(
+            node_potentials=u,
+            electrode_potentials=U,
+            electrode_currents=currents,
+            voltages=self._protocol.measure(U),
+        )
+
+    def voltages(self, sigma) -> np.ndarray:
+        """``[M]`` measured voltages (V) in protocol order."""
+        return self.solve(sigma).voltages
+
+    def jacobian(self, sigma) -> np.ndarray:
+        """``[M, n_triangles]`` sensitivity ``dV/dsigma`` (V/S), adjoint method."""
+        s = self._sigma_array(sigma)
+        basis = self._factorise(s).basis[: self._n_nodes]  # [n_nodes, n_el]
+        # element gradients of each basis field, [n_el, 2, t] (rows contiguous per field)
+        gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
+        gw = np.ascontiguousarray(gw * np.sqrt(self._area))  # sum_d gu*gv carries the area
+        inj = self._protocol.injections
+        k, p, m = self._protocol.measurements.T
+        src, snk = inj[k, 0], inj[k, 1]
+        n_el, n_t = self._n_el, self.n_elements
+        if n_el**2 * n_t <= 20_000_000:
+            # all pairwise field products once ([n_el * n_el, t]), then four row gathers
+            P = (gw[:, None, 0] * gw[None, :, 0] + gw[:, None, 1] * gw[None, :, 1]).reshape(
+                n_el * n_el, n_t
+            )
+            out = P[src * n_el + p]
+            out -= P[src * n_el + m]
+            out -= P[snk * n_el + p]
+            out += P[snk * n_el + m]
+        else:  # many electrodes on a big mesh: bounded memory
+            out = np.empty((k.size, n_t))
+            chunk = max(1, 4_000_000 // n_t)
+            for a in range(0, k.size, chunk):
+                sl = slice(a, a + chunk)
+                gu = gw[src[sl]] - gw[snk[sl]]  # [c, 2, t]
+                gv = gw[p[sl]] - gw[m[sl]]
+                out[sl] = np.einsum("cdt,cdt->ct", gu, gv)
+        out *= -self._current_a
+        return out
+
+    def jacobian_basis(self, sigma) -> JacobianBasis:
+        """:meth:`jacobian` factored as ``combination @ products`` (see :class:`JacobianBasis`).
+
+        Uses the same factorisation as :meth:`solve` (cached per conductivity); cheaper than
+        :meth:`jacobian` and lets a Gauss-Newton step work with ``P < M`` rows.
+        """
+        s = self._sigma_array(sigma)
+        n_el, n_t = self._n_el, self.n_elements
+        f = n_el - 1  # the ground electrode's field is identically zero
+        basis = self._factorise(s).basis[: self._n_nodes, :f]  # [n_nodes, f]
+        gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
+        gw = gw * np.sqrt(self._area)  # [f, 2, t]
+        a_idx, b_idx = np.triu_indices(f)
+        products = np.empty((a_idx.size, n_t))  # rows (a, a..f-1) for a = 0..f-1
+        row = 0
+        for a in range(f):  # one block of rows per field (f ~ 15), vectorised over elements
+            block = products[row : row + f - a]
+            np.multiply(gw[a, 0], gw[a:, 0], out=block)
+            block += gw[a, 1] * gw[a:, 1]
+            row += f - a
+        pair = np.full((n_el, n_el), -1, dtype=np.int64)
+        pair[a_idx, b_idx] = np.arange(a_idx.size)
+        pair[b_idx, a_idx] = np.arange(a_idx.size)
+        inj = self._protocol.injections
+        k, p, m = self._protocol.measurements.T
+        src, snk = inj[k, 0], inj[k, 1]
+        rows = np.tile(np.arange(k.size), 4)
+        cols = np.concatenate([pair[src, p], pair[src, m], pair[snk, p], pair[snk, m]])
+        vals = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]) * -self._current_a, k.size)
+        used = cols >= 0
+        combination = sp.csr_matrix(
+            (vals[used], (rows[used], cols[used])), shape=(k.size, a_idx.size)
+        )
+        combination.sum_duplicates()
+        return JacobianBasis(products=products, combination=combination)
+
+    def condition_estimate(self, sigma) -> float:
+        """1-norm condition number estimate of the scaled, grounded system that is factorised."""
+        s = self._sigma_array(sigma)
+        fac = self._factorise(s)
+        K = self._matrix(s)
+        Ks = sp.diags(fac.scale) @ K @ sp.diags(fac.scale)
+        n = self._n_sys
+        inv = spla.LinearOperator((n, n), matvec=fac.solve, rmatvec=fac.solve)  # symmetric
+        return float(spla.norm(Ks, 1) * spla.onenormest(inv))

@@ -1,0 +1,219 @@
+"""An emulated skin board: speaks the wire protocol on a pseudo-terminal.
+
+``FakeDevice(frame_source, rate_hz)`` opens a pty, optionally puts a symlink (like the udev
+``/dev/eit_skin_*`` link) at a path of choice, and writes one encoded frame per period.
+``frame_source(i)`` returns frame i's voltages, volts [M]; any callable works (a looped npz
+recording, the physics simulator). ``unplug()`` closes the pty like a pulled USB cable; a
+later ``open()`` (+ ``link``) plugs in a fresh one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+import tty
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from eit_skin.hardware.wire import DeviceFrame, PatternId, ValueEncoding, encode_frame
+
+FrameSource = Callable[[int], np.ndarray]
+"""frame index -> voltages, volts, float [M]."""
+
+DEFAULT_VOLTS_PER_COUNT = 3.3 / 4096 / 1000
+"""A 3.3 V 12-bit ADC summed over 1000 oversamples: volts per summed count."""
+
+
+def npz_frame_source(path: str | Path) -> tuple[FrameSource, int]:
+    """Loop the ``frames`` [T, M] volts of an offline npz file; returns (source, M)."""
+    from eit_skin.io.recording import load_frames_npz
+
+    _, frames, _ = load_frames_npz(path)
+    return (lambda i: frames[i % frames.shape[0]]), int(frames.shape[1])
+
+
+class FakeDevice:
+    """A pty that emits wire frames at ``rate_hz``.
+
+    Args:
+        frame_source: frame index -> voltages, volts [M] (M fixed).
+        rate_hz: frames per second.
+        n_electrodes, pattern_id, pattern_param, current_a: header fields of every frame.
+        value_encoding: FLOAT32_VOLTS, or INT32_COUNTS with ``volts_per_count``.
+        max_pending_bytes: bytes queued while nobody reads before frames are dropped.
+    """
+
+    def __init__(
+        self,
+        frame_source: FrameSource,
+        rate_hz: float = 50.0,
+        *,
+        n_electrodes: int = 16,
+        pattern_id: PatternId = PatternId.ADJACENT,
+        pattern_param: int = 0,
+        current_a: float = 1e-3,
+        value_encoding: ValueEncoding = ValueEncoding.FLOAT32_VOLTS,
+        volts_per_count: float = DEFAULT_VOLTS_PER_COUNT,
+        max_pending_bytes: int = 1 << 20,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.frame_source = frame_source
+        self.rate_hz = float(rate_hz)
+        self.n_electrodes = n_electrodes
+        self.pattern_id = PatternId(pattern_id)
+        self.pattern_param = pattern_param
+        self.current_a = current_a
+        self.value_encoding = ValueEncoding(value_encoding)
+        self.volts_per_count = float(np.float32(volts_per_count))
+        self.max_pending_bytes = max_pending_bytes
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._slave_path = ""
+        self._link: Path | None = None
+        self._pending = bytearray()
+        self._t0_ns = time.monotonic_ns()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+
+    @property
+    def slave_path(self) -> str:
+        """Path a serial reader opens (``/dev/pts/N``), '' while unplugged."""
+        return self._slave_path
+
+    def open(self) -> str:
+        """Plug in: create a raw pty and return its slave path."""
+        with self._lock:
+            if self._master is not None:
+                return self._slave_path
+            master, slave = os.openpty()
+            tty.setraw(slave)  # no echo, no CR/LF translation: a binary line from the start
+            os.set_blocking(master, False)
+            self._master, self._slave = master, slave
+            self._slave_path = os.ttyname(slave)
+            self._pending.clear()
+        if self._link is not None:
+            self.link(self._link)
+        return self._slave_path
+
+    def link(self, path: str | Path) -> None:
+        """Point a symlink at ``path`` to the slave (replacing an existing symlink only)."""
+        path = Path(path)
+        if path.exists() and not path.is_symlink():
+            raise FileExistsError(f"{path} exists and is not a symlink; not replacing it")
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        tmp.symlink_to(self._slave_path)
+        tmp.replace(path)
+        self._link = path
+
+    def unplug(self) -> None:
+        """Close the pty (readers get an I/O error) and remove the symlink."""
+        with self._lock:
+            if self._link is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    self._link.unlink()
+            for fd in (self._master, self._slave):
+                if fd is not None:
+                    os.close(fd)
+            self._master = self._slave = None
+            self._slave_path = ""
+            self._pending.clear()
+
+    def frame(self, index: int, device_time_us: int | None = None) -> DeviceFrame:
+        """Frame ``index`` exactly as a parser will decode it (values rounded to the wire)."""
+        volts = np.asarray(self.frame_source(index), dtype=np.float64)
+        if self.value_encoding is ValueEncoding.FLOAT32_VOLTS:
+            volts = volts.astype(np.float32).astype(np.float64)
+        else:
+            volts = np.rint(volts / self.volts_per_count) * self.volts_per_count
+        if device_time_us is None:
+            device_time_us = (time.monotonic_ns() - self._t0_ns) // 1000
+        return DeviceFrame(
+            sequence=index % 2**32,
+            device_time_us=device_time_us,
+            n_electrodes=self.n_electrodes,
+            pattern_id=self.pattern_id,
+            pattern_param=self.pattern_param,
+            current_a=self.current_a,
+            voltages_v=volts,
+            flags=np.where(np.isfinite(volts), 0, 2).astype(np.uint8),
+            value_encoding=self.value_encoding,
+            volts_per_count=self.volts_per_count,
+        )
+
+    def send(self, frame: DeviceFrame) -> bool:
+        """Queue and write one frame; False if unplugged or dropped (nobody reading)."""
+        with self._lock:
+            if self._master is None:
+                return False
+            if len(self._pending) > self.max_pending_bytes:
+                self.frames_dropped += 1
+                self._flush()
+                return False
+            self._pending += encode_frame(frame)
+            self.frames_sent += 1
+            self._flush()
+            return True
+
+    def _flush(self) -> None:
+        try:
+            while self._pending:
+                written = os.write(self._master, self._pending)  # type: ignore[arg-type]
+                del self._pending[:written]
+        except BlockingIOError:
+            pass
+
+    def run(self, count: int | None = None, stop: threading.Event | None = None) -> int:
+        """Send frames 0, 1, ... paced at ``rate_hz`` until ``count`` or ``stop``; return count."""
+        stop = stop or self._stop
+        period_ns = round(1e9 / self.rate_hz)
+        next_ns = time.monotonic_ns()
+        index = 0
+        while (count is None or index < count) and not stop.is_set():
+            # stamped with the scheduled acquisition time, like a timer-driven firmware
+            self.send(self.frame(index, device_time_us=(next_ns - self._t0_ns) // 1000))
+            index += 1
+            next_ns += period_ns
+            now = time.monotonic_ns()
+            if next_ns < now - 1_000_000_000:  # more than 1 s behind: drop the backlog
+                next_ns = now
+            if stop.wait(max(0, next_ns - now) / 1e9):
+                break
+        with self._lock:
+            if self._master is not None:
+                self._flush()
+        return index
+
+    def start(self, count: int | None = None) -> None:
+        """Run ``run(count)`` on a daemon thread."""
+        self._stop.clear()
+        self._thread = threading.Thread(target=self.run, args=(count,), daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the thread started by ``start``."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def close(self) -> None:
+        """Stop sending and unplug."""
+        self.stop()
+        self.unplug()
+
+    def __enter__(self) -> FakeDevice:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,342 @@
+"""Where raw frames come from: a serial board, the physics simulator, or a recording.
+
+Every source turns its input into :class:`~eit_skin.io.recording.FrameRecord` objects (the
+ROS-free fields of an ``EitFrame``) stamped with the acquisition time in host nanoseconds,
+and keeps counters for diagnostics. The driver node only publishes what they return.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eit_skin.hardware.device_clock import DeviceClock
+from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
+from eit_skin.hardware.wire import PatternId
+from eit_skin.io.recording import FrameRecord, read_mcap_frames
+from eit_skin.patch.model import Layer, Patch
+from eit_skin.patch.protocol import Protocol, build_protocol
+
+FrameSink = Callable[[FrameRecord], None]
+
+
+def pattern_name(layer: Layer) -> str:
+    """The drive pattern name carried in ``EitFrame.drive_pattern`` (e.g. ``skip-2``)."""
+    spec = layer.protocol
+    return f"skip-{spec.drive_skip}" if spec.drive == "skip" else spec.drive
+
+
+_PATTERN_IDS = {
+    "adjacent": PatternId.ADJACENT,
+    "opposite": PatternId.OPPOSITE,
+    "skip": PatternId.SKIP,
+    "explicit": PatternId.EXPLICIT,
+}
+
+
+def pattern_id(layer: Layer) -> PatternId:
+    """The wire protocol's pattern id of a layer's drive pattern."""
+    return _PATTERN_IDS[layer.protocol.drive]
+
+
+class RateMeter:
+    """Frames per second between two queries (O(1) per frame: a counter, monotonic clock).
+
+    ``rate_hz`` reports the rate since the previous query (the first query: since the
+    first frame), so with diagnostics every second it is the rate of the last second; a
+    query within ``min_window_s`` of the previous one repeats the last value.
+    """
+
+    def __init__(self, min_window_s: float = 0.5) -> None:
+        self.min_window_ns = int(min_window_s * 1e9)
+        self.count = 0
+        self._mark: tuple[int, int] | None = None  # (count, monotonic ns) of the last query
+        self._rate = 0.0
+
+    def tick(self) -> None:
+        if self._mark is None:
+            self._mark = (0, time.monotonic_ns())
+        self.count += 1
+
+    def rate_hz(self) -> float:
+        if self._mark is None:
+            return 0.0
+        count, then = self._mark
+        now = time.monotonic_ns()
+        if now - then >= self.min_window_ns:
+            self._rate = (self.count - count) / ((now - then) * 1e-9)
+            self._mark = (self.count, now)
+        return self._rate
+
+
+@dataclass
+class SourceStatus:
+    """What a source tells the diagnostics.
+
+    Attributes:
+        level: 0 OK, 1 WARN, 2 ERROR (``diagnostic_msgs/DiagnosticStatus`` levels).
+        message: one line for humans.
+        values: key/value pairs for the diagnostics array.
+    """
+
+    level: int
+    message: str
+    values: dict[str, str] = field(default_factory=dict)
+
+
+class LayerFrameFactory:
+    """Builds FrameRecords of one layer: names, electrode count, pattern, expected M."""
+
+    def __init__(self, patch: Patch, layer: Layer, frame_id: str) -> None:
+        self.patch = patch
+        self.layer = layer
+        self.frame_id = frame_id
+        self.protocol: Protocol = build_protocol(layer.protocol, layer.n_electrodes)
+        self.pattern = pattern_name(layer)
+
+    @property
+    def n_measurements(self) -> int:
+        return self.protocol.n_measurements
+
+    def record(
+        self,
+        stamp_ns: int,
+        sequence: int,
+        voltages_v: np.ndarray,
+        flags: np.ndarray | None = None,
+        current_a: float | None = None,
+    ) -> FrameRecord:
+        return FrameRecord(
+            stamp_ns=stamp_ns,
+            frame_id=self.frame_id,
+            patch=self.patch.name,
+            layer=self.layer.name,
+            n_electrodes=self.layer.n_electrodes,
+            drive_pattern=self.pattern,
+            current_a=self.layer.current_a if current_a is None else current_a,
+            sequence=sequence % 2**32,
+            voltages=voltages_v,
+            channel_flags=np.zeros(0, np.uint8) if flags is None else flags,
+        )
+
+
+class SerialSource:
+    """One board on a serial port, serving one layer.
+
+    Frames are delivered from the link's reader thread to ``sink`` as soon as their last
+    byte is parsed (lowest latency); frames whose value count or electrode count does not
+    match the layer are counted and dropped, never published.
+    """
+
+    def __init__(
+        self,
+        factory: LayerFrameFactory,
+        port: str,
+        baud: int,
+        sink: FrameSink,
+        clock: DeviceClock | None = None,
+        backoff_max_s: float = 2.0,
+    ) -> None:
+        self.factory = factory
+        self.sink = sink
+        self.clock = clock or DeviceClock()
+        self.link = SerialLink(port, baud, backoff_initial_s=0.05, backoff_max_s=backoff_max_s)
+        self.rate = RateMeter()
+        self.published = 0
+        self.mismatched = 0
+        self.last_mismatch = ""
+        self._reported = (0, 0)  # (published, mismatched) at the last status()
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        self.link.start(self._on_frames)
+
+    def stop(self) -> None:
+        self.link.stop()
+
+    def _on_frames(self, received: list[ReceivedFrame]) -> None:
+        expected_m = self.factory.n_measurements
+        good = []
+        for item in received:
+            frame = item.frame
+            if (
+                frame.n_values != expected_m
+                or frame.n_electrodes != self.factory.layer.n_electrodes
+            ):
+                with self._lock:
+                    self.mismatched += 1
+                    self.last_mismatch = (
+                        f"frame {frame.sequence}: {frame.n_values} values / "
+                        f"{frame.n_electrodes} electrodes, layer {self.factory.layer.name!r} "
+                        f"expects {expected_m} / {self.factory.layer.n_electrodes}"
+                    )
+                continue
+            good.append(item)
+        stamps = self.clock.update_batch(
+            [item.frame.device_time_us for item in good], [item.host_time_ns for item in good]
+        )
+        for item, stamp in zip(good, stamps, strict=True):
+            frame = item.frame
+            record = self.factory.record(
+                stamp, frame.sequence, frame.voltages_v, frame.flags, frame.current_a
+            )
+            self.sink(record)
+            with self._lock:
+                self.published += 1
+                self.rate.tick()
+
+    def status(self) -> SourceStatus:
+        link = self.link.status()
+        with self._lock:
+            rate = self.rate.rate_hz()
+            new_frames = self.published - self._reported[0]
+            new_mismatches = self.mismatched - self._reported[1]
+            self._reported = (self.published, self.mismatched)
+            values = {
+                "source": "serial",
+                "port": link.port,
+                "state": link.state.value,
+                "frame_rate_hz": f"{rate:.1f}",
+                "frames_published": str(self.published),
+                "frames_mismatched": str(self.mismatched),
+                "crc_errors": str(link.parser.crc_errors),
+                "truncated": str(link.parser.truncated),
+                "resyncs": str(link.parser.resyncs),
+                "discarded_bytes": str(link.parser.discarded_bytes),
+                "reconnects": str(link.reconnects),
+                "failed_attempts": str(link.failed_attempts),
+                "clock_drift_ppm": f"{self.clock.drift_ppm:.1f}",
+                "last_error": link.last_error,
+            }
+            mismatch = self.last_mismatch
+        if link.state is LinkState.DISCONNECTED:
+            return SourceStatus(
+                2, f"device {link.port} not connected: {link.last_error or 'opening'}", values
+            )
+        if new_mismatches and mismatch:
+            return SourceStatus(1, f"frames rejected: {mismatch}", values)
+        if not new_frames:
+            return SourceStatus(1, f"connected to {link.port}, no frames since last report", values)
+        return SourceStatus(0, f"{rate:.1f} frames/s from {link.port}", values)
+
+
+class SimulatedSource:
+    """Frames of every simulated layer, produced on the caller's timer.
+
+    ``simulator`` is a :class:`eit_skin.sim.simulator.SkinSimulator`; frame ``k`` of the
+    script is published at tick ``k``; with ``loop`` the script restarts after its end,
+    otherwise the skin stays untouched (no-load frames) after one pass.
+    """
+
+    def __init__(
+        self,
+        factories: dict[str, LayerFrameFactory],
+        simulator: Any,  # SkinSimulator, imported lazily by the caller
+        n_script_frames: int,
+        loop: bool,
+    ) -> None:
+        self.factories = factories
+        self.simulator = simulator
+        self.n_script_frames = max(1, n_script_frames)
+        self.loop = loop
+        self.index = 0
+        self.rate = RateMeter()
+        self.published = 0
+
+    @property
+    def script_done(self) -> bool:
+        """True once one pass of the touch script has been published."""
+        return self.index >= self.n_script_frames
+
+    def posture_angle(self) -> float | None:
+        """Simulated joint angle of the last published frame, rad (None: no joint)."""
+        posture = self.simulator.scenario.posture
+        if posture is None or self.index == 0:
+            return None
+        k = (self.index - 1) % self.n_script_frames if self.loop else self.index - 1
+        return float(posture.angle(k / self.simulator.rate_hz))
+
+    def tick(self, now_ns: int, sink: FrameSink) -> None:
+        k = self.index % self.n_script_frames if self.loop else self.index
+        frames = self.simulator.frame(k)
+        for name, factory in self.factories.items():
+            sim = frames[name]
+            sink(factory.record(now_ns, self.index, sim.voltages_v, sim.flags))
+        self.index += 1
+        self.published += 1
+        self.rate.tick()
+
+    def status(self) -> SourceStatus:
+        rate = self.rate.rate_hz()
+        values = {
+            "source": "simulator",
+            "frame_rate_hz": f"{rate:.1f}",
+            "frames_published": str(self.published),
+            "script_frame": str(self.index % self.n_script_frames),
+            "script_frames": str(self.n_script_frames),
+        }
+        level = 0 if self.published else 1
+        return SourceStatus(level, f"simulating {rate:.1f} frames/s", values)
+
+
+class ReplaySource:
+    """Frames of an MCAP recording, with their original spacing or as fast as possible.
+
+    Only topics of the replayed patch's layers are used (``/<ns>/<layer>/frames`` or any
+    topic ending in ``/<layer>/frames``); the original header stamps are kept.
+    """
+
+    def __init__(self, path: str | Path, layers: list[str], realtime: bool = True) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"replay_path {self.path}: no such file")
+        self.layers = set(layers)
+        self.realtime = realtime
+        self._pending: tuple[int, FrameRecord] | None = None
+        self._t0: tuple[int, int] | None = None  # (first log time, host time at start)
+        self.published = 0
+        self.finished = False
+        self.rate = RateMeter()
+        self._iter: Iterator[tuple[int, FrameRecord]] = self._records()
+
+    def _records(self) -> Iterator[tuple[int, FrameRecord]]:
+        for topic, log_ns, record in read_mcap_frames(self.path):
+            if record.layer in self.layers and topic.endswith(f"{record.layer}/frames"):
+                yield log_ns, record
+
+    def tick(self, now_ns: int, sink: FrameSink, max_frames: int = 1000) -> None:
+        """Publish every frame that is due (realtime) or up to ``max_frames`` (fast)."""
+        for _ in range(max_frames):
+            if self._pending is None:
+                nxt = next(self._iter, None)
+                if nxt is None:
+                    self.finished = True
+                    return
+                self._pending = nxt
+            log_ns, record = self._pending
+            if self._t0 is None:
+                self._t0 = (log_ns, now_ns)
+            if self.realtime and log_ns - self._t0[0] > now_ns - self._t0[1]:
+                return
+            sink(record)
+            self._pending = None
+            self.published += 1
+            self.rate.tick()
+
+    def status(self) -> SourceStatus:
+        values = {
+            "source": "replay",
+            "file": str(self.path),
+            "frames_published": str(self.published),
+            "finished": str(self.finished).lower(),
+            "frame_rate_hz": f"{self.rate.rate_hz():.1f}",
+        }
+        if self.finished:
+            return SourceStatus(0, f"replay of {self.path.name} finished", values)
+        return SourceStatus(0, f"replaying {self.path.name}", values)

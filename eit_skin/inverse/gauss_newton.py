@@ -1,0 +1,319 @@
+"""Iterative regularised Gauss-Newton (the seed's equation 1) for large contrasts.
+
+Unknown: the log-conductance change ``d = ln(sigma / sigma0)`` per element of a *parameter
+mesh* (default: the forward mesh itself; or a coarser mesh over the same sheet, ``C`` the
+fine-to-coarse 0/1 map of :func:`eit_skin.inverse.one_step.coarse_to_fine`, so
+``sigma = sigma0 exp(C d)`` on the forward mesh and positivity is kept). Objective, in
+relative data units (see :mod:`eit_skin.inverse.one_step`):
+
+    ``phi(d) = || (v_target - F(sigma0 exp(C d))) / w ||^2 + lambda^2 d^T P d``
+
+with ``w`` the floored reference scale (volts), ``P`` the sparse prior on the parameter mesh,
+factorised once and reused in every iteration. Each step solves the normal equations in the
+dual (``M x M``) form
+
+    ``step = P^-1 J^T (J P^-1 J^T + lambda^2 I)^-1 (r + J d) - d``,
+
+where ``J = diag(1/w) dF/dsigma diag(sigma) C``; ``lambda^2 = h^2 trace(J P^-1 J^T)/M``
+is fixed at the first iteration. Speed: ``J = C_w G`` is used in the factored form of
+:meth:`eit_skin.fem.forward.ForwardModel.jacobian_basis` (``G`` ``[P, N]``, ``P = 120`` field-pair
+products for 16 electrodes, ``C_w`` sparse ``[M, P]``, constant), so each iteration needs
+only ``P`` prior solves and a ``P x P`` product ``G P^-1 G^T``; with a coarse parameter mesh
+``G C`` is one sparse product and everything after it is parameter-mesh sized. The forward
+factorisation of the accepted line-search point is reused (cached) for the next Jacobian, so
+an iteration costs one factorisation of the forward system when the full step is accepted.
+A backtracking line search halves the step until ``phi`` decreases; iteration stops when the
+relative residual ``||r|| / ||v_target / w||`` falls below ``tolerance``, when no step lowers
+``phi`` or lowers it by less than ``stagnation`` (relative), or after ``max_iterations``.
+``|d|`` is clipped to ``max_log_contrast`` so the output stays bounded and finite even for a
+silver mesh (~zero resistance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from eit_skin.fem.mesh import Mesh
+from eit_skin.inverse.one_step import coarse_to_fine, reference_scale, relative_difference
+from eit_skin.inverse.priors import Prior, make_prior
+
+DEFAULT_MAX_LOG_CONTRAST = float(np.log(1e5))
+_LINE_SEARCH_HALVINGS = 12
+
+
+@dataclass(frozen=True)
+class GaussNewtonResult:
+    """Outcome of :func:`gauss_newton`.
+
+    Attributes:
+        sigma: ``[N]`` sheet conductance on the forward mesh, siemens.
+        relative_change: ``[N]`` ``sigma / sigma0 - 1`` on the forward mesh (positive = more
+            conductive).
+        iterations: Gauss-Newton steps taken.
+        relative_residuals: ``[iterations + 1]`` ``||r|| / ||v_target / w||`` history.
+        converged: True when the residual tolerance was met.
+        parameter_change: ``[N_p]`` ``sigma / sigma0 - 1`` per parameter-mesh element.
+        forward_solves: forward solves at new conductances (line-search trials included).
+    """
+
+    sigma: np.ndarray
+    relative_change: np.ndarray
+    iterations: int
+    relative_residuals: np.ndarray
+    converged: bool
+    parameter_change: np.ndarray
+    forward_solves: int
+
+
+class GaussNewtonSolver:
+    """Regularised Gauss-Newton around one ``sigma0``, reusable for many targets or frames.
+
+    Everything that does not depend on the data is prepared once: the parameter map, the
+    factorised prior, the weighted combination ``C_w``, ``lambda^2`` and the whole first
+    linearisation at ``sigma0`` (``G^T``, ``P^-1 G^T`` and the Cholesky factor of
+    ``J P^-1 J^T + lambda^2 I``), so the first step of every fit costs two triangular solves
+    and a forward solve. The data scale ``w`` is fixed: ``weights_v``, or the floored
+    ``|F(sigma0)|`` (the one-step convention, :func:`eit_skin.inverse.one_step.reference_scale`).
+
+    Args:
+        forward: model with ``.voltages(sigma)``, ``.jacobian_basis(sigma)`` (or
+            ``.jacobian``), ``.mesh``, ``.n_measurements``.
+        sigma0: starting and prior conductance, siemens, scalar or ``[N]`` (forward mesh).
+        prior: prior kind or a built :class:`Prior` on the parameter mesh.
+        hyperparameter: dimensionless ``h``.
+        parameter_mesh: coarser mesh of the same sheet carrying the unknowns (default: the
+            forward mesh).
+        weights_v: ``[M]`` data scale ``w`` in volts.
+        max_log_contrast: bound on ``|ln(sigma / sigma0)|``.
+    """
+
+    def __init__(
+        self,
+        forward: Any,
+        sigma0: np.ndarray | float,
+        prior: str | Prior = "laplace",
+        hyperparameter: float = 0.03,
+        parameter_mesh: Mesh | None = None,
+        weights_v: np.ndarray | None = None,
+        max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
+    ) -> None:
+        if not (np.isfinite(hyperparameter) and hyperparameter > 0):
+            raise ValueError(f"hyperparameter must be a positive number, got {hyperparameter}")
+        self.forward = forward
+        n = forward.mesh.n_triangles
+        self.sigma0 = np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n,)).copy()
+        self.v0 = np.asarray(forward.voltages(self.sigma0), dtype=np.float64)  # [M] volts
+        self.weights_v = reference_scale(self.v0) if weights_v is None else np.asarray(weights_v)
+        if self.weights_v.shape != self.v0.shape or not np.all(self.weights_v > 0):
+            raise ValueError(f"weights_v must be [{self.v0.size}] positive volts")
+        self.max_log_contrast = float(max_log_contrast)
+        self._owner, self._to_params = _parameter_map(forward.mesh, parameter_mesh)
+        self.n_parameters = n if self._owner is None else parameter_mesh.n_triangles  # type: ignore[union-attr]
+        if isinstance(prior, Prior) and prior.n != self.n_parameters:
+            raise ValueError(
+                f"prior has {prior.n} elements, the parameter mesh {self.n_parameters}"
+            )
+        products, combination = _jacobian_factors(forward, self.sigma0)
+        self._cw = sp.csr_matrix(combination.multiply(1.0 / self.weights_v[:, None]))
+        gt = _parameter_jacobian(products, self.sigma0, self._to_params)
+        if isinstance(prior, Prior):
+            self.prior = prior
+        else:
+            j = np.asarray(self._cw @ gt.T) if prior == "noser" else None
+            self.prior = make_prior(prior, parameter_mesh or forward.mesh, j)
+        z, k = self._normal_matrix(gt)
+        self.lam2 = float(hyperparameter) ** 2 * max(float(np.trace(k)) / k.shape[0], 1e-300)
+        self._first = (gt, z, self._cholesky(k))
+
+    # ------------------------------------------------------------------ pieces
+    def _normal_matrix(self, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(P^-1 G^T [N_p, P], J P^-1 J^T [M, M])`` for ``G^T`` ``[N_p, P]``."""
+        z = self.prior.solve(gt)
+        kg = gt.T @ z
+        kg = 0.5 * (kg + kg.T)
+        return z, np.asarray(self._cw @ np.asarray(self._cw @ kg).T)
+
+    def _cholesky(self, k: np.ndarray) -> tuple[np.ndarray, bool]:
+        k[np.diag_indices_from(k)] += self.lam2
+        return sla.cho_factor(k, lower=True, check_finite=False)
+
+    def _fine_sigma(self, d: np.ndarray) -> np.ndarray:
+        return self.sigma0 * np.exp(d if self._owner is None else d[self._owner])
+
+    # ------------------------------------------------------------------ fits
+    def fit(
+        self,
+        v_target: np.ndarray,
+        max_iterations: int = 10,
+        tolerance: float = 1e-3,
+        stagnation: float = 1e-9,
+    ) -> GaussNewtonResult:
+        """Fit ``F(sigma)`` to ``v_target`` ``[M]`` volts (finite), starting from ``sigma0``."""
+        fwd = self.forward
+        v_target = np.asarray(v_target, dtype=np.float64)
+        if v_target.shape != self.v0.shape or not np.isfinite(v_target).all():
+            raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
+        w, cw, p, lam2 = self.weights_v, self._cw, self.prior, self.lam2
+        target = v_target / w
+        norm_target = float(np.linalg.norm(target)) or 1.0
+        d = np.zeros(self.n_parameters)
+        sig = self.sigma0
+        resid = target - self.v0 / w
+        history = [float(np.linalg.norm(resid)) / norm_target]
+        phi = float(resid @ resid)  # data term at d
+        converged = history[0] <= tolerance
+        solves, it = 0, 0
+        while not converged and it < max_iterations:
+            if it == 0:
+                gt, z, chol = self._first
+            else:
+                products, _ = _jacobian_factors(fwd, sig)  # the cached factorisation of sig
+                gt = _parameter_jacobian(products, sig, self._to_params)
+                z, k = self._normal_matrix(gt)
+                chol = self._cholesky(k)
+            u = sla.cho_solve(chol, resid + cw @ (d @ gt), check_finite=False)
+            step = z @ (cw.T @ u) - d
+            it += 1
+            objective = phi + lam2 * p.quadratic(d)
+            alpha, improved = 1.0, False
+            for _ in range(_LINE_SEARCH_HALVINGS):
+                trial = np.clip(d + alpha * step, -self.max_log_contrast, self.max_log_contrast)
+                sig_trial = self._fine_sigma(trial)
+                r_trial = target - fwd.voltages(sig_trial) / w
+                solves += 1
+                phi_trial = float(r_trial @ r_trial) + lam2 * p.quadratic(trial)
+                if np.isfinite(phi_trial) and phi_trial < objective:
+                    improved = True
+                    break
+                alpha *= 0.5
+            if not improved:
+                break
+            d, sig, resid = trial, sig_trial, r_trial
+            phi = float(resid @ resid)
+            history.append(float(np.linalg.norm(resid)) / norm_target)
+            converged = history[-1] <= tolerance
+            if objective - phi_trial <= stagnation * objective:  # no progress left
+                break
+        return GaussNewtonResult(
+            sigma=sig,
+            relative_change=sig / self.sigma0 - 1.0,
+            iterations=it,
+            relative_residuals=np.asarray(history),
+            converged=converged,
+            parameter_change=np.expm1(d),
+            forward_solves=solves,
+        )
+
+    def difference(
+        self, frame: np.ndarray, reference: np.ndarray, **kwargs: Any
+    ) -> GaussNewtonResult:
+        """Difference imaging: fit ``F(sigma0) + s(F(sigma0)) (v - v_ref) / s_ref``.
+
+        The measured relative change is applied to the model's reference voltages, so an
+        unknown gain or absolute conductance cancels as in one-step imaging. Channels that
+        are NaN/Inf in the frame or reference keep the model's value (no information).
+        ``kwargs``: those of :meth:`fit`.
+        """
+        dv = relative_difference(frame, reference)
+        dv = np.where(np.isfinite(dv), dv, 0.0)
+        return self.fit(self.v0 + reference_scale(self.v0) * dv, **kwargs)
+
+
+def gauss_newton(
+    forward: Any,
+    v_target: np.ndarray,
+    sigma0: np.ndarray | float,
+    prior: str | Prior = "laplace",
+    hyperparameter: float = 0.03,
+    max_iterations: int = 10,
+    tolerance: float = 1e-3,
+    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
+    weights_v: np.ndarray | None = None,
+    stagnation: float = 1e-9,
+    parameter_mesh: Mesh | None = None,
+) -> GaussNewtonResult:
+    """Absolute regularised Gauss-Newton fit of ``F(sigma)`` to ``v_target`` ``[M]`` volts.
+
+    One-off form of :class:`GaussNewtonSolver` (build one to fit many targets); ``weights_v``
+    defaults to the floored ``|v_target|``. Arguments as there and in
+    :meth:`GaussNewtonSolver.fit`.
+    """
+    v_target = np.asarray(v_target, dtype=np.float64)
+    if v_target.shape != (forward.n_measurements,) or not np.isfinite(v_target).all():
+        raise ValueError(f"v_target must be finite [{forward.n_measurements}] volts")
+    w = reference_scale(v_target) if weights_v is None else weights_v
+    solver = GaussNewtonSolver(
+        forward, sigma0, prior, hyperparameter, parameter_mesh, w, max_log_contrast
+    )
+    return solver.fit(v_target, max_iterations, tolerance, stagnation)
+
+
+def _parameter_map(
+    fine: Mesh, parameter_mesh: Mesh | None
+) -> tuple[np.ndarray | None, sp.csr_matrix | None]:
+    """``(owner [N], C^T [N_p, N] CSR)``: the parameter-mesh element of each forward element.
+
+    ``(None, None)`` when the unknowns live on the forward mesh itself. A parameter element
+    that owns no forward element (a boundary sliver) has a zero Jacobian column: the data
+    never move it and the prior keeps it at (or smooths it towards) its neighbours.
+    """
+    if parameter_mesh is None or parameter_mesh is fine:
+        return None, None
+    c = coarse_to_fine(fine, parameter_mesh)  # [N, N_p], one 1 per row
+    owner = c.indices.astype(np.int64)
+    if owner.size != fine.n_triangles:
+        raise ValueError("parameter mesh: every forward element needs exactly one owner")
+    return owner, sp.csr_matrix(c.T)
+
+
+def _parameter_jacobian(
+    products: np.ndarray, sigma: np.ndarray, to_params: sp.csr_matrix | None
+) -> np.ndarray:
+    """``[N_p, P]`` ``(G diag(sigma) C)^T`` (C-contiguous), ``G`` = ``products`` ``[P, N]``."""
+    if to_params is None:
+        return np.ascontiguousarray((products * sigma[None, :]).T)
+    weighted = sp.csr_matrix(
+        (sigma[to_params.indices], to_params.indices, to_params.indptr), shape=to_params.shape
+    )
+    return np.asarray(weighted @ products.T)
+
+
+def _jacobian_factors(forward: Any, sigma: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    """``(products [P, N], combination [M, P])`` with ``dV/dsigma = combination @ products``.
+
+    Uses :meth:`ForwardModel.jacobian_basis` (``P = (n_el - 1) n_el / 2 < M``) when the model
+    has it, else the plain Jacobian with an identity combination.
+    """
+    if hasattr(forward, "jacobian_basis"):
+        basis = forward.jacobian_basis(sigma)
+        return basis.products, basis.combination
+    j = np.asarray(forward.jacobian(sigma), dtype=np.float64)
+    return j, sp.identity(j.shape[0], format="csr")
+
+
+def gauss_newton_difference(
+    forward: Any,
+    frame: np.ndarray,
+    reference: np.ndarray,
+    sigma0: np.ndarray | float = 1.0,
+    prior: str | Prior = "laplace",
+    hyperparameter: float = 0.03,
+    parameter_mesh: Mesh | None = None,
+    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
+    **kwargs: Any,
+) -> GaussNewtonResult:
+    """Difference imaging with the iterative solver (large contrasts), one frame.
+
+    One-off form of :meth:`GaussNewtonSolver.difference` (build a solver to image many
+    frames: the first linearisation is then shared); ``kwargs``: those of
+    :meth:`GaussNewtonSolver.fit`.
+    """
+    solver = GaussNewtonSolver(
+        forward, sigma0, prior, hyperparameter, parameter_mesh, None, max_log_contrast
+    )
+    return solver.difference(frame, reference, **kwargs)

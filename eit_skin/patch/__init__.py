@@ -1,0 +1,39 @@
+"""Patch descriptions: the YAML file of one skin patch -> validated, SI-unit dataclasses.
+
+Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses, loading and validation),
+``geometry`` (plane polygons), ``material`` (sheet conductance -> pressure/stretch),
+``placement`` (the flat sheet on the robot's 3-D surface), ``protocol`` (drive and
+measurement pattern: the one place that knows the measurement order).
+"""
+
+from __future__ import annotations
+
+from eit_skin.patch.material import Material
+from eit_skin.patch.model import (
+    Electrode,
+    Layer,
+    MeshSpec,
+    Patch,
+    PatchError,
+    SolverSpec,
+    load_patch,
+    patch_from_dict,
+)
+from eit_skin.patch.placement import Placement
+from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
+
+__all__ = [
+    "Electrode",
+    "Layer",
+    "Material",
+    "MeshSpec",
+    "Patch",
+    "PatchError",
+    "Placement",
+    "Protocol",
+    "ProtocolSpec",
+    "SolverSpec",
+    "build_protocol",
+    "load_patch",
+    "patch_from_dict",
+]

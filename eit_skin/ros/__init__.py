@@ -1,0 +1,9 @@
+"""ROS 2 adapters: thin nodes around the core, the node graph, bring-up and launch helpers.
+
+Modules (imported on demand: importing this package does not import rclpy): ``driver``,
+``reconstruction`` and ``classifier`` (the three nodes), ``node_runner`` (what every node does
+the same way), ``node_graph`` (the nodes of a patch, shared by launch files and ``eit-skin
+run``), ``bringup`` (start/stop node processes), ``launch_actions`` (launch_ros actions),
+``skin_monitor`` (the watching side of ``eit-skin run``), ``probe`` (a subscriber for tests
+and benchmarks).
+"""

@@ -1,0 +1,256 @@
+"""``eit_classifier``: touch events (push, rub, pinch, grab) from a patch's reconstructed images.
+
+Subscribes (sensor-data QoS) to ``pressure/image`` and, when the patch has a layer named
+``stretch``, ``stretch/image`` (``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
+sheet); a pressure image is paired with the stretch image of the same ``header.stamp`` (or
+classified alone after ``pair_timeout_s``). Publishes ``touch_events``
+(``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts`` (``ContactArray``) and
+``/diagnostics``. Pixel geometry: row i, column j is centred at (x[j], y[i]) of the pressure
+layer's image grid, rebuilt from ``patch_config``. The first ``calibration_s`` of images must
+be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import Image
+
+from eit_skin.patch.model import load_patch
+from eit_skin.pipeline.builder import LayerImager, default_cache_dir
+from eit_skin.resources import config_path
+from eit_skin.ros.node_runner import (
+    ParameterTable,
+    declare_read_only,
+    diagnostic_status,
+    run_node,
+)
+from eit_skin.touch.classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
+from eit_skin.touch.contacts import SegmentationConfig
+from eit_skin.touch.shapes import single_contact_spread
+
+_SEG = SegmentationConfig()
+_CFG = ClassifierConfig()
+_PARAMETERS: ParameterTable = [
+    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
+    ("k_high", _SEG.k_high, "contact seed threshold, multiples of the image noise"),
+    ("k_low", _SEG.k_low, "contact growth threshold, multiples of the image noise"),
+    ("artifact_fraction", _SEG.artifact_fraction, "regions below this fraction of the peak"),
+    ("calibration_s", _CFG.calibration_s, "initial no-touch time for noise and baseline, s"),
+    ("noise_pa", 0.0, "pressure image noise, Pa; 0: estimated during calibration"),
+    ("baseline_tau_s", _CFG.baseline_tau_s, "baseline drift-following time constant, s"),
+    ("start_frames", _CFG.start_frames, "consecutive frames with contact before START"),
+    ("detect_kernel", _CFG.detect_kernel, "early START detector kernel, finger spreads; 0: off"),
+    ("k_detect", _CFG.k_detect, "early START threshold, multiples of the pooled image's noise"),
+    ("confirm_s", _CFG.confirm_s, "an early START with no contact segmented by then ends, s"),
+    ("end_hold_s", _CFG.end_hold_s, "time without contact before END, s"),
+    ("update_period_s", _CFG.update_period_s, "shortest time between UPDATEs, s"),
+    ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
+    ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
+    ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
+    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
+    ("pair_timeout_s", 0.1, "wait for the stretch image of the same stamp, s"),
+    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
+]
+
+
+class ClassifierNode(Node):
+    """Thin adapter: images -> :class:`TouchClassifier` -> TouchEvent / ContactArray."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("eit_classifier", **kwargs)
+        p = declare_read_only(self, _PARAMETERS)
+        path = config_path(str(p["patch_config"]))
+        self.patch = load_patch(path)  # PatchError: refuse to start (see main)
+        layer = self.patch.layers[0]
+        imager = LayerImager.build(layer, cache_dir=str(p["cache_dir"]) or default_cache_dir())
+        self.grid = imager.grid
+        spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+        config = ClassifierConfig(
+            segmentation=SegmentationConfig(
+                k_high=float(p["k_high"]),
+                k_low=float(p["k_low"]),
+                artifact_fraction=float(p["artifact_fraction"]),
+            ),
+            calibration_s=float(p["calibration_s"]),
+            baseline_tau_s=float(p["baseline_tau_s"]),
+            start_frames=int(p["start_frames"]),
+            detect_kernel=float(p["detect_kernel"]),
+            k_detect=float(p["k_detect"]),
+            confirm_s=float(p["confirm_s"]),
+            end_hold_s=float(p["end_hold_s"]),
+            update_period_s=float(p["update_period_s"]),
+            rub_travel=float(p["rub_travel"]),
+            pinch_closing=float(p["pinch_closing"]),
+            grab_spread=float(p["grab_spread"]),
+        )
+        noise = float(p["noise_pa"]) or None
+        self.classifier = TouchClassifier(
+            self.grid.x, self.grid.y, config, noise, contact_spread_m=spread
+        )
+        self.pressure_layer = layer.name
+        self.has_stretch = any(ly.name == "stretch" for ly in self.patch.layers)
+        self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
+        self._pending: dict[int, tuple[Image, float]] = {}
+        self._stretch: dict[int, np.ndarray] = {}
+        self.counts = {"images": 0, "rejected": 0, "events": 0, "unpaired": 0}
+        self._busy_s = 0.0
+
+        self.create_subscription(
+            Image, f"{layer.name}/image", self._on_pressure, qos_profile_sensor_data
+        )
+        if self.has_stretch:
+            self.create_subscription(
+                Image, "stretch/image", self._on_stretch, qos_profile_sensor_data
+            )
+            self.create_timer(0.02, self._flush_unpaired)
+        from eit_skin_msgs.msg import ContactArray, TouchEvent
+
+        self._msgs = (TouchEvent, ContactArray)
+        reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        self.events_pub = self.create_publisher(TouchEvent, "touch_events", reliable)
+        self.contacts_pub = self.create_publisher(ContactArray, "contacts", 10)
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.get_logger().info(
+            f"patch {self.patch.name!r} ({path}): image {self.grid.shape[0]}x"
+            f"{self.grid.shape[1]}, stretch layer: {self.has_stretch}"
+        )
+
+    # ------------------------------------------------------------------ input
+    def _decode(self, msg: Image) -> np.ndarray | None:
+        shape = self.grid.shape
+        if msg.encoding != "32FC1" or (msg.height, msg.width) != shape:
+            self.counts["rejected"] += 1
+            self.get_logger().error(
+                f"image {msg.encoding} {msg.height}x{msg.width} does not match the patch "
+                f"grid 32FC1 {shape[0]}x{shape[1]}; dropped",
+                throttle_duration_sec=5.0,
+            )
+            return None
+        dtype = np.dtype(">f4" if msg.is_bigendian else "<f4")
+        row = msg.step // 4 if msg.step else msg.width
+        data = np.frombuffer(bytes(msg.data), dtype=dtype)
+        if data.size < msg.height * row:
+            self.counts["rejected"] += 1
+            self.get_logger().error("image data shorter than height x step; dropped")
+            return None
+        return data[: msg.height * row].reshape(msg.height, row)[:, : msg.width].astype(np.float32)
+
+    @staticmethod
+    def _stamp_ns(msg: Image) -> int:
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    def _on_pressure(self, msg: Image) -> None:
+        image = self._decode(msg)
+        if image is None:
+            return
+        stamp = self._stamp_ns(msg)
+        if not self.has_stretch:
+            self._process(msg, image, None)
+        elif stamp in self._stretch:
+            self._process(msg, image, self._stretch.pop(stamp))
+        else:
+            self._pending[stamp] = (msg, image)
+
+    def _on_stretch(self, msg: Image) -> None:
+        # the stretch layer has its own grid; only its peak is used, so any shape is fine
+        dtype = np.dtype(">f4" if msg.is_bigendian else "<f4")
+        image = np.frombuffer(bytes(msg.data), dtype=dtype).astype(np.float32)
+        stamp = self._stamp_ns(msg)
+        if stamp in self._pending:
+            pressure_msg, pressure = self._pending.pop(stamp)
+            self._process(pressure_msg, pressure, image)
+        else:
+            self._stretch[stamp] = image
+            while len(self._stretch) > 20:
+                self._stretch.pop(next(iter(self._stretch)))
+
+    def _flush_unpaired(self) -> None:
+        if not self._pending:
+            return
+        newest = max(self._pending)
+        for stamp in sorted(self._pending):
+            if newest - stamp >= self.pair_timeout_ns or len(self._pending) > 10:
+                msg, image = self._pending.pop(stamp)
+                self.counts["unpaired"] += 1
+                self._process(msg, image, None)
+
+    # ------------------------------------------------------------------ output
+    def _process(self, msg: Image, pressure: np.ndarray, stretch: np.ndarray | None) -> None:
+        started = time.perf_counter()
+        self.counts["images"] += 1
+        t_s = self._stamp_ns(msg) * 1e-9
+        # the classifier uses only the stretch peak: a flat vector serves
+        stretch_2d = None if stretch is None else stretch.reshape(1, -1)
+        events = self.classifier.step(t_s, pressure, stretch_2d)
+        TouchEvent, ContactArray = self._msgs
+        for event in events:
+            out = TouchEvent()
+            out.header = msg.header
+            out.header.frame_id = msg.header.frame_id or self.patch.frame_id
+            out.patch = self.patch.name
+            out.id = event.touch_id
+            out.label = LABELS.index(event.label)
+            out.state = STATES.index(event.state)
+            out.confidence = float(event.confidence)
+            out.centroid.x, out.centroid.y = event.centroid_m
+            out.area_m2 = float(event.area_m2)
+            out.peak = float(event.peak_pa)
+            duration_ns = max(0, round(event.duration_s * 1e9))
+            out.duration.sec, out.duration.nanosec = divmod(duration_ns, 1_000_000_000)
+            self.events_pub.publish(out)
+            self.counts["events"] += 1
+        if self.classifier.calibrated:
+            from eit_skin_msgs.msg import Contact
+
+            array = ContactArray()
+            array.header = msg.header
+            array.patch = self.patch.name
+            for c in self.classifier.last_contacts:
+                item = Contact()
+                item.layer = self.pressure_layer
+                item.centroid.x, item.centroid.y = c.centroid_m
+                item.area_m2 = float(c.area_m2)
+                item.peak = float(c.peak)
+                item.mean = float(c.mean)
+                array.contacts.append(item)
+            self.contacts_pub.publish(array)
+        self._busy_s += time.perf_counter() - started
+
+    def _publish_diagnostics(self) -> None:
+        c = self.classifier
+        level = 0 if c.calibrated else 1
+        message = "ok" if c.calibrated else "calibrating (keep the skin untouched)"
+        values = {
+            **{k: str(v) for k, v in self.counts.items()},
+            "noise_pa": f"{c.pressure_noise_pa or 0.0:.3g}",
+            "touch_active": str(c.active),
+            "busy_s": f"{self._busy_s:.3f}",
+        }
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [
+            diagnostic_status(
+                level,
+                f"{self.get_fully_qualified_name()}: touch classifier",
+                message,
+                self.patch.name,
+                values,
+            )
+        ]
+        self.diagnostics.publish(msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``eit_classifier``; exit 2 on a bad configuration."""
+    return run_node(ClassifierNode, "eit_classifier", args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,205 @@
+"""``eit_driver``: raw EIT frames of one skin patch from a board, the simulator or a recording.
+
+Publishes ``eit_skin_msgs/EitFrame`` on ``<namespace>/<layer>/frames`` (sensor-data QoS),
+one topic per layer, stamped with the acquisition time, and ``/diagnostics``.
+
+Sources, chosen by parameters:
+
+* ``replay_path`` set: an MCAP recording (original timing, or as fast as possible);
+* ``port`` set: a skin board on a serial port (wire protocol in docs/wire-protocol.md),
+  serving the layer named by ``layer`` (default: the patch's first layer); the port is
+  retried with backoff while absent and the node keeps running;
+* otherwise the physics simulator runs the ``scenario`` touch script on every layer; a
+  script with a joint posture (the elbow) also publishes the simulated joint angle on
+  ``/joint_states``, as the robot's joint state publisher would.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+
+import rclpy
+import rclpy.time
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+
+from eit_skin.hardware.sources import (
+    LayerFrameFactory,
+    ReplaySource,
+    SerialSource,
+    SimulatedSource,
+    SourceStatus,
+)
+from eit_skin.io.recording import FrameRecord, McapFrameWriter
+from eit_skin.patch.model import load_patch
+from eit_skin.resources import config_path
+from eit_skin.ros.node_runner import (
+    ParameterTable,
+    declare_read_only,
+    diagnostic_status,
+    run_node,
+)
+
+_PARAMETERS: ParameterTable = [
+    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
+    ("layer", "", "layer to serve; empty: every layer (simulator, replay) or the first (serial)"),
+    ("port", "", "serial device of the skin board, e.g. /dev/eit_skin_arm; empty: simulator"),
+    ("baud", 921600, "serial baud rate (ignored by USB CDC-ACM boards)"),
+    ("rate_hz", 50.0, "simulator frame rate, Hz"),
+    ("frame_id", "", "override of the patch config's frame_id"),
+    ("record_path", "", "record every published frame to this MCAP file"),
+    ("replay_path", "", "replay the EitFrames of this MCAP file instead of acquiring"),
+    ("replay_realtime", True, "replay with the recording's timing (false: as fast as possible)"),
+    ("wait_for_subscribers", 1, "simulator/replay: start once a frame topic has this many"),
+    ("scenario", "", "simulator touch script: built-in name or YAML path; empty: demo"),
+    ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
+    ("seed", 0, "simulator random seed"),
+    ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
+    ("faults", "", "simulator faults, comma separated, e.g. dead-electrode:5,saturated:17"),
+    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
+]
+
+
+class DriverNode(Node):
+    """Thin adapter: parameters -> a frame source -> EitFrame messages."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("eit_driver", **kwargs)
+        p = declare_read_only(self, _PARAMETERS)
+        path = config_path(str(p["patch_config"]))
+        self.patch = load_patch(path)  # PatchError: refuse to start (see main)
+        frame_id = str(p["frame_id"]) or self.patch.frame_id
+        port, replay = str(p["port"]), str(p["replay_path"])
+        if p["layer"]:
+            layers = [self.patch.layer(str(p["layer"]))]
+        elif port:
+            layers = [self.patch.layers[0]]
+        else:
+            layers = list(self.patch.layers)
+        self.factories = {
+            layer.name: LayerFrameFactory(self.patch, layer, frame_id) for layer in layers
+        }
+        self.frame_publishers = {
+            name: self.create_publisher(_msg_type(), f"{name}/frames", qos_profile_sensor_data)
+            for name in self.factories
+        }
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
+        self._record_lock = threading.Lock()
+        self.hardware_id = port or ("replay" if replay else "simulator")
+        self.waits_for = int(p["wait_for_subscribers"])
+
+        if replay:
+            self.source = ReplaySource(replay, list(self.factories), bool(p["replay_realtime"]))
+            self.create_timer(0.001, lambda: self._when_subscribed(self.source.tick))
+        elif port:
+            (layer,) = layers
+            self.source = SerialSource(
+                self.factories[layer.name], port, int(p["baud"]), self.publish
+            )
+            self.source.start()
+        else:
+            self.source = self._simulated_source(p)
+            self.joint_name = str(p["sim_joint_name"])
+            self.joint_states = None
+            if self.source.simulator.scenario.posture is not None:
+                self.joint_states = self.create_publisher(JointState, "/joint_states", 10)
+            self.create_timer(
+                1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
+            )
+        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.get_logger().info(
+            f"patch {self.patch.name!r} ({path}), layers {list(self.factories)}, "
+            f"source {self.hardware_id}, frame_id {frame_id!r}"
+        )
+
+    def _simulated_source(self, p: dict) -> SimulatedSource:
+        from eit_skin.sim.simulator import SkinSimulator
+
+        faults = [f.strip() for f in str(p["faults"]).split(",") if f.strip()]
+        simulator = SkinSimulator(
+            self.patch,
+            str(p["scenario"]) or "demo",
+            rate_hz=float(p["rate_hz"]),
+            seed=int(p["seed"]),
+            faults=faults,
+        )
+        return SimulatedSource(self.factories, simulator, simulator.n_frames, bool(p["loop"]))
+
+    def _when_subscribed(self, step) -> None:
+        """Run a simulator/replay step, holding the script until someone listens.
+
+        Without this the first frames of a script would be lost to DDS discovery (and a
+        reconstruction node would take its no-load reference in the middle of a touch).
+        """
+        if self.waits_for and all(
+            pub.get_subscription_count() < self.waits_for for pub in self.frame_publishers.values()
+        ):
+            return
+        self.waits_for = 0
+        step(self._now_ns(), self.publish)
+
+    def _simulate(self, now: int, sink) -> None:
+        self.source.tick(now, sink)
+        angle = self.source.posture_angle()
+        if self.joint_states is not None and angle is not None:
+            msg = JointState(name=[self.joint_name], position=[angle])
+            msg.header.stamp = rclpy.time.Time(nanoseconds=now).to_msg()
+            self.joint_states.publish(msg)
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def publish(self, record: FrameRecord) -> None:
+        """Publish one frame (callable from the serial reader thread)."""
+        self.frame_publishers[record.layer].publish(record.to_msg())
+        if self.recorder is not None:
+            with self._record_lock:
+                self.recorder.write(
+                    f"{self.get_namespace().rstrip('/')}/{record.layer}/frames",
+                    record,
+                    self._now_ns(),
+                )
+
+    def _publish_diagnostics(self) -> None:
+        status: SourceStatus = self.source.status()
+        if status.level > 0:
+            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [
+            diagnostic_status(
+                status.level,
+                f"{self.get_fully_qualified_name()}: {', '.join(self.factories)}",
+                status.message,
+                self.hardware_id,
+                status.values,
+            )
+        ]
+        self.diagnostics.publish(msg)
+
+    def destroy_node(self) -> None:
+        if isinstance(self.source, SerialSource):
+            self.source.stop()
+        if self.recorder is not None:
+            with self._record_lock:
+                self.recorder.close()
+        super().destroy_node()
+
+
+def _msg_type():
+    from eit_skin_msgs.msg import EitFrame
+
+    return EitFrame
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``eit_driver``; exit 2 on a bad configuration."""
+    return run_node(DriverNode, "eit_driver", args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

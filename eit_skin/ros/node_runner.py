@@ -1,0 +1,107 @@
+"""What every eit_skin node does the same way: read-only parameters, diagnostics, main()."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Sequence
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.context import Context
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from eit_skin.patch.model import PatchError
+
+#: (name, default, description) of a node parameter; the default fixes its type.
+ParameterTable = list[tuple[str, object, str]]
+
+
+def declare_read_only(node: Node, table: ParameterTable) -> dict[str, object]:
+    """Declare every parameter with a descriptor (read once at start) and return the values."""
+    for name, default, description in table:
+        node.declare_parameter(
+            name, default, ParameterDescriptor(description=description, read_only=True)
+        )
+    return {name: node.get_parameter(name).value for name, _, _ in table}
+
+
+def diagnostic_status(
+    level: int, name: str, message: str, hardware_id: str, values: dict[str, str]
+) -> DiagnosticStatus:
+    """A ``diagnostic_msgs/DiagnosticStatus`` (level 0 OK, 1 WARN, 2 ERROR)."""
+    return DiagnosticStatus(
+        level=bytes([level]),
+        name=name,
+        message=message,
+        hardware_id=hardware_id,
+        values=[KeyValue(key=k, value=v) for k, v in values.items()],
+    )
+
+
+#: Environment variable choosing the executor: ``events`` (default) or ``single``.
+EXECUTOR_ENV = "EIT_SKIN_EXECUTOR"
+
+
+def make_executor(kind: str | None = None, context: Context | None = None) -> Executor:
+    """The executor every eit_skin process spins its nodes with.
+
+    ``events`` (default): rclpy's EventsExecutor, which dispatches ready entities from C++
+    instead of rebuilding a wait set over every subscription, timer and service in Python
+    on each wake-up; with 20 reconstruction nodes in one process it cut the CPU per image
+    by about a third (0.83 -> 0.57 ms, measured on a busy machine). ``single``: the classic
+    SingleThreadedExecutor, kept as a fall-back since the EventsExecutor is still marked
+    experimental in rclpy.
+    """
+    kind = kind or os.environ.get(EXECUTOR_ENV, "events")
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # rclpy before Kilted: no EventsExecutor
+            return SingleThreadedExecutor(context=context)
+        return EventsExecutor(context=context)
+    if kind == "single":
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"{EXECUTOR_ENV}={kind!r}: expected 'events' or 'single'")
+
+
+def spin_nodes(nodes: Sequence[Node], kind: str | None = None) -> None:
+    """Spin ``nodes`` in one executor (:func:`make_executor`) until the context shuts down.
+
+    A loop of short ``spin_once`` calls, because the EventsExecutor's ``spin()`` of the
+    Kilted wheels neither ran our timers nor returned on shutdown; the loop returns within
+    0.5 s of a shutdown (Ctrl-C or another thread).
+    """
+    context = nodes[0].context
+    executor = make_executor(kind, context)
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        while context.ok():
+            executor.spin_once(timeout_sec=0.5)
+    except ExternalShutdownException:
+        pass  # the context was shut down while waiting: the normal way out
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+
+
+def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | None) -> int:
+    """Spin a node until shutdown (Ctrl-C: exit 0); a bad configuration exits 2 with one line."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = make_node()
+        spin_nodes([node])
+    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
+        print(f"{executable}: refusing to start: {error}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

@@ -1,0 +1,80 @@
+"""Test-side ROS plumbing: start node processes, collect what they publish."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+
+from eit_skin.ros.bringup import find_executable, ros_arguments
+from eit_skin.ros.node_graph import NodeSpec
+
+BIN = Path(sys.executable).parent
+
+
+def start_node(
+    executable: str, namespace: str, params: dict[str, Any], log: Path
+) -> subprocess.Popen:
+    """Start an eit_skin console script as its own process with ROS parameters."""
+    spec = NodeSpec(executable, executable, namespace, params)
+    args = [str(find_executable(executable)), *ros_arguments(spec)]
+    return subprocess.Popen(args, stdout=log.open("w"), stderr=subprocess.STDOUT)
+
+
+def stop_node(process: subprocess.Popen, timeout: float = 10.0) -> int:
+    """SIGINT, then wait; returns the exit code."""
+    if process.poll() is None:
+        process.send_signal(2)
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    return process.returncode
+
+
+class Probe:
+    """An rclpy node in the test process that records messages per topic."""
+
+    def __init__(self, name: str = "probe") -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node(name, context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.messages: dict[str, list[tuple[float, Any]]] = defaultdict(list)
+
+    def subscribe(self, msg_type: type, topic: str, qos: QoSProfile | int | None = None) -> None:
+        if qos is None:  # sensor-data QoS with a deep queue: the test must not drop frames
+            qos = QoSProfile(
+                depth=1000,
+                reliability=qos_profile_sensor_data.reliability,
+                durability=qos_profile_sensor_data.durability,
+            )
+        self.node.create_subscription(
+            msg_type, topic, lambda m, t=topic: self.messages[t].append((time.monotonic(), m)), qos
+        )
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if condition():
+                return True
+            self.executor.spin_once(timeout_sec=0.05)
+        return condition()
+
+    def spin_for(self, seconds: float) -> None:
+        self.spin_until(lambda: False, seconds)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)

@@ -1,0 +1,567 @@
+"""Scripted touch sequences for the simulator: built-in scripts, random scripts, YAML files.
+
+A :class:`Scenario` is a time-ordered tuple of :mod:`stimuli <eit_skin.sim.stimuli>` (never two at
+once) plus an optional joint :class:`~eit_skin.sim.stimuli.PostureTrack`. Its ground truth
+(:meth:`Scenario.truth`) is what the classifier and the tests score against.
+
+Built-in scripts (:data:`BUILTIN_SCENARIOS`) are placed relative to the patch: positions are
+fractions of the half-extent of the first layer's outline around its bounding-box centre.
+``random`` draws labelled touches at random positions, speeds and magnitudes
+(:func:`random_scenario`). The YAML format is documented in ``docs/simulator.md``; a bad file
+raises :class:`ScenarioError` ``"<file>: <key.path[2]>: <reason>"``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from eit_skin.patch import geometry
+from eit_skin.patch.model import Patch
+from eit_skin.sim.stimuli import TOUCH_TYPES, Grab, Pinch, PostureTrack, Push, Rub, Stimulus
+
+BUILTIN_SCENARIOS = ("demo", "push", "rub", "pinch", "grab", "idle", "elbow_bend", "random")
+"""Names accepted by :func:`builtin_scenario` (``random`` uses the seed)."""
+EDGE_MARGIN_M = 0.004
+"""Minimum distance of every contact disc from the sheet's outline, m."""
+LABELS = tuple(TOUCH_TYPES)
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid: ``"<file>: <key path>: <reason>"``."""
+
+    def __init__(self, source: str, key_path: str, reason: str) -> None:
+        self.source = source
+        self.key_path = key_path or "(root)"
+        self.reason = reason
+        super().__init__(f"{source}: {self.key_path}: {reason}")
+
+
+@dataclass(frozen=True)
+class TouchTruth:
+    """Ground truth of one touch.
+
+    Attributes:
+        label: ``"push" | "rub" | "pinch" | "grab"``.
+        t_start_s, t_end_s: contact begins / ends, s (fields may relax up to ``settle_s`` later).
+        track: ``((t_s, x_m, y_m), ...)`` centroid of the contacts while in contact.
+        contacts: ``((x_m, y_m), ...)`` contact centres at full press (mid-touch).
+        peak_pressure_pa: centre pressure of one contact at full force, Pa.
+        force_n: force per contact at full press, N.
+        settle_s: time after ``t_end_s`` until the sheet is exactly unloaded again, s.
+    """
+
+    label: str
+    t_start_s: float
+    t_end_s: float
+    track: tuple[tuple[float, float, float], ...]
+    contacts: tuple[tuple[float, float], ...]
+    peak_pressure_pa: float
+    force_n: float
+    settle_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "t_start": self.t_start_s,
+            "t_end": self.t_end_s,
+            "settle": self.settle_s,
+            "track": [list(p) for p in self.track],
+            "contacts": [list(c) for c in self.contacts],
+            "peak_pressure_pa": self.peak_pressure_pa,
+            "force_n": self.force_n,
+        }
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A touch script.
+
+    Attributes:
+        name: script name (or file name).
+        touches: stimuli ordered by start time, never overlapping in time.
+        duration_s: length of the script, s.
+        posture: joint angle track, or ``None`` (no joint).
+    """
+
+    name: str
+    touches: tuple[Stimulus, ...]
+    duration_s: float
+    posture: PostureTrack | None = None
+
+    def __post_init__(self) -> None:
+        if not self.duration_s > 0:
+            raise ValueError(f"duration: must be > 0 s, got {self.duration_s:g}")
+        for a, b in zip(self.touches, self.touches[1:], strict=False):
+            if b.t_start_s < a.t_end_s:
+                raise ValueError(
+                    f"touches overlap in time: {a.label} until {a.t_end_s:g} s, "
+                    f"{b.label} from {b.t_start_s:g} s"
+                )
+
+    def active(self, t: float) -> list[Stimulus]:
+        """Stimuli whose fields are non-zero at ``t`` (including a rub's relaxing trail)."""
+        return [s for s in self.touches if s.active(t)]
+
+    def first_touch_s(self) -> float:
+        """Start of the first touch (``duration_s`` if there is none), s."""
+        return self.touches[0].t_start_s if self.touches else self.duration_s
+
+    def truth(self, rate_hz: float = 50.0) -> tuple[TouchTruth, ...]:
+        """Ground truth of every touch; tracks sampled at ``rate_hz``."""
+        out = []
+        for s in self.touches:
+            n = max(2, math.ceil(s.duration_s * rate_hz) + 1)
+            times = np.linspace(s.t_start_s, s.t_end_s, n)
+            track = tuple((float(t), *(float(v) for v in s.centroid(float(t)))) for t in times)
+            mid = s.contacts(0.5 * (s.t_start_s + s.t_end_s))
+            out.append(
+                TouchTruth(
+                    label=s.label,
+                    t_start_s=float(s.t_start_s),
+                    t_end_s=float(s.t_end_s),
+                    track=track,
+                    contacts=tuple((float(x), float(y)) for x, y in mid),
+                    peak_pressure_pa=float(s.peak_pressure_pa),
+                    force_n=float(s.force_n),
+                    settle_s=float(s.settle_s),
+                )
+            )
+        return tuple(out)
+
+    def posture_track(self, rate_hz: float = 50.0) -> tuple[tuple[float, float], ...]:
+        """``((t_s, angle_rad), ...)`` sampled at ``rate_hz`` over the script (empty: no joint)."""
+        if self.posture is None:
+            return ()
+        n = math.ceil(self.duration_s * rate_hz)
+        return tuple((k / rate_hz, self.posture.angle(k / rate_hz)) for k in range(n))
+
+
+# --------------------------------------------------------------------------- sheet geometry
+
+
+@dataclass(frozen=True, eq=False)
+class SheetFrame:
+    """Where touches can go on a patch: the outlines of all its layers.
+
+    Attributes:
+        center: ``[2]`` bounding-box centre of the first layer's outline, m.
+        half_extent: ``[2]`` half width and half height of that box, m.
+        outlines: every layer's outline (a contact must lie inside all of them).
+    """
+
+    center: np.ndarray
+    half_extent: np.ndarray
+    outlines: tuple[np.ndarray, ...]
+
+    @classmethod
+    def of(cls, patch: Patch) -> SheetFrame:
+        outline = patch.layers[0].outline
+        lo, hi = outline.min(axis=0), outline.max(axis=0)
+        return cls(0.5 * (lo + hi), 0.5 * (hi - lo), tuple(layer.outline for layer in patch.layers))
+
+    def point(self, u: float, v: float) -> tuple[float, float]:
+        """Patch point at fractions ``(u, v)`` of the half extents from the centre, m."""
+        p = self.center + np.array([u, v]) * self.half_extent
+        return (float(p[0]), float(p[1]))
+
+    def clearance(self, points: np.ndarray) -> np.ndarray:
+        """``[n]`` distance to the nearest outline edge, m (negative outside any outline)."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        out = np.full(len(pts), np.inf)
+        for outline in self.outlines:
+            d = geometry.distance_to_segments(pts, outline, np.roll(outline, -1, axis=0))
+            inside = geometry.points_in_polygon(pts, outline)
+            out = np.minimum(out, np.where(inside, d, -d))
+        return out
+
+    def fits(self, stimulus: Stimulus) -> bool:
+        """True if every contact disc stays ``EDGE_MARGIN_M`` inside the sheet all the time."""
+        t = np.linspace(stimulus.t_start_s, stimulus.t_end_s, 9)
+        pts = np.concatenate([stimulus.contacts(float(s)) for s in t])
+        return bool(np.all(self.clearance(pts) >= stimulus.radius_m + EDGE_MARGIN_M))
+
+
+# --------------------------------------------------------------------------- built-in scripts
+
+
+def _script(name: str, frame: SheetFrame, start_s: float = 1.0) -> tuple[list[Stimulus], float]:
+    """The built-in scripts (no posture). Returns (touches, duration_s)."""
+    p = frame.point
+    ext = float(min(frame.half_extent))
+    push = Push(start_s, 1.2, p(0.25, 0.2), force_n=5.0)
+    rub = Rub(
+        start_s, 1.6, p(-0.35, -0.25), force_n=3.0, direction_rad=0.0, speed_mps=0.55 * ext / 1.1
+    )
+    pinch = Pinch(
+        start_s,
+        1.6,
+        p(0.0, 0.1),
+        force_n=3.0,
+        axis_rad=math.pi / 2,
+        start_gap_m=0.9 * ext,
+        end_gap_m=0.35 * ext,
+    )
+    grab = Grab(
+        start_s,
+        1.5,
+        p(0.0, 0.0),
+        force_n=3.0,
+        offsets=(
+            (-0.5 * ext, -0.25 * ext),
+            (0.0, 0.5 * ext),
+            (0.5 * ext, -0.25 * ext),
+            (0.0, -0.55 * ext),
+        ),
+    )
+    single = {"push": push, "rub": rub, "pinch": pinch, "grab": grab}
+    if name in single:
+        s = single[name]
+        return [s], s.t_end_s + 1.5
+    if name == "idle":
+        return [], 10.0
+    if name == "demo":
+        touches, t = [], start_s
+        for s in (push, rub, pinch, grab):
+            shifted = type(s)(**{**_fields(s), "t_start_s": t})
+            touches.append(shifted)
+            t = shifted.t_end_s + 2.5
+        return touches, touches[-1].t_end_s + 2.0
+    raise KeyError(name)
+
+
+def _fields(s: Stimulus) -> dict[str, Any]:
+    from dataclasses import fields
+
+    return {f.name: getattr(s, f.name) for f in fields(s)}
+
+
+def builtin_scenario(name: str, patch: Patch, seed: int = 0, duration_s: float = 30.0):
+    """A built-in script by name (see :data:`BUILTIN_SCENARIOS`), placed on ``patch``.
+
+    ``random`` uses ``seed`` and ``duration_s``; the others ignore them.
+    """
+    frame = SheetFrame.of(patch)
+    if name == "random":
+        return random_scenario(seed, duration_s, patch)
+    if name == "elbow_bend":
+        # bend 0 -> 2 rad over 3 s, hold, push while bent, straighten
+        posture = PostureTrack(
+            ((0.0, 0.0), (1.0, 0.0), (4.0, 2.0), (9.0, 2.0), (11.0, 0.0)),
+            crease_y_m=float(frame.center[1]),
+            width_m=0.25 * float(2 * frame.half_extent[1]),
+        )
+        push = Push(5.5, 1.5, frame.point(0.3, 0.35), force_n=5.0)
+        return Scenario("elbow_bend", (push,), 12.0, posture)
+    if name not in BUILTIN_SCENARIOS:
+        raise KeyError(f"unknown scenario {name!r}; built-in: {', '.join(BUILTIN_SCENARIOS)}")
+    touches, duration = _script(name, frame)
+    for s in touches:
+        if not frame.fits(s):
+            raise ValueError(f"scenario {name!r}: the {s.label} does not fit on patch {patch.name}")
+    return Scenario(name, tuple(touches), duration)
+
+
+def random_scenario(seed: int, duration_s: float, patch: Patch) -> Scenario:
+    """Labelled touches of random kind, place, speed and magnitude, one after the other.
+
+    Pauses of 0.6-2.0 s separate touches (after a rub's trail has relaxed); every contact stays
+    ``EDGE_MARGIN_M`` inside every layer's outline. Deterministic for a given seed and patch.
+    """
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    frame = SheetFrame.of(patch)
+    ext = float(min(frame.half_extent))
+    touches: list[Stimulus] = []
+    t = float(rng.uniform(0.8, 1.5))
+    while True:
+        label = LABELS[int(rng.integers(len(LABELS)))]
+        stimulus = None
+        for _ in range(200):
+            candidate = _random_touch(rng, label, t, frame, ext)
+            if candidate is not None and frame.fits(candidate):
+                stimulus = candidate
+                break
+        if stimulus is None:
+            raise ValueError(f"random scenario: no {label} fits on patch {patch.name}")
+        if stimulus.t_end_s + stimulus.settle_s + 0.3 > duration_s:
+            break
+        touches.append(stimulus)
+        t = stimulus.t_end_s + stimulus.settle_s + float(rng.uniform(0.6, 2.0))
+    return Scenario(f"random-{seed}", tuple(touches), float(duration_s))
+
+
+def _random_touch(rng, label: str, t: float, frame: SheetFrame, ext: float) -> Stimulus | None:
+    radius = float(rng.uniform(0.005, 0.0075))
+    force = float(rng.uniform(2.0, 8.0))
+    ramp = float(rng.uniform(0.15, 0.3))
+    pos = frame.point(*rng.uniform(-0.8, 0.8, size=2))
+    if label == "push":
+        return Push(t, float(rng.uniform(0.6, 2.0)), pos, force, radius, ramp)
+    if label == "rub":
+        speed = float(rng.uniform(0.02, 0.1))
+        length = float(rng.uniform(0.3, 0.8)) * ext
+        duration = length / speed + 2 * ramp
+        return Rub(t, duration, pos, force, radius, ramp, float(rng.uniform(0, 2 * math.pi)), speed)
+    if label == "pinch":
+        start = float(rng.uniform(0.5, 0.9)) * ext
+        end = float(rng.uniform(0.3, 0.5)) * start
+        if end < 2.2 * radius:
+            return None
+        return Pinch(
+            t,
+            float(rng.uniform(1.0, 2.0)),
+            pos,
+            force * 0.6,
+            radius,
+            ramp,
+            float(rng.uniform(0, math.pi)),
+            start,
+            end,
+        )
+    n = int(rng.integers(3, 6))
+    angles = (np.arange(n) + rng.uniform(-0.25, 0.25, n)) * (2 * math.pi / n) + rng.uniform(0, 6.3)
+    spread = float(rng.uniform(0.35, 0.6)) * ext
+    pos = frame.point(*rng.uniform(-0.3, 0.3, size=2))
+    offsets = np.column_stack([np.cos(angles), np.sin(angles)]) * spread
+    gaps = np.linalg.norm(offsets[:, None] - offsets[None], axis=-1) + np.eye(n)
+    if gaps.min() < 3.0 * radius:
+        return None
+    return Grab(
+        t,
+        float(rng.uniform(0.8, 2.0)),
+        pos,
+        force * 0.6,
+        radius,
+        ramp,
+        tuple((float(x), float(y)) for x, y in offsets),
+    )
+
+
+# --------------------------------------------------------------------------- YAML files
+
+
+_COMMON_KEYS = ("at", "touch", "duration", "force_n", "radius", "ramp")
+_TOUCH_KEYS = {
+    "push": ("position",),
+    "rub": ("position", "direction_deg", "speed"),
+    "pinch": ("position", "axis_deg", "start_gap", "end_gap"),
+    "grab": ("positions",),
+}
+
+
+def load_scenario(path: str | Path, patch: Patch) -> Scenario:
+    """Read and validate a YAML scenario file against ``patch`` (positions must fit)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(str(path), "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(str(path), "", f"not valid YAML: {exc}") from None
+    return scenario_from_dict(data, patch, source=str(path), name=path.stem)
+
+
+def scenario_from_dict(
+    data: Any, patch: Patch, source: str = "<dict>", name: str = "scenario"
+) -> Scenario:
+    """Validate parsed YAML (a list of touches or a mapping; see docs/simulator.md)."""
+
+    def err(key: str, reason: str) -> ScenarioError:
+        return ScenarioError(source, key, reason)
+
+    if isinstance(data, list):
+        data = {"touches": data}
+    if not isinstance(data, Mapping):
+        raise err("", f"expected a list of touches or a mapping, got {type(data).__name__}")
+    allowed = ("name", "duration", "touches", "posture")
+    for key in data:
+        if key not in allowed:
+            raise err(str(key), f"unknown key; allowed: {', '.join(allowed)}")
+    name = str(data.get("name", name))
+    items = data.get("touches", []) or []
+    if not isinstance(items, list):
+        raise err("touches", f"expected a list, got {type(items).__name__}")
+    frame = SheetFrame.of(patch)
+    touches = [_touch(item, f"touches[{i}]", err, frame) for i, item in enumerate(items)]
+    order = sorted(range(len(touches)), key=lambda i: touches[i].t_start_s)
+    for a, b in itertools.pairwise(order):
+        if touches[b].t_start_s < touches[a].t_end_s:
+            raise err(
+                f"touches[{b}].at",
+                f"starts at {touches[b].t_start_s:g} s while touches[{a}] lasts until "
+                f"{touches[a].t_end_s:g} s (touches must not overlap)",
+            )
+    touches = [touches[i] for i in order]
+    posture = None
+    if "posture" in data and data["posture"] is not None:
+        posture = _posture(data["posture"], err, frame)
+    end = max([s.t_end_s + s.settle_s for s in touches] + [0.0])
+    if posture is not None:
+        end = max(end, posture.changing_until_s)
+    if "duration" in data:
+        duration = _number(data, "duration", "", err, positive=True)
+        if duration < end:
+            raise err("duration", f"{duration:g} s ends before the last touch ({end:g} s)")
+    else:
+        duration = end + 1.5
+    return Scenario(name, tuple(touches), duration, posture)
+
+
+def _number(
+    d: Mapping,
+    key: str,
+    path: str,
+    err,
+    positive: bool = False,
+    default: Any = None,
+    signed: bool = False,
+):
+    where = f"{path}.{key}" if path else key
+    if key not in d:
+        if default is None:
+            raise err(where, "missing required key")
+        return default
+    value = d[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise err(where, f"expected a finite number, got {value!r}")
+    if positive and not value > 0:
+        raise err(where, f"must be > 0, got {value!r}")
+    if not positive and not signed and value < 0:
+        raise err(where, f"must be >= 0, got {value!r}")
+    return float(value)
+
+
+def _point(value: Any, where: str, err) -> tuple[float, float]:
+    if (
+        not isinstance(value, (list, tuple))
+        or len(value) != 2
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
+        raise err(where, f"expected [x, y] in metres, got {value!r}")
+    return (float(value[0]), float(value[1]))
+
+
+def _touch(item: Any, path: str, err, frame: SheetFrame) -> Stimulus:
+    if not isinstance(item, Mapping):
+        raise err(path, f"expected a mapping, got {type(item).__name__}")
+    kind = item.get("touch")
+    if kind not in TOUCH_TYPES:
+        raise err(f"{path}.touch", f"expected one of {', '.join(TOUCH_TYPES)}, got {kind!r}")
+    allowed = _COMMON_KEYS + _TOUCH_KEYS[kind]
+    for key in item:
+        if key not in allowed:
+            raise err(f"{path}.{key}", f"not a key of a {kind}; allowed: {', '.join(allowed)}")
+    common = {
+        "t_start_s": _number(item, "at", path, err),
+        "duration_s": _number(item, "duration", path, err, positive=True, default=1.5),
+        "force_n": _number(item, "force_n", path, err, positive=True, default=4.0),
+        "radius_m": _number(item, "radius", path, err, positive=True, default=0.006),
+        "ramp_s": _number(item, "ramp", path, err, positive=True, default=0.25),
+    }
+    try:
+        if kind == "grab":
+            if "positions" not in item:
+                raise err(f"{path}.positions", "missing required key")
+            raw = item["positions"]
+            if not isinstance(raw, list) or len(raw) < 2:
+                raise err(f"{path}.positions", "expected a list of >= 2 [x, y] points")
+            pts = np.array([_point(p, f"{path}.positions[{i}]", err) for i, p in enumerate(raw)])
+            c = pts.mean(axis=0)
+            offsets = tuple((float(x), float(y)) for x, y in pts - c)
+            stimulus: Stimulus = Grab(
+                position=(float(c[0]), float(c[1])), offsets=offsets, **common
+            )
+        else:
+            if "position" not in item:
+                raise err(f"{path}.position", "missing required key")
+            pos = _point(item["position"], f"{path}.position", err)
+            if kind == "push":
+                stimulus = Push(position=pos, **common)
+            elif kind == "rub":
+                stimulus = Rub(
+                    position=pos,
+                    direction_rad=math.radians(
+                        _number(item, "direction_deg", path, err, default=0.0, signed=True)
+                    ),
+                    speed_mps=_number(item, "speed", path, err, positive=True, default=0.05),
+                    **common,
+                )
+            else:
+                stimulus = Pinch(
+                    position=pos,
+                    axis_rad=math.radians(
+                        _number(item, "axis_deg", path, err, default=0.0, signed=True)
+                    ),
+                    start_gap_m=_number(item, "start_gap", path, err, positive=True, default=0.04),
+                    end_gap_m=_number(item, "end_gap", path, err, positive=True, default=0.015),
+                    **common,
+                )
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        key, _, reason = str(exc).partition(": ")
+        raise err(f"{path}.{key}", reason) from None
+    if not frame.fits(stimulus):
+        key = "positions" if kind == "grab" else "position"
+        raise err(
+            f"{path}.{key}",
+            f"the {kind} leaves the sheet (every contact of radius {stimulus.radius_m:g} m must "
+            f"stay {EDGE_MARGIN_M:g} m inside the outline)",
+        )
+    return stimulus
+
+
+def _posture(raw: Any, err, frame: SheetFrame) -> PostureTrack:
+    if not isinstance(raw, list) or not raw:
+        raise err("posture", "expected a non-empty list of {at: s, angle: rad} keyframes")
+    keys = []
+    for i, item in enumerate(raw):
+        where = f"posture[{i}]"
+        if not isinstance(item, Mapping):
+            raise err(where, f"expected a mapping, got {type(item).__name__}")
+        for key in item:
+            if key not in ("at", "angle"):
+                raise err(f"{where}.{key}", "not a key of a posture keyframe; allowed: at, angle")
+        keys.append((_number(item, "at", where, err), _number(item, "angle", where, err)))
+    for i in range(1, len(keys)):
+        if keys[i][0] <= keys[i - 1][0]:
+            raise err(f"posture[{i}].at", "keyframe times must increase")
+    try:
+        return PostureTrack(
+            tuple(keys),
+            crease_y_m=float(frame.center[1]),
+            width_m=0.25 * float(2 * frame.half_extent[1]),
+        )
+    except ValueError as exc:
+        raise err("posture", str(exc).removeprefix("posture: ")) from None
+
+
+def resolve_scenario(
+    name_or_path: str | Scenario, patch: Patch, seed: int = 0, duration_s: float | None = None
+) -> Scenario:
+    """A scenario from a built-in name, a YAML path, or a :class:`Scenario` (returned as is).
+
+    ``duration_s`` (if given) is the length of ``random`` scripts; other scripts are not
+    changed by it (the simulator cuts or extends the run instead).
+    """
+    if isinstance(name_or_path, Scenario):
+        return name_or_path
+    text = str(name_or_path)
+    if text in BUILTIN_SCENARIOS:
+        return builtin_scenario(text, patch, seed, 30.0 if duration_s is None else duration_s)
+    path = Path(text)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return load_scenario(path, patch)
+    raise KeyError(
+        f"unknown scenario {text!r}: not a built-in ({', '.join(BUILTIN_SCENARIOS)}) "
+        "and not a .yaml file"
+    )

@@ -1,0 +1,677 @@
+"""Touches from a stream of reconstructed images: START / UPDATE / END events, labelled.
+
+:class:`TouchClassifier` takes frames ``(t_s, pressure [H, W] Pa, stretch [H, W] strain or
+None)`` and returns :class:`TouchEvent` records. Method (explainable rules on a few features,
+see docs/classifier.md):
+
+* calibration: the first ``calibration_s`` of frames are taken as no-touch; they give a
+  per-pixel baseline and noise map, which then keep following slow drift and the noise
+  (time constants ``baseline_tau_s``, ``noise_tau_s``) while nothing touches;
+* contacts: hysteresis segmentation of the mean of the latest ``average_frames`` frames minus
+  the baseline, at multiples of the noise (:class:`~eit_skin.touch.contacts.ContactSegmenter`);
+* a touch starts once a contact stayed in place (one track) for ``start_frames`` frames, or
+  earlier, once the image pooled over a fingertip-sized Gaussian kernel (``detect_kernel``
+  single-finger spreads) stays above ``k_detect`` sigmas of ITS noise for ``start_frames``
+  frames in the same place (:class:`~eit_skin.touch.contacts.PooledDetector`: a matched filter
+  that sees weak, slowly pressed touches 50-100 ms before single pixels cross ``k_high``);
+  it ends after ``end_hold_s`` without contact (a touch the pooled detector started ends
+  after ``end_hold_s`` of silent pooled image, or after ``confirm_s`` if no contact has been
+  segmented by then); all contacts on the patch belong to it;
+* per frame, the blob's centroid and principal spreads (:func:`~eit_skin.touch.shapes.blob_moments`)
+  over the contact pixels, in units of one fingertip's spread at that place
+  (:func:`~eit_skin.touch.shapes.single_contact_spread`);
+* features over the touch's strong frames: ``spread`` (median blob size), ``closing`` (largest
+  relative narrowing of the major axis), ``travel`` (centroid travel);
+* rules: ``closing >= pinch_closing`` -> pinch; ``spread >= grab_spread`` -> grab;
+  ``travel >= rub_travel`` -> rub; else push.
+
+The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
+the evidence so far and may revise it; END carries the final label.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from eit_skin.touch.contacts import (
+    Contact,
+    ContactSegmenter,
+    ContactTracker,
+    PooledDetector,
+    SegmentationConfig,
+    estimate_noise,
+    estimate_noise_map,
+)
+from eit_skin.touch.shapes import blob_moments
+
+LABELS = ("push", "rub", "pinch", "grab")
+"""Touch labels, in the order of ``eit_skin_msgs/TouchEvent`` (PUSH=0 ... GRAB=3)."""
+STATES = ("start", "update", "end")
+"""Event states, in the order of ``eit_skin_msgs/TouchEvent`` (START=0, UPDATE=1, END=2)."""
+
+
+@dataclass(frozen=True)
+class ClassifierConfig:
+    """Thresholds and timing of the touch classifier.
+
+    Spreads are measured in units of the spread one fingertip gives at the same place
+    (:func:`~eit_skin.touch.shapes.single_contact_spread`), so the rules do not depend on the
+    patch's size, electrode layout or reconstruction prior.
+
+    Attributes:
+        segmentation: contact thresholds in noise units (see :class:`SegmentationConfig`).
+        calibration_s: initial no-touch time used to estimate noise and baseline, s.
+        baseline_tau_s: time constant of the drift-following baseline (idle frames only), s.
+        start_frames: consecutive frames with a contact (or a pooled detection) in the same
+            place before START.
+        average_frames: contacts are found in the mean of the latest this many frames (noise
+            down by its square root, at half a frame period of delay per extra frame).
+        noise_tau_s: time constant of the per-pixel noise estimate, which keeps learning from
+            no-touch frames after calibration, s (0: keep the calibration estimate).
+        end_hold_s: time without contact before END, s.
+        update_period_s: shortest time between UPDATEs of one touch, s.
+        count_frames: frames a contact count must be seen to count.
+        gate_pixels: tracking gate in pixels of the pressure grid (converted to metres).
+        strong_fraction: frames whose peak is below this fraction of the touch's largest peak
+            (press and release ramps) do not enter the shape features.
+        rub_travel: centroid travel that makes a rub, in single-finger spreads.
+        pinch_closing: relative narrowing of the blob's major axis that makes a pinch (0..1).
+        grab_spread: blob spread (geometric mean of the principal spreads) that makes a grab,
+            in single-finger spreads.
+        contact_spread_m: spread of one fingertip's image, m, used when the classifier is
+            given no per-pixel map.
+        stretch_ratio_rub: stretch per pascal above which a single still contact is a pinch
+            whose fingers cannot be told apart (only with a stretch layer), 1/Pa; 0 disables.
+        detect_kernel: standard deviation of the Gaussian kernel of the early START detector
+            (:class:`~eit_skin.touch.contacts.PooledDetector`), in single-finger spreads (median of
+            the map over the sheet); about the width of one fingertip's whole reconstructed
+            blob. 0 disables it (START on segmented contacts only).
+        k_detect: threshold of the pooled image, multiples of the pooled image's own noise
+            (estimated like the image noise from the calibration frames, then learnt).
+        confirm_s: a touch started by the pooled detector with no segmented contact after
+            this time ends (then the detector waits for a silent pooled image), s.
+    """
+
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    calibration_s: float = 0.5
+    baseline_tau_s: float = 5.0
+    start_frames: int = 2
+    average_frames: int = 2
+    noise_tau_s: float = 10.0
+    end_hold_s: float = 0.1
+    update_period_s: float = 0.1
+    count_frames: int = 3
+    gate_pixels: float = 8.0
+    strong_fraction: float = 0.5
+    rub_travel: float = 1.5
+    pinch_closing: float = 0.3
+    grab_spread: float = 1.35
+    contact_spread_m: float = 0.005
+    stretch_ratio_rub: float = 0.0
+    detect_kernel: float = 2.5
+    k_detect: float = 5.5
+    confirm_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in (
+            "calibration_s",
+            "baseline_tau_s",
+            "gate_pixels",
+            "rub_travel",
+            "grab_spread",
+            "contact_spread_m",
+            "k_detect",
+            "confirm_s",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in (
+            "end_hold_s",
+            "update_period_s",
+            "stretch_ratio_rub",
+            "noise_tau_s",
+            "detect_kernel",
+        ):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.start_frames < 1 or self.count_frames < 1 or self.average_frames < 1:
+            raise ValueError("start_frames, count_frames and average_frames must be >= 1")
+        if not 0 < self.pinch_closing < 1:
+            raise ValueError(f"pinch_closing must be in (0, 1), got {self.pinch_closing}")
+        if not 0 <= self.strong_fraction < 1:
+            raise ValueError(f"strong_fraction must be in [0, 1), got {self.strong_fraction}")
+
+
+@dataclass(frozen=True)
+class TouchEvent:
+    """One event of one touch.
+
+    Attributes:
+        touch_id: id shared by the START, UPDATEs and END of a touch (from 1).
+        state: ``"start" | "update" | "end"``.
+        label: ``"push" | "rub" | "pinch" | "grab"``.
+        confidence: 0..1.
+        t_s: time of the frame that produced the event, s.
+        t_start_s: first frame of the touch, s.
+        t_end_s: last frame with contact (END), else ``t_s``, s.
+        centroid_m: ``(x, y)`` centroid of the whole touch's blob in the latest frame pressed at
+            full strength (at least ``strong_fraction`` of the touch's peak), m.
+        area_m2: total contact area, m^2.
+        peak_pa: largest pressure of the current contacts, Pa.
+        n_contacts: contacts in the frame.
+    """
+
+    touch_id: int
+    state: str
+    label: str
+    confidence: float
+    t_s: float
+    t_start_s: float
+    t_end_s: float
+    centroid_m: tuple[float, float]
+    area_m2: float
+    peak_pa: float
+    n_contacts: int
+
+    @property
+    def duration_s(self) -> float:
+        return self.t_end_s - self.t_start_s
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the ``eit-skin classify`` line)."""
+        return {
+            "label": self.label,
+            "t_start": round(self.t_start_s, 4),
+            "t_end": round(self.t_end_s, 4),
+            "confidence": round(self.confidence, 3),
+            "centroid": [round(self.centroid_m[0], 5), round(self.centroid_m[1], 5)],
+        }
+
+
+@dataclass(frozen=True)
+class TouchFeatures:
+    """What the rules look at (see module docstring).
+
+    Attributes:
+        count: most separate contacts seen together in ``count_frames`` frames.
+        travel: largest distance of the blob centroid from where it settled, in single-finger
+            spreads.
+        closing: largest relative narrowing of the blob's major axis (0..1).
+        spread: median blob spread ``sqrt(major * minor)``, in single-finger spreads.
+        elongation: median ratio of the blob's major to minor spread (>= 1).
+        stretch_ratio: largest stretch over largest pressure, 1/Pa (stretch layer only).
+        frames: strong frames the shape features were computed from.
+    """
+
+    count: int
+    travel: float
+    closing: float
+    spread: float
+    elongation: float
+    stretch_ratio: float | None = None
+    frames: int = 0
+
+
+def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, float]:
+    """``(label, confidence)`` from the features by the rules of the module docstring.
+
+    The confidence grows with the relative distance of the deciding feature(s) from their
+    thresholds (0.5 on a threshold, towards 1 far from it).
+    """
+
+    def margin(value: float, threshold: float) -> float:
+        return 0.5 + 0.5 * math.tanh(2.0 * abs(value - threshold) / threshold)
+
+    f, c = features, config
+    if f.closing >= c.pinch_closing:
+        return "pinch", margin(f.closing, c.pinch_closing)
+    if f.spread >= c.grab_spread:
+        return "grab", margin(f.spread, c.grab_spread)
+    if f.travel >= c.rub_travel:
+        return "rub", min(margin(f.travel, c.rub_travel), margin(f.closing, c.pinch_closing))
+    ratio = f.stretch_ratio
+    if ratio is not None and c.stretch_ratio_rub > 0 and ratio >= c.stretch_ratio_rub:
+        return "pinch", 0.5 * margin(ratio, c.stretch_ratio_rub)
+    conf = min(
+        margin(f.travel, c.rub_travel),
+        margin(f.closing, c.pinch_closing),
+        margin(f.spread, c.grab_spread),
+    )
+    return "push", conf
+
+
+_SHAPE_COLUMNS = 7  # t, peak, cx, cy, major, minor, finger spread at the centroid
+
+
+class _Touch:
+    """Evidence collected over one touch."""
+
+    def __init__(self, touch_id: int, t_s: float) -> None:
+        self.id = touch_id
+        self.t_start_s = t_s
+        self.t_last_s = t_s
+        self.t_last_update_s = t_s
+        self.counts: list[int] = []
+        self.shapes: list[np.ndarray] = []
+        self.max_pressure = 0.0
+        self.max_stretch: float | None = None
+        self.last_contacts: list[Contact] = []
+        self.missing = 0
+        self.label = "push"
+        self.confidence = 0.5
+        self.detect_centroid_m = (0.0, 0.0)
+
+    def count(self, min_frames: int) -> int:
+        if not self.counts:
+            return 0
+        counts = np.sort(np.asarray(self.counts))[::-1]
+        return int(counts[min(min_frames, counts.size) - 1])
+
+
+def shape_features(
+    shapes: np.ndarray, strong_fraction: float
+) -> tuple[float, float, float, float, int]:
+    """``(travel, closing, spread, elongation, frames)`` of a touch's per-frame blob shapes.
+
+    Args:
+        shapes: ``[T, 7]`` per frame: time (s), peak, centroid x, y (m), major, minor spread
+            (m), one finger's spread at the centroid (m).
+        strong_fraction: frames with a peak below this fraction of the largest are ignored.
+    """
+    s = shapes[np.all(np.isfinite(shapes), axis=1)]
+    if s.shape[0] == 0:
+        return 0.0, 0.0, 1.0, 1.0, 0
+    s = s[s[:, 1] >= strong_fraction * s[:, 1].max()]
+    finger = np.maximum(s[:, 6], 1e-6)
+    unit = float(np.median(finger))
+    major = s[:, 4] / finger
+    spread = float(np.median(np.sqrt(s[:, 4] * s[:, 5]) / finger))
+    elongation = float(np.median(s[:, 4] / np.maximum(s[:, 5], 1e-9)))
+    n = s.shape[0]
+    anchor = np.median(s[: min(3, n), 2:4], axis=0)
+    travel = float(np.max(np.linalg.norm(s[:, 2:4] - anchor, axis=1))) / unit
+    w = min(5, n)  # rolling median of 5 frames against noisy frames
+    smooth = np.median(np.lib.stride_tricks.sliding_window_view(major, w), axis=1)
+    closing = float(np.max(1.0 - smooth / np.maximum.accumulate(smooth)))
+    return travel, closing, spread, elongation, n
+
+
+class TouchClassifier:
+    """Stream of images -> touch events (see module docstring).
+
+    Args:
+        x: ``[W]`` pressure pixel-centre x, m.  y: ``[H]`` pixel-centre y, m.
+        config: thresholds and timing.
+        pressure_noise_pa: image noise; ``None``: estimated from the calibration frames.
+        stretch_noise: stretch image noise (strain); ``None``: estimated likewise.
+        contact_spread_m: spread of one fingertip's image, m: a ``[H, W]`` map
+            (:func:`~eit_skin.touch.shapes.single_contact_spread`) or a scalar; ``None``:
+            ``config.contact_spread_m``.
+    """
+
+    def __init__(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        config: ClassifierConfig | None = None,
+        pressure_noise_pa: float | None = None,
+        stretch_noise: float | None = None,
+        contact_spread_m: float | np.ndarray | None = None,
+    ) -> None:
+        self.x = np.asarray(x, dtype=np.float64)
+        self.y = np.asarray(y, dtype=np.float64)
+        self.config = config or ClassifierConfig()
+        self.pixel_m = float(abs(self.x[1] - self.x[0]))
+        self.pressure_noise_pa = pressure_noise_pa
+        self.stretch_noise = stretch_noise
+        self.segmenter: ContactSegmenter | None = None
+        self._xx, self._yy = np.meshgrid(self.x, self.y)
+        spread = self.config.contact_spread_m if contact_spread_m is None else contact_spread_m
+        spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), self._xx.shape)
+        if not (np.all(np.isfinite(spread)) and np.all(spread > 0)):
+            raise ValueError(
+                f"contact_spread_m: a finite, positive scalar or [H, W] = {self._xx.shape} map"
+            )
+        self.contact_spread_m = spread
+        self.tracker = ContactTracker(self.config.gate_pixels * self.pixel_m, max_missed=2)
+        self._calibration: list[np.ndarray] = []
+        self._calibration_stretch: list[np.ndarray] = []
+        self._t0: float | None = None
+        self._t_prev: float | None = None
+        self.baseline: np.ndarray | None = None
+        self.stretch_baseline: np.ndarray | None = None
+        self._run = 0
+        self._run_start_s = 0.0
+        self._run_shapes: list[np.ndarray] = []
+        self._recent: list[np.ndarray] = []
+        self._noise_var: np.ndarray | None = None
+        self._noise_floor = 0.0
+        self._touch: _Touch | None = None
+        self.detector: PooledDetector | None = None
+        self._armed = True
+        self._times: list[float] = []
+        self._next_id = 1
+        self.last_contacts: list[Contact] = []
+        self.last_features: TouchFeatures | None = None
+        self.frames = 0
+
+    @property
+    def calibrated(self) -> bool:
+        return self.segmenter is not None
+
+    @property
+    def active(self) -> bool:
+        """True while a touch is going on (between its START and END)."""
+        return self._touch is not None
+
+    # ------------------------------------------------------------------ calibration
+    def _calibrate(self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None) -> None:
+        if self._t0 is None:
+            self._t0 = t_s
+        self._calibration.append(pressure)
+        if stretch is not None:
+            self._calibration_stretch.append(stretch)
+        if t_s - self._t0 + 1e-9 < self.config.calibration_s and len(self._calibration) < 10_000:
+            return
+        stack = np.stack(self._calibration)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels outside the sheet
+            self.baseline = np.nanmedian(stack, axis=0)
+        self.baseline = np.where(np.isfinite(self.baseline), self.baseline, 0.0)
+        n_avg = min(self.config.average_frames, len(stack))
+        self._recent = list(stack[len(stack) - n_avg + 1 :]) if n_avg > 1 else []
+        averaged = _running_mean(stack, n_avg)  # what the segmentation will look at
+        if self.pressure_noise_pa:
+            sigma = self.pressure_noise_pa / math.sqrt(n_avg)
+        else:
+            self.pressure_noise_pa = estimate_noise(stack)
+            if len(averaged) >= 3:
+                # conservative start (few frames): the larger of the smoothed map and each
+                # pixel's own spread; then the noise keeps being learnt (_follow_noise)
+                sigma = np.maximum(
+                    estimate_noise_map(averaged, window=3), estimate_noise_map(averaged, window=1)
+                )
+                self._noise_var = sigma**2
+                self._noise_floor = 0.5 * estimate_noise(averaged)
+            else:
+                sigma = estimate_noise(averaged)
+        if self._calibration_stretch:
+            s_stack = np.stack(self._calibration_stretch)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                s_base = np.nanmedian(s_stack, axis=0)
+            self.stretch_baseline = np.where(np.isfinite(s_base), s_base, 0.0)
+            if self.stretch_noise is None:
+                self.stretch_noise = estimate_noise(s_stack)
+        self.segmenter = ContactSegmenter(self.x, self.y, sigma, self.config.segmentation)
+        inside = np.isfinite(stack).any(axis=0)
+        if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():
+            finger_m = float(np.median(self.contact_spread_m[inside]))
+            kernel_px = self.config.detect_kernel * finger_m / self.pixel_m
+            self.detector = PooledDetector(inside, kernel_px, self.config.k_detect, n_avg)
+            self.detector.calibrate(averaged - self.baseline)
+        self._calibration = []
+        self._calibration_stretch = []
+
+    # ------------------------------------------------------------------ stream
+    def step(
+        self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None = None
+    ) -> list[TouchEvent]:
+        """Process one frame (``pressure`` [H, W] Pa, ``stretch`` [H, W] or None); events."""
+        pressure = np.asarray(pressure, dtype=np.float64)
+        pressure = np.where(np.isfinite(pressure), pressure, np.nan)
+        if stretch is not None:
+            stretch = np.asarray(stretch, dtype=np.float64)
+            stretch = np.where(np.isfinite(stretch), stretch, np.nan)
+        self.frames += 1
+        if self.segmenter is None:
+            self._calibrate(t_s, pressure, stretch)
+            self._t_prev = t_s
+            self.last_contacts = []
+            return []
+        dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
+        self._t_prev = t_s
+        self._recent = [*self._recent[-(self.config.average_frames - 1) :], pressure]
+        if self.config.average_frames == 1:
+            self._recent = [pressure]
+        signal = np.mean(self._recent, axis=0) - self.baseline
+        self._times = [*self._times[-50:], t_s]
+        detected = None  # time of the first frame of a pooled detection, if there is one
+        if self.detector is not None:
+            run = self.detector.update(signal)
+            self._armed = self._armed or not self.detector.hit
+            if self._armed and run >= self.config.start_frames:
+                detected = self._times[-min(run, len(self._times))]
+        contacts, parts = self.segmenter.segment_with_labels(signal)
+        self.last_contacts = contacts
+        stretch_peak = None
+        if stretch is not None and self.stretch_baseline is not None:
+            s = stretch - self.stretch_baseline
+            stretch_peak = float(np.nanmax(s)) if np.isfinite(s).any() else None
+        shape = None
+        if contacts:
+            shape = self._shape(t_s, signal, parts > 0)
+        else:
+            self._run_shapes = []
+            if self._touch is None:
+                self._follow_baseline(dt, pressure, stretch)
+                self._follow_noise(dt, signal)
+        return self._advance(t_s, contacts, stretch_peak, shape, detected)
+
+    def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``[7]`` time, peak, centroid, major, minor spread, finger spread at the centroid."""
+        m = blob_moments(signal, self._xx, self._yy, mask=mask)
+        row = np.full(_SHAPE_COLUMNS, np.nan)
+        row[0] = t_s
+        row[1:6] = m[:5]
+        if np.isfinite(m[1]) and np.isfinite(m[2]):
+            j = int(np.clip(np.searchsorted(self.x, m[1]), 0, self.x.size - 1))
+            i = int(np.clip(np.searchsorted(self.y, m[2]), 0, self.y.size - 1))
+            row[6] = self.contact_spread_m[i, j]
+        return row
+
+    def _follow_noise(self, dt: float, signal: np.ndarray) -> None:
+        """Per-pixel noise variance: exponential average of no-touch deviations squared.
+
+        The short calibration cannot see every pixel's noise well (a noisy spot next to an
+        electrode averaged with its quieter neighbours); this keeps learning it.
+        """
+        if self.config.noise_tau_s <= 0:
+            return
+        alpha = 1.0 - math.exp(-dt / self.config.noise_tau_s)
+        if self.detector is not None:
+            if not self.detector.quiet:  # possibly a weak touch building up: not noise
+                return
+            self.detector.follow_noise(alpha)
+        if self._noise_var is None:
+            return
+        ok = np.isfinite(signal)
+        self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
+        self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
+
+    def _follow_baseline(self, dt: float, pressure, stretch) -> None:
+        alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
+        ok = np.isfinite(pressure)
+        self.baseline[ok] += alpha * (pressure[ok] - self.baseline[ok])
+        if stretch is not None and self.stretch_baseline is not None:
+            ok = np.isfinite(stretch)
+            self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
+
+    def _advance(
+        self, t_s: float, contacts: list[Contact], stretch_peak, shape, detected=None
+    ) -> list[TouchEvent]:
+        cfg = self.config
+        touch = self._touch
+        if touch is None:
+            starts = [] if detected is None else [detected]
+            if contacts:
+                if self._run == 0:
+                    self._run_start_s = t_s
+                    self.tracker.reset()
+                self._run += 1
+                self._run_shapes = [*self._run_shapes[-50:], shape]
+                self._observe_contacts(None, t_s, contacts, stretch_peak)
+                # a contact must stay in place (one track) for start_frames frames: noise
+                # crossing the threshold at random places in consecutive frames is no touch
+                starts += [
+                    tr.first_seen_s
+                    for tr in self.tracker.tracks
+                    if tr.missed == 0 and tr.frames >= cfg.start_frames
+                ]
+            else:
+                self._run = 0
+            if not starts:
+                return []
+            t_first = min(starts)
+            touch = self._touch = _Touch(self._next_id, t_first)
+            self._next_id += 1
+            self._run = 0
+            touch.shapes = [row for row in self._run_shapes[:-1] if row[0] >= t_first - 1e-9]
+            self._run_shapes = []
+            if contacts:
+                self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
+            else:  # the pooled detector saw it first: no contact segmented yet
+                self.tracker.reset()
+                touch.t_last_s = t_s
+                touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
+            self._relabel(touch)
+            return [self._event(touch, "start", t_s)]
+        if not contacts:
+            touch.missing += 1
+            self.tracker.update(t_s, [])
+            pending = not touch.counts  # started by the pooled detector, no contact yet
+            if pending and self.detector is not None:
+                if self.detector.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
+                    touch.t_last_s = t_s
+                    touch.missing = 0
+                    touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
+                    return self._maybe_update(touch, t_s)
+                if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
+                    return self._end(touch, t_s)
+            if t_s - touch.t_last_s >= cfg.end_hold_s - 1e-9:
+                return self._end(touch, t_s)
+            return []
+        touch.missing = 0
+        self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
+        return self._maybe_update(touch, t_s)
+
+    def _maybe_update(self, touch: _Touch, t_s: float) -> list[TouchEvent]:
+        if t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
+            self._relabel(touch)
+            touch.t_last_update_s = t_s
+            return [self._event(touch, "update", t_s)]
+        return []
+
+    def _end(self, touch: _Touch, t_s: float) -> list[TouchEvent]:
+        """END; the pooled detector waits for a silent pooled image before it starts again."""
+        self._touch = None
+        self._armed = False
+        self._relabel(touch)
+        return [self._event(touch, "end", t_s)]
+
+    def finish(self, t_s: float | None = None) -> list[TouchEvent]:
+        """End a touch still going on at the end of a stream (END at its last contact)."""
+        touch = self._touch
+        if touch is None:
+            return []
+        return self._end(touch, touch.t_last_s if t_s is None else t_s)
+
+    # ------------------------------------------------------------------ features
+    def _observe_contacts(
+        self, touch, t_s, contacts, stretch_peak, shape=None, track: bool = True
+    ) -> None:
+        if track:
+            self.tracker.update(t_s, contacts)
+        if touch is None:
+            return
+        touch.t_last_s = t_s
+        touch.last_contacts = contacts
+        touch.counts.append(len(contacts))
+        if shape is not None:
+            touch.shapes.append(shape)
+        touch.max_pressure = max(touch.max_pressure, max(c.peak for c in contacts))
+        if stretch_peak is not None:
+            touch.max_stretch = max(touch.max_stretch or 0.0, stretch_peak)
+
+    def features(self, touch: _Touch) -> TouchFeatures:
+        """Features of a touch on the evidence so far."""
+        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
+        travel, closing, spread, elongation, n = shape_features(shapes, self.config.strong_fraction)
+        ratio = None
+        if touch.max_stretch is not None and touch.max_pressure > 0:
+            ratio = touch.max_stretch / touch.max_pressure
+        count = max(touch.count(self.config.count_frames), 1)
+        return TouchFeatures(count, travel, closing, spread, elongation, ratio, n)
+
+    def _relabel(self, touch: _Touch) -> None:
+        features = self.features(touch)
+        self.last_features = features
+        touch.label, touch.confidence = decide(features, self.config)
+
+    def _event(self, touch: _Touch, state: str, t_s: float) -> TouchEvent:
+        contacts = touch.last_contacts
+        if contacts:
+            centroid = np.mean([c.centroid_m for c in contacts], axis=0)
+        else:
+            centroid = np.asarray(touch.detect_centroid_m)
+        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
+        shapes = shapes[np.isfinite(shapes[:, 2]) & np.isfinite(shapes[:, 3])]
+        if shapes.shape[0]:  # the blob centroid of the latest frame pressed at full strength
+            strong = shapes[:, 1] >= self.config.strong_fraction * shapes[:, 1].max()
+            centroid = shapes[np.flatnonzero(strong)[-1], 2:4]
+        return TouchEvent(
+            touch_id=touch.id,
+            state=state,
+            label=touch.label,
+            confidence=float(touch.confidence),
+            t_s=float(t_s),
+            t_start_s=float(touch.t_start_s),
+            t_end_s=float(touch.t_last_s if state == "end" else t_s),
+            centroid_m=(float(centroid[0]), float(centroid[1])),
+            area_m2=float(sum(c.area_m2 for c in contacts)),
+            peak_pa=float(max((c.peak for c in contacts), default=0.0)),
+            n_contacts=len(contacts),
+        )
+
+
+def _running_mean(stack: np.ndarray, n: int) -> np.ndarray:
+    """``[T - n + 1, H, W]`` means of ``n`` consecutive frames of ``stack`` ``[T, H, W]``."""
+    if n <= 1:
+        return stack
+    c = np.cumsum(np.concatenate([np.zeros_like(stack[:1]), stack]), axis=0)
+    return (c[n:] - c[:-n]) / n
+
+
+def classify_stream(
+    t_s: np.ndarray,
+    pressure: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    stretch: np.ndarray | None = None,
+    config: ClassifierConfig | None = None,
+    contact_spread_m: float | np.ndarray | None = None,
+) -> list[TouchEvent]:
+    """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise.
+
+    ``contact_spread_m``: one fingertip's spread (see :class:`TouchClassifier`).
+    """
+    classifier = TouchClassifier(x, y, config, contact_spread_m=contact_spread_m)
+    events: list[TouchEvent] = []
+    for k in range(len(t_s)):
+        events += classifier.step(
+            float(t_s[k]), pressure[k], None if stretch is None else stretch[k]
+        )
+    events += classifier.finish()
+    return events
+
+
+def with_config(config: ClassifierConfig, **changes) -> ClassifierConfig:
+    """A copy of ``config`` with top-level or ``segmentation`` fields changed by name."""
+    seg_fields = set(SegmentationConfig.__dataclass_fields__)
+    seg = {k: v for k, v in changes.items() if k in seg_fields}
+    top = {k: v for k, v in changes.items() if k not in seg_fields}
+    return replace(config, segmentation=replace(config.segmentation, **seg), **top)
