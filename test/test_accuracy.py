@@ -1,6 +1,6 @@
 """Accuracy and stability on simulated data (fine forward mesh, coarse reconstruction mesh).
 
-The matrix under test is the shipped default: GREIT-trained (``prior: greit``) at the shipped
+The matrix under test is the shipped default: GREIT-trained (``method: greit``) at the shipped
 noise figure. Resolution is compared with pyEIT JAC in ``bench/bench_reconstruction.py`` (same
 meshes and data); here it is bounded by the value pyEIT reaches there (0.248).
 
@@ -38,7 +38,7 @@ from test.reconstruction_phantoms import (
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M
-NOISE_FIGURE = 0.13  # the shipped configs' solver.noise_figure with prior: greit
+NOISE_FIGURE = 0.13  # the shipped configs' solver.noise_figure with method: greit
 PYEIT_JAC_RESOLUTION = 0.248  # bench/REPORT.md, every mesh size
 
 

@@ -64,7 +64,7 @@ def test_write_stores_the_noise_figure_choice_and_keeps_everything_else(arm_copy
     )
     rm = ReconstructionMatrix.build(
         fwd,
-        prior=layer.solver.prior,
+        prior="greit" if layer.solver.method == "greit" else layer.solver.prior,
         hyperparameter=h,
         sigma0=layer.material.sheet_conductance_s,
         inverse_mesh=build_mesh(layer, layer.mesh.inverse_max_edge_m),

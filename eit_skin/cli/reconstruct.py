@@ -80,7 +80,7 @@ def _reconstruct(args: argparse.Namespace):
         # Gauss-Newton then uses the Laplace prior with its default h.
         mesh = build_mesh(layer)
         forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
-        greit = solver.prior == "greit"
+        greit = solver.method == "greit"
         solver_gn = GaussNewtonSolver(
             forward,
             layer.material.sheet_conductance_s,

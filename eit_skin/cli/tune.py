@@ -172,7 +172,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     forward = ForwardModel(forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
     base = ReconstructionMatrix.build(
         forward,
-        prior=solver.prior,
+        prior="greit" if solver.method == "greit" else solver.prior,
         hyperparameter=1.0,  # replaced below; the build caches what the choice needs
         sigma0=sigma0,
         inverse_mesh=None if inverse_edge is None else inverse_mesh,
@@ -213,7 +213,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     pe = np.array([f.position_error_m for f in merits]) / radius
     return Tuning(
         layer=layer.name,
-        prior=solver.prior,
+        prior="greit" if solver.method == "greit" else solver.prior,
         target_noise_figure=target_nf,
         hyperparameter=float(text),
         text=text,

@@ -8,9 +8,27 @@ pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic check
 
 from __future__ import annotations
 
-from eit_skin.fem.forward import ForwardModel
-from eit_skin.fem.forward_update import LocalForwardUpdate
-from eit_skin.fem.image_grid import ImageGrid
-from eit_skin.fem.mesh import Mesh, build_mesh
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "ForwardModel": "forward",
+    "ImageGrid": "image_grid",
+    "LocalForwardUpdate": "forward_update",
+    "Mesh": "mesh",
+    "build_mesh": "mesh",
+}
 
 __all__ = ["ForwardModel", "ImageGrid", "LocalForwardUpdate", "Mesh", "build_mesh"]
+
+if TYPE_CHECKING:
+    from eit_skin.fem.forward import ForwardModel
+    from eit_skin.fem.forward_update import LocalForwardUpdate
+    from eit_skin.fem.image_grid import ImageGrid
+    from eit_skin.fem.mesh import Mesh, build_mesh
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -7,11 +7,24 @@ board on a pseudo-terminal), ``sources`` (serial, simulated and replayed frame s
 
 from __future__ import annotations
 
-from eit_skin.hardware.device_clock import DeviceClock
-from eit_skin.hardware.fake_device import FakeDevice
-from eit_skin.hardware.serial_link import SerialLink
-from eit_skin.hardware.sources import ReplaySource, SerialSource, SimulatedSource
-from eit_skin.hardware.wire import DeviceFrame, FrameParser, PatternId, encode_frame
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "DeviceClock": "device_clock",
+    "DeviceFrame": "wire",
+    "FakeDevice": "fake_device",
+    "FrameParser": "wire",
+    "PatternId": "wire",
+    "ReplaySource": "sources",
+    "SerialLink": "serial_link",
+    "SerialSource": "sources",
+    "SimulatedSource": "sources",
+    "encode_frame": "wire",
+}
 
 __all__ = [
     "DeviceClock",
@@ -25,3 +38,13 @@ __all__ = [
     "SimulatedSource",
     "encode_frame",
 ]
+
+if TYPE_CHECKING:
+    from eit_skin.hardware.device_clock import DeviceClock
+    from eit_skin.hardware.fake_device import FakeDevice
+    from eit_skin.hardware.serial_link import SerialLink
+    from eit_skin.hardware.sources import ReplaySource, SerialSource, SimulatedSource
+    from eit_skin.hardware.wire import DeviceFrame, FrameParser, PatternId, encode_frame
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -8,19 +8,27 @@ measurement pattern: the one place that knows the measurement order).
 
 from __future__ import annotations
 
-from eit_skin.patch.material import Material
-from eit_skin.patch.model import (
-    Electrode,
-    Layer,
-    MeshSpec,
-    Patch,
-    PatchError,
-    SolverSpec,
-    load_patch,
-    patch_from_dict,
-)
-from eit_skin.patch.placement import Placement
-from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "Electrode": "model",
+    "Layer": "model",
+    "Material": "material",
+    "MeshSpec": "model",
+    "Patch": "model",
+    "PatchError": "model",
+    "Placement": "placement",
+    "Protocol": "protocol",
+    "ProtocolSpec": "protocol",
+    "SolverSpec": "model",
+    "build_protocol": "protocol",
+    "load_patch": "model",
+    "patch_from_dict": "model",
+}
 
 __all__ = [
     "Electrode",
@@ -37,3 +45,21 @@ __all__ = [
     "load_patch",
     "patch_from_dict",
 ]
+
+if TYPE_CHECKING:
+    from eit_skin.patch.material import Material
+    from eit_skin.patch.model import (
+        Electrode,
+        Layer,
+        MeshSpec,
+        Patch,
+        PatchError,
+        SolverSpec,
+        load_patch,
+        patch_from_dict,
+    )
+    from eit_skin.patch.placement import Placement
+    from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from eit_skin.inverse.methods import METHODS
+from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
 from eit_skin.patch.material import QUANTITIES, Material
 from eit_skin.patch.placement import (
@@ -58,8 +60,6 @@ __all__ = [
 OUTLINE_CIRCLE_SEGMENTS = 128
 HOLE_CIRCLE_SEGMENTS = 16
 MIN_ELECTRODES = 4
-SOLVER_METHODS = ("one_step", "gauss_newton")
-SOLVER_PRIORS = ("laplace", "tikhonov", "noser", "greit")
 
 
 class PatchError(ValueError):
@@ -133,7 +133,9 @@ class SolverSpec:
     """Reconstruction settings of one layer (used by the reconstruction engine).
 
     Attributes:
-        method: ``"one_step"`` (linearised, precomputed matrix) or ``"gauss_newton"``.
+        method: ``"one_step"`` (linearised, precomputed matrix with ``prior``), ``"greit"``
+            (the trained one-step matrix, no prior) or ``"gauss_newton"`` (iterative, with
+            ``prior``); :data:`eit_skin.inverse.methods.METHODS`.
         prior: regularisation ``"laplace"``, ``"tikhonov"`` or ``"noser"``.
         hyperparameter: regularisation weight, or ``None`` to choose it from ``noise_figure``.
         noise_figure: target noise figure for the automatic hyperparameter (> 0).
@@ -151,10 +153,12 @@ class SolverSpec:
     reference_frames: int = 20
 
     def __post_init__(self) -> None:
-        if self.method not in SOLVER_METHODS:
-            raise ValueError(f"method: unknown {self.method!r}; expected one of {SOLVER_METHODS}")
-        if self.prior not in SOLVER_PRIORS:
-            raise ValueError(f"prior: unknown {self.prior!r}; expected one of {SOLVER_PRIORS}")
+        if self.method not in METHODS:
+            raise ValueError(f"method: unknown {self.method!r}; expected one of {METHODS}")
+        if self.prior == "greit":
+            raise ValueError("prior: 'greit' is a method, not a prior; write method: greit")
+        if self.prior not in PRIOR_KINDS:
+            raise ValueError(f"prior: unknown {self.prior!r}; expected one of {PRIOR_KINDS}")
         if self.hyperparameter is not None and not self.hyperparameter > 0:
             raise ValueError(f"hyperparameter: must be > 0 or null, got {self.hyperparameter}")
         if not self.noise_figure > 0:
@@ -874,12 +878,20 @@ def _mesh_spec(
         raise r.error(r.join(path, key), reason) from None
 
 
+def _prior_name(r: _Reader, d: Mapping, path: str, default: str) -> str:
+    if d.get("prior") == "greit":  # the old spelling of method: greit
+        raise r.error(
+            r.join(path, "prior"), "'greit' is a method, not a prior; write method: greit"
+        )
+    return r.string(d, "prior", path, default=default, choices=PRIOR_KINDS)
+
+
 def _solver_spec(r: _Reader, data: Any, path: str) -> SolverSpec:
     d = r.mapping(data, path, optional=tuple(f.name for f in fields(SolverSpec)))
     defaults = SolverSpec()
     kwargs = {
-        "method": r.string(d, "method", path, default=defaults.method, choices=SOLVER_METHODS),
-        "prior": r.string(d, "prior", path, default=defaults.prior, choices=SOLVER_PRIORS),
+        "method": r.string(d, "method", path, default=defaults.method, choices=METHODS),
+        "prior": _prior_name(r, d, path, defaults.prior),
         "hyperparameter": r.number(
             d, "hyperparameter", path, default=None, positive=True, allow_none=True
         ),

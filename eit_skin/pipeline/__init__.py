@@ -7,9 +7,19 @@ posture), ``colour_scale`` (false colour for rviz).
 
 from __future__ import annotations
 
-from eit_skin.pipeline.builder import LayerImager, default_cache_dir
-from eit_skin.pipeline.colour_scale import ColourScale
-from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "ColourScale": "colour_scale",
+    "LayerImager": "builder",
+    "PostureReferences": "reference",
+    "ReferenceTracker": "reference",
+    "default_cache_dir": "builder",
+}
 
 __all__ = [
     "ColourScale",
@@ -18,3 +28,11 @@ __all__ = [
     "ReferenceTracker",
     "default_cache_dir",
 ]
+
+if TYPE_CHECKING:
+    from eit_skin.pipeline.builder import LayerImager, default_cache_dir
+    from eit_skin.pipeline.colour_scale import ColourScale
+    from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -78,7 +78,9 @@ class LayerImager:
                 with np.load(path) as cached:
                     jacobian = cached["jacobian"]
                     h = float(cached["hyperparameter"])
-                matrix = ReconstructionMatrix.from_jacobian(jacobian, inverse_mesh, solver.prior, h)
+                matrix = ReconstructionMatrix.from_jacobian(
+                    jacobian, inverse_mesh, _matrix_kind(solver), h
+                )
                 grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
                 return cls(layer, protocol, inverse_mesh, matrix, grid, from_cache=True)
             except (OSError, KeyError, ValueError):
@@ -89,7 +91,7 @@ class LayerImager:
         )
         matrix = ReconstructionMatrix.build(
             forward,
-            prior=solver.prior,
+            prior=_matrix_kind(solver),
             hyperparameter=solver.hyperparameter,
             sigma0=layer.material.sheet_conductance_s,
             inverse_mesh=None if inverse_edge is None else inverse_mesh,
@@ -156,3 +158,8 @@ def _save_to_cache(path: Path, **arrays: np.ndarray | float) -> None:
         write_npz_atomic(path, **arrays)
     except OSError:
         pass
+
+
+def _matrix_kind(solver) -> str:
+    """The one-step matrix of a solver: ``"greit"`` for method greit, else its prior."""
+    return "greit" if solver.method == "greit" else solver.prior

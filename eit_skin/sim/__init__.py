@@ -6,10 +6,24 @@ Modules: ``stimuli`` (touch primitives), ``scenario`` (touch scripts: built-in, 
 
 from __future__ import annotations
 
-from eit_skin.sim.adc import AdcConfig, AdcModel
-from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
-from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.sim.stimuli import Grab, Pinch, Push, Rub
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "AdcConfig": "adc",
+    "AdcModel": "adc",
+    "Grab": "stimuli",
+    "Pinch": "stimuli",
+    "Push": "stimuli",
+    "Rub": "stimuli",
+    "Scenario": "scenario",
+    "SkinSimulator": "simulator",
+    "load_scenario": "scenario",
+    "resolve_scenario": "scenario",
+}
 
 __all__ = [
     "AdcConfig",
@@ -23,3 +37,12 @@ __all__ = [
     "load_scenario",
     "resolve_scenario",
 ]
+
+if TYPE_CHECKING:
+    from eit_skin.sim.adc import AdcConfig, AdcModel
+    from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
+    from eit_skin.sim.simulator import SkinSimulator
+    from eit_skin.sim.stimuli import Grab, Pinch, Push, Rub
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -6,9 +6,20 @@ moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: events
 
 from __future__ import annotations
 
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, TouchEvent
-from eit_skin.touch.contacts import ContactSegmenter, SegmentationConfig
-from eit_skin.touch.shapes import single_contact_spread
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "ClassifierConfig": "classifier",
+    "ContactSegmenter": "contacts",
+    "SegmentationConfig": "contacts",
+    "TouchClassifier": "classifier",
+    "TouchEvent": "classifier",
+    "single_contact_spread": "shapes",
+}
 
 __all__ = [
     "ClassifierConfig",
@@ -18,3 +29,11 @@ __all__ = [
     "TouchEvent",
     "single_contact_spread",
 ]
+
+if TYPE_CHECKING:
+    from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, TouchEvent
+    from eit_skin.touch.contacts import ContactSegmenter, SegmentationConfig
+    from eit_skin.touch.shapes import single_contact_spread
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
