@@ -8,9 +8,9 @@ from mcap.reader import make_reader
 from mcap_ros2._dynamic import serialize_dynamic
 from mcap_ros2.decoder import DecoderFactory
 
+from eit_skin.frames import FrameRecord
 from eit_skin.io.recording import (
     EIT_FRAME_SCHEMA,
-    FrameRecord,
     McapFrameWriter,
     decode_eit_frame_cdr,
     eit_frame_msgdef,

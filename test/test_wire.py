@@ -10,9 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from eit_skin.frames import FLAG_INVALID, FLAG_SATURATED
 from eit_skin.hardware.wire import (
-    FLAG_INVALID,
-    FLAG_SATURATED,
     HEADER_SIZE,
     SYNC,
     DeviceFrame,

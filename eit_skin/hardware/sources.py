@@ -16,10 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
 from eit_skin.hardware.wire import PatternId
-from eit_skin.io.recording import FrameRecord, read_mcap_frames
+from eit_skin.io.recording import read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
 

@@ -18,6 +18,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from eit_skin.frames import FLAG_INVALID
+
 SYNC = b"\xeb\x90"
 """The two sync bytes that start every frame."""
 PROTOCOL_VERSION = 1
@@ -33,12 +35,6 @@ CRC_SIZE = CRC.size
 BYTES_PER_VALUE = 5  # 4 value bytes + 1 flag byte
 MAX_WIRE_VALUES = (0xFFFF - PAYLOAD_HEADER.size) // BYTES_PER_VALUE
 """The largest value count whose payload length fits the uint16 field (13102)."""
-
-FLAG_OK = 0
-FLAG_SATURATED = 1
-"""The ADC hit a rail during this channel's conversions (same bit as EitFrame.FLAG_SATURATED)."""
-FLAG_INVALID = 2
-"""Not a measurement (dead channel, NaN, firmware marked it bad)."""
 
 
 class ValueEncoding(IntEnum):

@@ -13,7 +13,6 @@ from eit_skin import lazy_exports
 #: Public name -> the module of this subpackage that defines it (imported on first use,
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
-    "FrameRecord": "recording",
     "McapFrameWriter": "recording",
     "load_frames_npz": "recording",
     "read_mcap_frames": "recording",
@@ -32,7 +31,6 @@ __all__ = [
 
 if TYPE_CHECKING:
     from eit_skin.io.recording import (
-        FrameRecord,
         McapFrameWriter,
         load_frames_npz,
         read_mcap_frames,

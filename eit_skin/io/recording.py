@@ -12,18 +12,18 @@ seconds.
 
 from __future__ import annotations
 
-import array
 import os
 import struct
 import sys
 import tempfile
 import zipfile
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from eit_skin.frames import FrameRecord
 
 EIT_FRAME_SCHEMA = "eit_skin_msgs/msg/EitFrame"
 _SEPARATOR = "=" * 80
@@ -74,98 +74,6 @@ def eit_frame_msgdef() -> str:
             raise FileNotFoundError(f"{type_name}.msg not found in the repository or share dirs")
         parts.append(text if not parts else f"{_SEPARATOR}\nMSG: {type_name}\n{text}")
     return "\n".join(p.rstrip("\n") for p in parts) + "\n"
-
-
-@dataclass(frozen=True, eq=False)
-class FrameRecord:
-    """The fields of one EitFrame message, ROS-free.
-
-    Attributes:
-        stamp_ns: header.stamp, acquisition time, ns since the epoch.
-        frame_id: header.frame_id.
-        patch, layer: names from the patch config.
-        n_electrodes: electrodes on the layer.
-        drive_pattern: protocol name (adjacent, opposite, skip-k, explicit).
-        current_a: injected current, amperes.
-        sequence: device frame counter (uint32).
-        voltages: float32 [M] volts, read-only.
-        channel_flags: uint8 [M] (or [0] = all OK), read-only.
-    """
-
-    stamp_ns: int
-    frame_id: str
-    patch: str
-    layer: str
-    n_electrodes: int
-    drive_pattern: str
-    current_a: float
-    sequence: int
-    voltages: np.ndarray
-    channel_flags: np.ndarray
-
-    def __post_init__(self) -> None:
-        volts = np.array(self.voltages, dtype=np.float32).reshape(-1)
-        flags = np.array(self.channel_flags, dtype=np.uint8).reshape(-1)
-        if flags.size not in (0, volts.size):
-            raise ValueError(f"channel_flags has {flags.size} entries for {volts.size} voltages")
-        if not 0 <= self.sequence < 2**32 or not 0 <= self.n_electrodes < 2**16:
-            raise ValueError("sequence must be uint32 and n_electrodes uint16")
-        volts.setflags(write=False)
-        flags.setflags(write=False)
-        object.__setattr__(self, "voltages", volts)
-        object.__setattr__(self, "channel_flags", flags)
-        object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
-        object.__setattr__(self, "current_a", float(self.current_a))
-
-    def __eq__(self, other: object) -> bool:
-        """Field-wise equality with bit-exact arrays."""
-        if not isinstance(other, FrameRecord):
-            return NotImplemented
-        scalars = ("stamp_ns", "frame_id", "patch", "layer", "n_electrodes", "drive_pattern")
-        return (
-            all(getattr(self, k) == getattr(other, k) for k in scalars)
-            and struct.pack("<d", self.current_a) == struct.pack("<d", other.current_a)
-            and self.sequence == other.sequence
-            and self.voltages.tobytes() == other.voltages.tobytes()
-            and self.channel_flags.tobytes() == other.channel_flags.tobytes()
-        )
-
-    __hash__ = None  # type: ignore[assignment]
-
-    @classmethod
-    def from_msg(cls, msg: Any) -> FrameRecord:
-        """From an ``eit_skin_msgs.msg.EitFrame`` (or any object with its attributes)."""
-        stamp = msg.header.stamp
-        return cls(
-            stamp_ns=int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
-            frame_id=msg.header.frame_id,
-            patch=msg.patch,
-            layer=msg.layer,
-            n_electrodes=msg.n_electrodes,
-            drive_pattern=msg.drive_pattern,
-            current_a=msg.current_a,
-            sequence=msg.sequence,
-            voltages=np.asarray(msg.voltages, dtype=np.float32),
-            channel_flags=np.frombuffer(bytes(msg.channel_flags), np.uint8)
-            if isinstance(msg.channel_flags, (bytes, bytearray))
-            else np.asarray(msg.channel_flags, dtype=np.uint8),
-        )
-
-    def to_msg(self) -> Any:
-        """To an ``eit_skin_msgs.msg.EitFrame`` (needs the built messages and rclpy)."""
-        from eit_skin_msgs.msg import EitFrame
-
-        msg = EitFrame()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self.stamp_ns, 1_000_000_000)
-        msg.header.frame_id = self.frame_id
-        msg.patch, msg.layer = self.patch, self.layer
-        msg.n_electrodes = self.n_electrodes
-        msg.drive_pattern = self.drive_pattern
-        msg.current_a = self.current_a
-        msg.sequence = self.sequence
-        msg.voltages = array.array("f", self.voltages.tobytes())  # 10x faster than a list
-        msg.channel_flags = array.array("B", self.channel_flags.tobytes())
-        return msg
 
 
 # --- CDR (XCDR1 little endian) for EitFrame, vectorised ---------------------------------------

@@ -20,6 +20,7 @@ import numpy as np
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
+from eit_skin.frames import excluded_channels
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.recording import write_npz_atomic
@@ -31,9 +32,6 @@ CACHE_VERSION = "1"
 
 #: Floor of the relative conductivity change before the physical conversion.
 MIN_RELATIVE_CHANGE = -0.9
-
-#: ``EitFrame`` channel flags that exclude a channel from imaging (saturated, invalid).
-EXCLUDING_FLAGS = 0b11
 
 
 def default_cache_dir() -> Path:
@@ -124,7 +122,7 @@ class LayerImager:
         """
         excluded = None
         if flags is not None and np.size(flags):
-            excluded = (np.asarray(flags, dtype=np.uint8) & EXCLUDING_FLAGS) != 0
+            excluded = excluded_channels(flags, self.n_measurements)
         return self.matrix.reconstruct(frames, reference, excluded=excluded)
 
     def images(self, element_values: np.ndarray) -> np.ndarray:

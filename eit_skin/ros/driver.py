@@ -26,6 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
+from eit_skin.frames import FrameRecord
 from eit_skin.hardware.sources import (
     LayerFrameFactory,
     ReplaySource,
@@ -33,7 +34,7 @@ from eit_skin.hardware.sources import (
     SimulatedSource,
     SourceStatus,
 )
-from eit_skin.io.recording import FrameRecord, McapFrameWriter
+from eit_skin.io.recording import McapFrameWriter
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (

@@ -31,9 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-FLAG_OK = 0
-FLAG_SATURATED = 1
-"""Same bit as ``EitFrame.FLAG_SATURATED``."""
+from eit_skin.frames import FLAG_OK, FLAG_SATURATED
+
 PGA_GAINS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
 
 

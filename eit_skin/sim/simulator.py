@@ -37,9 +37,10 @@ import numpy as np
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.forward_update import LocalForwardUpdate
 from eit_skin.fem.mesh import Mesh, build_mesh
+from eit_skin.frames import FLAG_SATURATED
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
-from eit_skin.sim.adc import FLAG_SATURATED, AdcConfig, AdcModel
+from eit_skin.sim.adc import AdcConfig, AdcModel
 from eit_skin.sim.scenario import Scenario, TouchTruth, resolve_scenario
 
 FAULT_KINDS = ("dead-electrode", "saturated-channel")
