@@ -878,20 +878,31 @@ def _mesh_spec(
         raise r.error(r.join(path, key), reason) from None
 
 
-def _prior_name(r: _Reader, d: Mapping, path: str, default: str) -> str:
-    if d.get("prior") == "greit":  # the old spelling of method: greit
+def _method_and_prior(r: _Reader, d: Mapping, path: str, defaults: SolverSpec) -> tuple[str, str]:
+    """``solver.method`` and ``solver.prior``; the old spelling ``prior: greit`` means method greit.
+
+    Files written before GREIT became a method (``method: one_step, prior: greit``) keep
+    working and load as ``method: greit`` (same content hash as the new spelling).
+    """
+    method = r.string(d, "method", path, default=defaults.method, choices=METHODS)
+    if d.get("prior") != "greit":
+        return method, r.string(d, "prior", path, default=defaults.prior, choices=PRIOR_KINDS)
+    if method not in ("one_step", "greit"):
         raise r.error(
-            r.join(path, "prior"), "'greit' is a method, not a prior; write method: greit"
+            r.join(path, "prior"),
+            f"'greit' is a one-step method and cannot be the prior of method {method!r}; "
+            f"choose one of {', '.join(PRIOR_KINDS)}",
         )
-    return r.string(d, "prior", path, default=default, choices=PRIOR_KINDS)
+    return "greit", defaults.prior
 
 
 def _solver_spec(r: _Reader, data: Any, path: str) -> SolverSpec:
     d = r.mapping(data, path, optional=tuple(f.name for f in fields(SolverSpec)))
     defaults = SolverSpec()
+    method, prior = _method_and_prior(r, d, path, defaults)
     kwargs = {
-        "method": r.string(d, "method", path, default=defaults.method, choices=METHODS),
-        "prior": _prior_name(r, d, path, defaults.prior),
+        "method": method,
+        "prior": prior,
         "hyperparameter": r.number(
             d, "hyperparameter", path, default=None, positive=True, allow_none=True
         ),

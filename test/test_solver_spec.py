@@ -1,0 +1,37 @@
+"""solver.method / solver.prior: GREIT is a method; the old spelling ``prior: greit`` still loads."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from eit_skin.patch import PatchError, load_patch
+
+ARM = Path(__file__).resolve().parents[1] / "config" / "arm.yaml"
+
+
+def arm_with_solver(tmp_path: Path, solver: str) -> Path:
+    text = re.sub(r"solver: \{[^}]*\}", f"solver: {{{solver}}}", ARM.read_text())
+    path = tmp_path / "arm.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_old_spelling_loads_as_method_greit_with_the_same_hash(tmp_path):
+    new = load_patch(arm_with_solver(tmp_path, "method: greit, noise_figure: 0.13"))
+    old = load_patch(arm_with_solver(tmp_path, "method: one_step, prior: greit, noise_figure: 0.13"))
+    assert [ly.solver.method for ly in old.layers] == ["greit", "greit"]
+    assert [ly.content_hash for ly in old.layers] == [ly.content_hash for ly in new.layers]
+
+
+def test_greit_as_the_prior_of_gauss_newton_is_refused_naming_the_key(tmp_path):
+    path = arm_with_solver(tmp_path, "method: gauss_newton, prior: greit")
+    with pytest.raises(PatchError, match=r"solver\.prior.*'greit' is a one-step method"):
+        load_patch(path)
+
+
+def test_unknown_method_is_refused_with_the_choices(tmp_path):
+    with pytest.raises(PatchError, match=r"solver\.method.*one_step.*greit.*gauss_newton"):
+        load_patch(arm_with_solver(tmp_path, "method: newton"))
