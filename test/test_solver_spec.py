@@ -1,4 +1,4 @@
-"""solver.method / solver.prior: GREIT is a method; the old spelling ``prior: greit`` still loads."""
+"""solver.method and solver.prior: GREIT is a method; the old `prior: greit` still loads."""
 
 from __future__ import annotations
 
@@ -21,7 +21,9 @@ def arm_with_solver(tmp_path: Path, solver: str) -> Path:
 
 def test_old_spelling_loads_as_method_greit_with_the_same_hash(tmp_path):
     new = load_patch(arm_with_solver(tmp_path, "method: greit, noise_figure: 0.13"))
-    old = load_patch(arm_with_solver(tmp_path, "method: one_step, prior: greit, noise_figure: 0.13"))
+    old = load_patch(
+        arm_with_solver(tmp_path, "method: one_step, prior: greit, noise_figure: 0.13")
+    )
     assert [ly.solver.method for ly in old.layers] == ["greit", "greit"]
     assert [ly.content_hash for ly in old.layers] == [ly.content_hash for ly in new.layers]
 
