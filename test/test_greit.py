@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from eit_skin.fem.disk import disk_mesh
+from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.greit import GreitModel, equivalent_radius, training_set
-from eit_skin.inverse.one_step import ReconstructionMatrix, _lambda2_trace
+from eit_skin.inverse.one_step import ReconstructionMatrix
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = 0.05
@@ -56,7 +57,7 @@ def test_closed_form_and_reduced_channels(mesh, training):
     rm = ReconstructionMatrix.from_jacobian(j, mesh, model, hyperparameter=0.2)
     y = np.asarray(training.targets.T @ j.T).T  # [M, K]
     kk = y @ y.T
-    lam2 = _lambda2_trace(0.2, np.trace(kk), kk.shape[0])
+    lam2 = lambda_squared(0.2, np.trace(kk), kk.shape[0])
     expected = training.desired @ y.T @ np.linalg.inv(kk + lam2 * np.eye(40))
     np.testing.assert_allclose(rm.matrix, expected, rtol=1e-8, atol=1e-12)
     excluded = np.zeros(40, dtype=bool)

@@ -19,10 +19,7 @@ the hyperparameter ``h`` is dimensionless and comparable between meshes.
 
 ``prior="greit"`` builds the GREIT-trained matrix of :mod:`eit_skin.inverse.greit` instead,
 which has the same dual form with ``K = Y Y^T`` and ``D Y^T`` from simulated training targets.
-
-Only Cholesky factorisations of the ``M x M`` matrix are used (no eigendecomposition):
-LAPACK's symmetric eigensolver is level-2 BLAS bound and, with a multi-threaded OpenBLAS
-on a busy machine, took ~1 s for ``M = 208`` (a Cholesky factorisation takes ~0.3 ms).
+``lambda^2`` and ``(K + lambda^2 I)^-1``: :mod:`eit_skin.inverse.dual_form` (Cholesky only).
 """
 
 from __future__ import annotations
@@ -31,16 +28,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import Mesh
+from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
+from eit_skin.inverse.hyperparameter import choose_by_noise_figure
 from eit_skin.inverse.priors import Prior, make_prior
-
-#: Methods accepted as ``prior``: the sparse priors and the trained (GREIT) matrix.
-METHODS: tuple[str, ...] = ("laplace", "tikhonov", "noser", "greit")
 
 REFERENCE_FLOOR = 1e-2
 """Channels whose reference is below this fraction of the RMS reference are normalised by it."""
@@ -179,8 +174,6 @@ class ReconstructionMatrix:
         p_inv_jt = p.solve(j.T) if isinstance(p, Prior) else None  # [N, M]
         base = cls._assemble(j, p, p_inv_jt, np.arange(j.shape[0]), DEFAULT_HYPERPARAMETER, mesh)
         if hyperparameter is None:
-            from eit_skin.inverse.hyperparameter import choose_by_noise_figure
-
             hyperparameter = choose_by_noise_figure(base, noise_figure)
         return base.with_hyperparameter(float(hyperparameter), channels=channels)
 
@@ -201,7 +194,7 @@ class ReconstructionMatrix:
             y = p_inv_jt[:, channels]
             k = j[channels] @ y
             k = 0.5 * (k + k.T)
-        r = y @ _regularised_inverse(k, _lambda2_trace(h, np.trace(k), k.shape[0]))
+        r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
         return cls(
             matrix=r,
             channels=channels,
@@ -233,7 +226,7 @@ class ReconstructionMatrix:
         ch = self.channels if channels is None else np.asarray(channels, dtype=np.int64)
         if np.array_equal(ch, self.channels):
             k, y = self._gram
-            r = y @ _regularised_inverse(k, _lambda2_trace(h, np.trace(k), k.shape[0]))
+            r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
             return ReconstructionMatrix(
                 matrix=r,
                 channels=ch,
@@ -333,22 +326,3 @@ class ReconstructionMatrix:
                 op = self.without_channels(pattern) if pattern.any() else self
                 out[rows] = op.solve(dv[rows])
         return out[0] if single else out
-
-
-def _lambda2(h: float, s: np.ndarray) -> float:
-    """``lambda^2 = h^2 * trace(K) / M`` from the eigenvalues ``s`` of ``K = J P^-1 J^T``."""
-    return _lambda2_trace(h, float(np.sum(s)), np.size(s))
-
-
-def _lambda2_trace(h: float, trace: float, m: int) -> float:
-    """``lambda^2 = h^2 * trace(K) / M`` (``trace(K) <= 0`` counts as ``M``)."""
-    scale = float(trace) / max(int(m), 1)
-    return float(h) ** 2 * (scale if scale > 0 else 1.0)
-
-
-def _regularised_inverse(k: np.ndarray, lam2: float) -> np.ndarray:
-    """``(K + lambda^2 I)^-1`` ``[M, M]`` by Cholesky (``K`` symmetric positive semi-definite)."""
-    c = k + lam2 * np.eye(k.shape[0])
-    low = np.linalg.cholesky(c)
-    w = sla.solve_triangular(low, np.eye(k.shape[0]), lower=True, check_finite=False)
-    return w.T @ w

@@ -26,7 +26,6 @@ Kinds:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,7 +33,6 @@ import scipy.sparse.linalg as spla
 
 from eit_skin.fem.mesh import Mesh
 
-PriorKind = Literal["tikhonov", "laplace", "noser"]
 PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
 
 
