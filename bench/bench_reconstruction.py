@@ -37,13 +37,14 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton_difference
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.inverse.priors import make_prior
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 
 R = 0.05
-NOISE_FIGURE = 0.3  # Laplace prior (its previous default)
-GREIT_NOISE_FIGURE = 0.13  # trained matrix, the shipped default
+NOISE_FIGURE = DEFAULT_NOISE_FIGURE["one_step"]  # Laplace prior
+GREIT_NOISE_FIGURE = DEFAULT_NOISE_FIGURE["greit"]  # trained matrix, the shipped value
 OUT = Path(__file__).resolve().parent
 SIZES = [0.0066, 0.0047, 0.0036, 0.0033, 0.0023, 0.0016]  # 0.7k, 1.3k, 2.2k, 2.7k, 5.4k, 11k
 SWEEP = [0.012, 0.010, 0.008, 0.0066, 0.0047, 0.0033]  # inverse h over a 2.3 mm forward mesh
@@ -280,7 +281,9 @@ def main() -> None:
         grid = ImageGrid.build(mesh, 64)
         t = time.perf_counter()
         fwd = ForwardModel(mesh, protocol, 1e-4)
-        rm = ReconstructionMatrix.build(fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE)
+        rm = ReconstructionMatrix.greit(
+            imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE
+        )
         build = time.perf_counter() - t
         t = time.perf_counter()
         fwd_l = ForwardModel(mesh, protocol, 1e-4)
@@ -307,8 +310,8 @@ def main() -> None:
         inv = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(inv, 64)
         t = time.perf_counter()
-        rm = ReconstructionMatrix.build(
-            fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE, inverse_mesh=inv
+        rm = ReconstructionMatrix.greit(
+            imaging_jacobian(fwd, inverse_mesh=inv), inv, noise_figure=GREIT_NOISE_FIGURE
         )
         build = time.perf_counter() - t
         row = (h / R, inv.n_triangles, build, *merit(grid, rm.reconstruct(frames, v0), phantoms))
@@ -362,7 +365,7 @@ def write_report(rows, sweep, gn_rows, sweep_fwd, data_n, quick):
         "",
         f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
         "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
-        f"matrix (`prior: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
+        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
         f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
         "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
         "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "

@@ -100,7 +100,8 @@ class Tuning:
 
     Attributes:
         layer: layer name.
-        prior: the layer's ``solver.prior``.
+        method: the layer's ``solver.method``, with its prior where it has one
+            (``"one_step, prior laplace"``).
         target_noise_figure: the noise figure asked for.
         hyperparameter: chosen ``h`` rounded to :data:`DIGITS` significant digits.
         text: ``h`` as written to the file.
@@ -116,7 +117,7 @@ class Tuning:
     """
 
     layer: str
-    prior: str
+    method: str
     target_noise_figure: float
     hyperparameter: float
     text: str
@@ -132,7 +133,7 @@ class Tuning:
 
     def summary(self) -> str:
         return (
-            f"layer {self.layer}: prior {self.prior}, {self.n_elements} elements, target noise "
+            f"layer {self.layer}: method {self.method}, {self.n_elements} elements, target noise "
             f"figure {self.target_noise_figure:g}\n"
             f"hyperparameter {self.text} (noise figure {self.noise_figure:.4g})\n"
             f"{self.n_targets} simulated targets (radius {TARGET_RADIUS:.0%} R, conductance "
@@ -154,7 +155,11 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.inverse.greit import equivalent_radius, target_centres
     from eit_skin.inverse.hyperparameter import choose_by_noise_figure
     from eit_skin.inverse.hyperparameter import noise_figure as nf_of
-    from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
+    from eit_skin.inverse.one_step import (
+        ReconstructionMatrix,
+        imaging_jacobian,
+        relative_difference,
+    )
     from eit_skin.patch.model import load_patch
     from eit_skin.patch.protocol import build_protocol
 
@@ -170,13 +175,12 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     inverse_edge = layer.mesh.inverse_max_edge_m
     inverse_mesh = forward_mesh if inverse_edge is None else build_mesh(layer, inverse_edge)
     forward = ForwardModel(forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
-    base = ReconstructionMatrix.build(
-        forward,
-        prior="greit" if solver.method == "greit" else solver.prior,
-        hyperparameter=1.0,  # replaced below; the build caches what the choice needs
-        sigma0=sigma0,
-        inverse_mesh=None if inverse_edge is None else inverse_mesh,
-    )
+    jacobian = imaging_jacobian(forward, sigma0, inverse_mesh)
+    # h = 1 is replaced below; the build caches what the choice needs
+    if solver.method == "greit":
+        base = ReconstructionMatrix.greit(jacobian, inverse_mesh, hyperparameter=1.0)
+    else:
+        base = ReconstructionMatrix.from_jacobian(jacobian, inverse_mesh, solver.prior, 1.0)
     h = choose_by_noise_figure(base, target_nf)
     text = f"{h:.{DIGITS}g}"
     rm = base.with_hyperparameter(float(text))
@@ -213,7 +217,9 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     pe = np.array([f.position_error_m for f in merits]) / radius
     return Tuning(
         layer=layer.name,
-        prior="greit" if solver.method == "greit" else solver.prior,
+        method=solver.method
+        if solver.method == "greit"
+        else f"{solver.method}, prior {solver.prior}",
         target_noise_figure=target_nf,
         hyperparameter=float(text),
         text=text,

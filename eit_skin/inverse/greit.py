@@ -243,8 +243,6 @@ class GreitModel:
     gram_all: np.ndarray
     desired_responses: np.ndarray
 
-    kind = "greit"
-
     @classmethod
     def build(cls, jacobian: np.ndarray, training: TrainingSet) -> GreitModel:
         """Simulate the training targets with the relative Jacobian ``[M, N]``."""

@@ -21,11 +21,11 @@ import scipy.linalg as sla
 from scipy.optimize import brentq
 
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 
 if TYPE_CHECKING:
     from eit_skin.inverse.one_step import ReconstructionMatrix
 
-DEFAULT_NOISE_FIGURE = 1.0
 H_RANGE = (1e-4, 1e1)
 
 
@@ -86,10 +86,11 @@ def choose_by_noise_figure(
 ) -> float:
     """Hyperparameter ``h`` whose noise figure equals ``target`` (Brent's method in ``log h``).
 
-    If the target lies outside what ``h`` in :data:`H_RANGE` can reach, the nearest end of
-    the range is returned.
+    ``target`` ``None``: the default of the matrix's method
+    (:data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`). If the target lies outside what
+    ``h`` in :data:`H_RANGE` can reach, the nearest end of the range is returned.
     """
-    target = DEFAULT_NOISE_FIGURE if target is None else float(target)
+    target = DEFAULT_NOISE_FIGURE[rm.method] if target is None else float(target)
     if not (np.isfinite(target) and target > 0):
         raise ValueError(f"noise figure target must be > 0, got {target}")
     nf = _NoiseFigure(rm)

@@ -238,4 +238,9 @@ def make_prior(
             raise ValueError("prior 'laplace': laplace_diagonal must be > 0")
         p = laplace_matrix(mesh, laplace_diagonal)
         return Prior(kind, p, None, SparseFactor(p))
+    if kind == "greit":
+        raise ValueError(
+            "'greit' is a method, not a prior: ReconstructionMatrix.greit or "
+            "eit_skin.inverse.methods.build_method('greit', ...)"
+        )
     raise ValueError(f"unknown prior {kind!r}; expected one of {', '.join(PRIOR_KINDS)}")

@@ -22,7 +22,7 @@ from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import excluded_channels
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.io.recording import write_npz_atomic
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
@@ -76,9 +76,7 @@ class LayerImager:
                 with np.load(path) as cached:
                     jacobian = cached["jacobian"]
                     h = float(cached["hyperparameter"])
-                matrix = ReconstructionMatrix.from_jacobian(
-                    jacobian, inverse_mesh, _matrix_kind(solver), h
-                )
+                matrix = _linear_matrix(solver, jacobian, inverse_mesh, h)
                 grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
                 return cls(layer, protocol, inverse_mesh, matrix, grid, from_cache=True)
             except (OSError, KeyError, ValueError):
@@ -87,13 +85,9 @@ class LayerImager:
         forward = ForwardModel(
             forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a
         )
-        matrix = ReconstructionMatrix.build(
-            forward,
-            prior=_matrix_kind(solver),
-            hyperparameter=solver.hyperparameter,
-            sigma0=layer.material.sheet_conductance_s,
-            inverse_mesh=None if inverse_edge is None else inverse_mesh,
-            noise_figure=solver.noise_figure,
+        jacobian = imaging_jacobian(forward, layer.material.sheet_conductance_s, inverse_mesh)
+        matrix = _linear_matrix(
+            solver, jacobian, inverse_mesh, solver.hyperparameter, solver.noise_figure
         )
         if path is not None:
             _save_to_cache(path, jacobian=matrix.jacobian, hyperparameter=matrix.hyperparameter)
@@ -158,6 +152,10 @@ def _save_to_cache(path: Path, **arrays: np.ndarray | float) -> None:
         pass
 
 
-def _matrix_kind(solver) -> str:
-    """The one-step matrix of a solver: ``"greit"`` for method greit, else its prior."""
-    return "greit" if solver.method == "greit" else solver.prior
+def _linear_matrix(solver, jacobian, mesh, h, noise_figure=None) -> ReconstructionMatrix:
+    """The solver's linear matrix: trained for method greit, else one-step with its prior."""
+    if solver.method == "greit":
+        return ReconstructionMatrix.greit(jacobian, mesh, h, noise_figure)
+    return ReconstructionMatrix.from_jacobian(
+        jacobian, mesh, solver.prior, h, noise_figure=noise_figure
+    )
