@@ -1,6 +1,7 @@
 """Reconstruction speed against error: eit_skin vs pyEIT JAC on the same disk meshes and data.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]``;
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]
+[--gn-only | --gn-node]``;
 writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
 
 * Data: simulated once on a finer mesh (h = 1.2 mm, ~23k triangles) than any reconstruction
@@ -20,6 +21,11 @@ writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
   416 triangles: the coarsest inverse mesh of the sweep that meets PE <= 2 % R). Per frame:
   wall and CPU time (median of repeats) and the per-iteration split into forward solves
   (factorisation + potentials), Jacobian (field-pair products) and the rest.
+* Gauss-Newton in the node (``--gn-node`` runs just this part and rewrites only its section):
+  the shipped arm, face and elbow layers switched to ``method: gauss_newton`` and imaged
+  frame by frame through ``LayerImager.relative_change`` (the reconstruction node's call) on
+  the simulator's demo scenario, pinned to one core; sustained frames/s per layer and per
+  patch, wall and CPU.
 """
 
 from __future__ import annotations
@@ -37,19 +43,26 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton_difference
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.inverse.priors import make_prior
+from eit_skin.patch.model import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
+from eit_skin.pipeline.builder import LayerImager, with_method
+from eit_skin.resources import config_path
+from eit_skin.sim.simulator import SkinSimulator
 
 R = 0.05
-NOISE_FIGURE = 0.3  # Laplace prior (its previous default)
-GREIT_NOISE_FIGURE = 0.13  # trained matrix, the shipped default
+NOISE_FIGURE = DEFAULT_NOISE_FIGURE["one_step"]  # Laplace prior
+GREIT_NOISE_FIGURE = DEFAULT_NOISE_FIGURE["greit"]  # trained matrix, the shipped value
 OUT = Path(__file__).resolve().parent
 SIZES = [0.0066, 0.0047, 0.0036, 0.0033, 0.0023, 0.0016]  # 0.7k, 1.3k, 2.2k, 2.7k, 5.4k, 11k
 SWEEP = [0.012, 0.010, 0.008, 0.0066, 0.0047, 0.0033]  # inverse h over a 2.3 mm forward mesh
 GN_PARAMETER_H = 0.008  # 0.16 R, 416 triangles: the sweep's coarsest mesh with PE <= 2 % R
 GN_TARGET = np.array([-0.3, 0.4]) * R  # x20 conductance, radius 0.2 R
 GN_REPEATS = 9
+GN_NODE_PATCHES = ("arm", "face", "elbow")  # the shipped configs
+GN_NODE_RATE_HZ = 10.0  # demo scenario sampled at this rate: 164 frames per layer
 
 
 def median_time(fn, n):
@@ -221,13 +234,13 @@ def gn_section(gn_rows) -> list[str]:
     return lines
 
 
-def replace_gn_section(report: Path, gn_rows) -> None:
-    """Rewrite only the Gauss-Newton section of an existing report (``--gn-only``)."""
+def replace_section(report: Path, section: list[str]) -> None:
+    """Rewrite only the section headed ``section[0]`` of an existing report (or add it)."""
     text = report.read_text() if report.exists() else "# Reconstruction benchmark\n"
     lines = text.split("\n")
-    section = [*gn_section(gn_rows), ""]
-    if "## Gauss-Newton" in lines:
-        a = lines.index("## Gauss-Newton")
+    section = [*section, ""]
+    if section[0] in lines:
+        a = lines.index(section[0])
         b = next(
             (i for i in range(a + 1, len(lines)) if lines[i].startswith(("## ", "!["))), len(lines)
         )
@@ -236,6 +249,128 @@ def replace_gn_section(report: Path, gn_rows) -> None:
         at = next((i for i, x in enumerate(lines) if x.startswith("![")), len(lines))
         lines[at:at] = section
     report.write_text("\n".join(lines))
+
+
+def pin_to_one_core() -> int:
+    """Pin this process to one of its allowed CPUs (the least loaded is unknown: the last)."""
+    cpu = max(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {cpu})
+    return cpu
+
+
+def gn_node_case(patch_name: str, rate_hz: float) -> list[dict]:
+    """Every layer of a shipped patch switched to gauss_newton, imaged frame by frame.
+
+    The node's path: ``LayerImager.build`` (no cache), then ``relative_change(frame,
+    reference, flags)`` for every frame of the simulator's demo scenario (touches, holds,
+    quiet frames, drift, ADC noise), with the simulator's pre-touch reference.
+    """
+    patch = load_patch(config_path(patch_name))
+    rec = SkinSimulator(patch, "demo", rate_hz=rate_hz, seed=0).run()
+    rows = []
+    for layer in patch.layers:
+        t, c = time.perf_counter(), time.process_time()
+        imager = LayerImager.build(with_method(layer, "gauss_newton"), cache_dir=None)
+        setup = (time.perf_counter() - t, time.process_time() - c)
+        solver = imager.reconstructor.solver
+        fit, iterations = solver.difference, []
+
+        def counted(*a, fit=fit, iterations=iterations, **k):
+            out = fit(*a, **k)
+            iterations.append((out.iterations, out.forward_solves))
+            return out
+
+        solver.difference = counted
+        lr = rec.layers[layer.name]
+        wall, cpu = [], []
+        for frame, flags in zip(lr.frames, lr.flags, strict=True):
+            t, c = time.perf_counter(), time.process_time()
+            imager.relative_change(frame, lr.reference, flags)
+            wall.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+        it, solves = np.array(iterations).T
+        rows.append(
+            {
+                "patch": patch_name,
+                "layer": layer.name,
+                "forward": solver.forward.mesh.n_triangles,
+                "parameters": imager.mesh.n_triangles,
+                "h": imager.reconstructor.hyperparameter,
+                "max_iterations": imager.reconstructor.max_iterations,
+                "frames": len(wall),
+                "setup_s": setup,
+                "wall_s": float(np.sum(wall)),
+                "cpu_s": float(np.sum(cpu)),
+                "median_ms": float(np.median(wall)) * 1e3,
+                "p95_ms": float(np.quantile(wall, 0.95)) * 1e3,
+                "iterations": float(it.mean()),
+                "full": float(np.mean(it == imager.reconstructor.max_iterations)),
+                "solves": float(solves.mean()),
+            }
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def gn_node_section(rows, cpu: int | None, rate_hz: float) -> list[str]:
+    """Markdown lines of the Gauss-Newton-in-the-node section of the report."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        "## Gauss-Newton in the node",
+        "",
+        "Sustained rate of the reconstruction node's per-frame path with every layer of the "
+        "shipped patches switched to `method: gauss_newton` (`pipeline.builder.with_method`: "
+        "Laplace prior, `h` chosen for the method's default noise figure on the first "
+        "linearised step, `max_iterations` 5, tolerance 1e-3 of the measured change): "
+        "`LayerImager.relative_change(frame, reference, flags)` for every frame of the "
+        f"simulator's demo scenario at {rate_hz:g} Hz (touches, holds, quiet frames, drift, "
+        "ADC noise; pre-touch reference), one call per frame as the node makes it. "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, process "
+        f"pinned to CPU {cpu}; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
+        "end (this benchmark included; other jobs shared the machine, so wall time is an upper "
+        "bound and CPU time the better figure). Per patch: frames of every layer imaged in "
+        "turn on the one core, `frames / sum of the layers' total time`. Not included: "
+        "reference tracking, conversion to images and publishing (one-step-sized costs). "
+        "Command: `OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py "
+        "--gn-node`.",
+        "",
+        "| patch | layer | forward triangles | parameter triangles | h | frames | setup s "
+        "(wall / CPU) | per frame ms: median / p95 (wall) | mean iterations (share at max) "
+        "| mean forward solves | layer frames/s (wall) | layer frames/s (CPU) |",
+        "|" + "---|" * 12,
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['patch']} | {r['layer']} | {r['forward']} | {r['parameters']} | "
+            f"{r['h']:.4g} | {r['frames']} | {r['setup_s'][0]:.2f} / {r['setup_s'][1]:.2f} | "
+            f"{r['median_ms']:.1f} / {r['p95_ms']:.1f} | {r['iterations']:.2f} "
+            f"({r['full']:.0%}) | {r['solves']:.2f} | {r['frames'] / r['wall_s']:.1f} | "
+            f"{r['frames'] / r['cpu_s']:.1f} |"
+        )
+    lines += [
+        "",
+        "| patch | layers | patch frames/s (wall) | patch frames/s (CPU) |",
+        "|---|---|---|---|",
+    ]
+    for patch in dict.fromkeys(r["patch"] for r in rows):
+        mine = [r for r in rows if r["patch"] == patch]
+        n = mine[0]["frames"]
+        lines.append(
+            f"| {patch} | {len(mine)} | {n / sum(r['wall_s'] for r in mine):.1f} | "
+            f"{n / sum(r['cpu_s'] for r in mine):.1f} |"
+        )
+    return lines
+
+
+def gn_node_rows(rate_hz: float) -> tuple[list[dict], int]:
+    """``(rows, cpu)``: :func:`gn_node_case` of every shipped patch, pinned to one core."""
+    allowed = os.sched_getaffinity(0)
+    cpu = pin_to_one_core()
+    try:
+        rows = [row for name in GN_NODE_PATCHES for row in gn_node_case(name, rate_hz)]
+    finally:
+        os.sched_setaffinity(0, allowed)
+    return rows, cpu
 
 
 def large_contrast_case(fine):
@@ -250,7 +385,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="three small meshes, short sweep")
     ap.add_argument("--no-pyeit-above", type=int, default=10**9, help="skip pyEIT above N")
     ap.add_argument("--gn-only", action="store_true", help="only the Gauss-Newton section")
+    ap.add_argument(
+        "--gn-node", action="store_true", help="only the Gauss-Newton-in-the-node section"
+    )
     args = ap.parse_args()
+    if args.gn_node:
+        rows, cpu = gn_node_rows(GN_NODE_RATE_HZ)
+        replace_section(OUT / "REPORT.md", gn_node_section(rows, cpu, GN_NODE_RATE_HZ))
+        return
     protocol = build_protocol(ProtocolSpec(), 16)
     fine = ForwardModel(disk_mesh(R, h_m=0.0012), protocol, 1e-4)
     v0 = fine.voltages(1.0)
@@ -259,7 +401,7 @@ def main() -> None:
         gn_rows = []
         for h in SIZES[:3] if args.quick else SIZES:
             gn_rows += gn_case(ForwardModel(disk_mesh(R, h_m=h), protocol, 1e-4), large, v0)
-        replace_gn_section(OUT / "REPORT.md", gn_rows)
+        replace_section(OUT / "REPORT.md", gn_section(gn_rows))
         return
     rng = np.random.default_rng(0)
     phantoms = []
@@ -280,7 +422,9 @@ def main() -> None:
         grid = ImageGrid.build(mesh, 64)
         t = time.perf_counter()
         fwd = ForwardModel(mesh, protocol, 1e-4)
-        rm = ReconstructionMatrix.build(fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE)
+        rm = ReconstructionMatrix.greit(
+            imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE
+        )
         build = time.perf_counter() - t
         t = time.perf_counter()
         fwd_l = ForwardModel(mesh, protocol, 1e-4)
@@ -307,17 +451,20 @@ def main() -> None:
         inv = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(inv, 64)
         t = time.perf_counter()
-        rm = ReconstructionMatrix.build(
-            fwd, prior="greit", noise_figure=GREIT_NOISE_FIGURE, inverse_mesh=inv
+        rm = ReconstructionMatrix.greit(
+            imaging_jacobian(fwd, inverse_mesh=inv), inv, noise_figure=GREIT_NOISE_FIGURE
         )
         build = time.perf_counter() - t
         row = (h / R, inv.n_triangles, build, *merit(grid, rm.reconstruct(frames, v0), phantoms))
         sweep.append(row)
         print("sweep", "  ".join(f"{x:.4g}" for x in row), flush=True)
-    write_report(rows, sweep, gn_rows, fwd.mesh.n_triangles, fine.mesh.n_triangles, args.quick)
+    node = (*gn_node_rows(GN_NODE_RATE_HZ), GN_NODE_RATE_HZ)
+    write_report(
+        rows, sweep, gn_rows, node, fwd.mesh.n_triangles, fine.mesh.n_triangles, args.quick
+    )
 
 
-def write_report(rows, sweep, gn_rows, sweep_fwd, data_n, quick):
+def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -362,7 +509,7 @@ def write_report(rows, sweep, gn_rows, sweep_fwd, data_n, quick):
         "",
         f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
         "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
-        f"matrix (`prior: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
+        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
         f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
         "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
         "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
@@ -395,7 +542,8 @@ def write_report(rows, sweep, gn_rows, sweep_fwd, data_n, quick):
             f"| {r[0]:.3f} | {r[1]} | {r[2]:.3f} | {r[3]:.4f} | {r[4]:.3f} | {r[5]:.2f} | "
             f"{r[6]:.2f} |"
         )
-    lines += ["", *gn_section(gn_rows), "", "![speed and error](reconstruction.png)", ""]
+    lines += ["", *gn_section(gn_rows), "", *gn_node_section(*node)]
+    lines += ["", "![speed and error](reconstruction.png)", ""]
     (OUT / "REPORT.md").write_text("\n".join(lines))
 
 

@@ -153,3 +153,56 @@ def test_solver_reuse_is_repeatable_and_matches_one_off(s, parameter_mesh):
 def test_prior_on_the_wrong_mesh_is_rejected(s, parameter_mesh):
     with pytest.raises(ValueError, match="parameter mesh"):
         GaussNewtonSolver(s.coarse, 1.0, make_prior("laplace", s.coarse.mesh), 0.03, parameter_mesh)
+
+
+def test_first_step_is_the_one_step_image_on_the_channels_used(s, parameter_mesh):
+    """One step from sigma0 = the one-step matrix with the same prior and h, also without
+    channels: what the hyperparameter rule and the channel handling rest on."""
+    from eit_skin.inverse.one_step import imaging_jacobian
+
+    v = phantom(s, [(0.2 * R, -0.3 * R, 0.1 * R, 1.02)])
+    prior = make_prior("laplace", parameter_mesh)
+    solver = GaussNewtonSolver(s.coarse, 1.0, prior, 0.05, parameter_mesh=parameter_mesh)
+    j = imaging_jacobian(s.coarse, 1.0, parameter_mesh)
+    one = ReconstructionMatrix.from_jacobian(j, parameter_mesh, prior, 0.05)
+    excluded = s.coarse.protocol.touching([5])
+    for mask in (None, excluded):
+        gn = solver.difference(v, s.v0, excluded=mask, max_iterations=1, tolerance=0.0)
+        x = one.reconstruct(v, s.v0, excluded=mask)
+        assert gn.iterations == 1
+        np.testing.assert_allclose(np.log1p(gn.parameter_change), x, rtol=1e-4, atol=1e-6)
+
+
+def test_excluded_and_nan_channels_are_left_out(s, parameter_mesh):
+    v = phantom(s, [(-0.2 * R, 0.3 * R, 0.15 * R, 4.0)])
+    solver = GaussNewtonSolver(s.coarse, 1.0, "laplace", 0.03, parameter_mesh=parameter_mesh)
+    dead = s.coarse.protocol.touching([9])
+    clean = solver.difference(v, s.v0, excluded=dead, max_iterations=4)
+    garbage = v.copy()
+    garbage[dead] = np.random.default_rng(4).normal(0.0, 5.0, dead.sum())
+    # the left-out channels' values do not matter at all ...
+    left_out = solver.difference(garbage, s.v0, excluded=dead, max_iterations=4)
+    np.testing.assert_array_equal(left_out.parameter_change, clean.parameter_change)
+    # ... NaN channels are left out the same way ...
+    nan = garbage.copy()
+    nan[dead] = np.nan
+    np.testing.assert_array_equal(
+        solver.difference(nan, s.v0, max_iterations=4).parameter_change, clean.parameter_change
+    )
+    # ... and used, the garbage would have wrecked the image
+    used = solver.difference(garbage, s.v0, max_iterations=4)
+    assert np.abs(used.parameter_change - clean.parameter_change).max() > 0.5
+    with pytest.raises(ValueError, match="all channels excluded"):
+        solver.difference(v, s.v0, excluded=np.ones(v.size, dtype=bool))
+
+
+def test_difference_tolerance_is_relative_to_the_change(s, parameter_mesh):
+    """A small change is iterated like a large one; no change takes no step."""
+    solver = GaussNewtonSolver(s.coarse, 1.0, "laplace", 0.03, parameter_mesh=parameter_mesh)
+    small = phantom(s, [(0.1 * R, 0.1 * R, 0.1 * R, 1.002)])  # rms relative change ~1e-4
+    res = solver.difference(small, s.v0, max_iterations=3)
+    assert res.iterations >= 1 and res.relative_residuals[0] == 1.0
+    assert res.parameter_change.max() > 0
+    none = solver.difference(s.v0, s.v0, max_iterations=3)
+    assert none.iterations == 0 and none.converged
+    np.testing.assert_array_equal(none.parameter_change, 0.0)

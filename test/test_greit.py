@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from eit_skin.fem.disk import disk_mesh
+from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.greit import GreitModel, equivalent_radius, training_set
-from eit_skin.inverse.one_step import ReconstructionMatrix, _lambda2_trace
+from eit_skin.inverse.one_step import ReconstructionMatrix
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = 0.05
@@ -53,28 +54,35 @@ def test_desired_images_positive_centred_same_integral(mesh, training):
 def test_closed_form_and_reduced_channels(mesh, training):
     j = np.random.default_rng(0).normal(size=(40, mesh.n_triangles))
     model = GreitModel.build(j, training)
-    rm = ReconstructionMatrix.from_jacobian(j, mesh, model, hyperparameter=0.2)
+    rm = ReconstructionMatrix.greit(j, mesh, hyperparameter=0.2, model=model)
+    assert rm.method == "greit" and rm.model is model
     y = np.asarray(training.targets.T @ j.T).T  # [M, K]
     kk = y @ y.T
-    lam2 = _lambda2_trace(0.2, np.trace(kk), kk.shape[0])
+    lam2 = lambda_squared(0.2, np.trace(kk), kk.shape[0])
     expected = training.desired @ y.T @ np.linalg.inv(kk + lam2 * np.eye(40))
     np.testing.assert_allclose(rm.matrix, expected, rtol=1e-8, atol=1e-12)
     excluded = np.zeros(40, dtype=bool)
     excluded[[3, 7, 30]] = True
     reduced = rm.without_channels(excluded)
-    direct = ReconstructionMatrix.from_jacobian(
-        j[~excluded], mesh, GreitModel.build(j[~excluded], training), hyperparameter=0.2
+    direct = ReconstructionMatrix.greit(
+        j[~excluded], mesh, hyperparameter=0.2, model=GreitModel.build(j[~excluded], training)
     )
     np.testing.assert_allclose(reduced.matrix, direct.matrix, rtol=1e-8, atol=1e-12)
 
 
-def test_string_prior_is_deterministic_and_images_zero_change(mesh):
+def test_trained_matrix_is_deterministic_and_images_zero_change(mesh):
     j = np.random.default_rng(1).normal(size=(30, mesh.n_triangles))
-    a = ReconstructionMatrix.from_jacobian(j, mesh, "greit", noise_figure=0.13)
-    b = ReconstructionMatrix.from_jacobian(j, mesh, "greit", hyperparameter=a.hyperparameter)
+    a = ReconstructionMatrix.greit(j, mesh, noise_figure=0.13)
+    b = ReconstructionMatrix.greit(j, mesh, hyperparameter=a.hyperparameter)
     np.testing.assert_array_equal(a.matrix, b.matrix)
     ref = np.linspace(1.0, 2.0, 30)
     assert (a.reconstruct(ref, ref) == 0).all()
+
+
+def test_greit_is_a_method_not_a_prior(mesh):
+    j = np.random.default_rng(2).normal(size=(30, mesh.n_triangles))
+    with pytest.raises(ValueError, match="'greit' is a method, not a prior"):
+        ReconstructionMatrix.from_jacobian(j, mesh, "greit", hyperparameter=0.1)
 
 
 def test_bad_training_arguments(mesh):

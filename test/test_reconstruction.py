@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.hyperparameter import choose_by_gcv, choose_by_noise_figure, noise_figure
 from eit_skin.inverse.one_step import (
     ReconstructionMatrix,
-    _lambda2,
     reference_scale,
     relative_difference,
 )
@@ -51,7 +51,7 @@ def test_dual_form_equals_primal(kind):
     rm = ReconstructionMatrix.from_jacobian(j, mesh, kind, hyperparameter=0.3)
     p = make_prior(kind, mesh, j).matrix.toarray()
     k = j @ np.linalg.solve(p, j.T)
-    lam2 = _lambda2(0.3, np.diag(k))  # trace(K) / M
+    lam2 = lambda_squared(0.3, np.trace(k), k.shape[0])  # h^2 trace(K) / M
     primal = np.linalg.solve(j.T @ j + lam2 * p, j.T)
     np.testing.assert_allclose(rm.matrix, primal, rtol=1e-7, atol=1e-10)
 

@@ -14,8 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-#: Gauss-Newton regularisation when the layer's stored one belongs to another method.
-GN_HYPERPARAMETER = 0.03
+from eit_skin.inverse.methods import METHODS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,9 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
     parser.add_argument(
         "--method",
-        choices=("one_step", "gauss_newton"),
+        choices=METHODS,
         default=None,
-        help="reconstruction method (default: the layer's solver.method)",
+        help="reconstruction method (default: the layer's solver.method; switching to or from "
+        "greit re-chooses the hyperparameter for the new method's default noise figure)",
     )
 
 
@@ -47,15 +47,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _reconstruct(args: argparse.Namespace):
-    import numpy as np
-
-    from eit_skin.fem.forward import ForwardModel
-    from eit_skin.fem.mesh import build_mesh
-    from eit_skin.inverse.gauss_newton import GaussNewtonSolver
     from eit_skin.io.recording import load_frames_npz
     from eit_skin.patch.model import load_patch
     from eit_skin.patch.protocol import build_protocol
-    from eit_skin.pipeline.builder import LayerImager
+    from eit_skin.pipeline.builder import LayerImager, with_method
     from eit_skin.resources import config_path
 
     patch = load_patch(config_path(args.patch))
@@ -65,39 +60,9 @@ def _reconstruct(args: argparse.Namespace):
         raise ValueError(f"{args.frames}: no such file")
     reference, frames, _ = load_frames_npz(args.frames, protocol.n_measurements)
 
-    solver = layer.solver
-    method = args.method or solver.method
-    # the chain the reconstruction node uses (matrix cached by the layer's content)
-    imager = LayerImager.build(layer)
-    if method == "one_step":
-        reconstructor = imager.fault_tolerant()
-        values = reconstructor.reconstruct(frames, reference)
-        faulty = reconstructor.last_faulty
-    else:
-        # One solver per layer (prior, parameter map and first step prepared once), the fine
-        # forward mesh for the physics, the inverse mesh for the unknowns. The trained (GREIT)
-        # matrix is one-step only, and its stored h does not suit another prior, so
-        # Gauss-Newton then uses the Laplace prior with its default h.
-        mesh = build_mesh(layer)
-        forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
-        greit = solver.method == "greit"
-        solver_gn = GaussNewtonSolver(
-            forward,
-            layer.material.sheet_conductance_s,
-            prior="laplace" if greit else solver.prior,
-            hyperparameter=GN_HYPERPARAMETER
-            if greit or solver.hyperparameter is None
-            else solver.hyperparameter,
-            parameter_mesh=None if layer.mesh.inverse_max_edge_m is None else imager.mesh,
-        )
-        values = np.stack(
-            [
-                solver_gn.difference(
-                    f, reference, max_iterations=solver.max_iterations
-                ).parameter_change
-                for f in frames
-            ]
-        )
-        faulty = np.zeros(0, dtype=np.int64)
+    # the chain the reconstruction node uses (cached by the layer's content), any method
+    imager = LayerImager.build(layer if args.method is None else with_method(layer, args.method))
+    reconstructor = imager.fault_tolerant()
+    values = reconstructor.reconstruct(frames, reference)
     images = imager.images(values)
-    return images, imager.grid.x, imager.grid.y, faulty
+    return images, imager.grid.x, imager.grid.y, reconstructor.last_faulty

@@ -1,11 +1,12 @@
 """``eit-skin tune``: choose a layer's regularisation by noise figure, optionally store it.
 
-Builds the layer's one-step matrix exactly as the reconstruction does (forward mesh, inverse
-mesh, prior of ``solver``), chooses the hyperparameter ``h`` whose noise figure equals the
-target (:func:`eit_skin.inverse.hyperparameter.choose_by_noise_figure`; the target is
-``--noise-figure`` or the layer's ``solver.noise_figure``), rounds it to 4 significant
-digits and prints it with the figures it gives: the noise figure, and the GREIT position
-error, resolution and ringing on about a dozen small simulated targets spread over the sheet,
+Builds the layer's chain exactly as the reconstruction does (:mod:`eit_skin.pipeline.builder`:
+forward mesh, inverse mesh, ``solver.method`` and prior), with the hyperparameter ``h`` whose
+noise figure equals the target (:func:`eit_skin.inverse.hyperparameter.choose_by_noise_figure`
+on the method's linear matrix - for ``gauss_newton`` its first linearised step; the target is
+``--noise-figure`` or the layer's ``solver.noise_figure``), rounds ``h`` to 4 significant
+digits and prints it with the figures the linear matrix gives: the noise figure, and the GREIT
+position error, resolution and ringing on about a dozen small simulated targets over the sheet,
 centres at least 1.5 target radii from its outline (radius 10 % of the sheet's equivalent
 radius ``R``, conductance x2, 1 % noise, fixed seed), simulated on a finer mesh than the
 reconstruction's (edge at most 40 % of the target radius, so every target covers several
@@ -100,7 +101,8 @@ class Tuning:
 
     Attributes:
         layer: layer name.
-        prior: the layer's ``solver.prior``.
+        method: the layer's ``solver.method``, with its prior where it has one
+            (``"one_step, prior laplace"``).
         target_noise_figure: the noise figure asked for.
         hyperparameter: chosen ``h`` rounded to :data:`DIGITS` significant digits.
         text: ``h`` as written to the file.
@@ -116,7 +118,7 @@ class Tuning:
     """
 
     layer: str
-    prior: str
+    method: str
     target_noise_figure: float
     hyperparameter: float
     text: str
@@ -132,7 +134,7 @@ class Tuning:
 
     def summary(self) -> str:
         return (
-            f"layer {self.layer}: prior {self.prior}, {self.n_elements} elements, target noise "
+            f"layer {self.layer}: method {self.method}, {self.n_elements} elements, target noise "
             f"figure {self.target_noise_figure:g}\n"
             f"hyperparameter {self.text} (noise figure {self.noise_figure:.4g})\n"
             f"{self.n_targets} simulated targets (radius {TARGET_RADIUS:.0%} R, conductance "
@@ -145,18 +147,17 @@ class Tuning:
 
 def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -> Tuning:
     """Choose the hyperparameter of a layer of the patch file ``path`` (see module doc)."""
+    from dataclasses import replace
+
     import numpy as np
 
-    from eit_skin.fem.forward import ForwardModel
-    from eit_skin.fem.image_grid import ImageGrid
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.inverse.figures_of_merit import figures_of_merit
     from eit_skin.inverse.greit import equivalent_radius, target_centres
-    from eit_skin.inverse.hyperparameter import choose_by_noise_figure
     from eit_skin.inverse.hyperparameter import noise_figure as nf_of
-    from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
+    from eit_skin.inverse.one_step import relative_difference
     from eit_skin.patch.model import load_patch
-    from eit_skin.patch.protocol import build_protocol
+    from eit_skin.pipeline.builder import LayerImager, forward_model
 
     patch = load_patch(path)
     layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
@@ -164,22 +165,13 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     target_nf = solver.noise_figure if noise_figure is None else float(noise_figure)
     if not (np.isfinite(target_nf) and target_nf > 0):
         raise ValueError(f"--noise-figure must be > 0, got {noise_figure}")
-    protocol = build_protocol(layer.protocol, layer.n_electrodes)
     sigma0 = layer.material.sheet_conductance_s
-    forward_mesh = build_mesh(layer)
-    inverse_edge = layer.mesh.inverse_max_edge_m
-    inverse_mesh = forward_mesh if inverse_edge is None else build_mesh(layer, inverse_edge)
-    forward = ForwardModel(forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
-    base = ReconstructionMatrix.build(
-        forward,
-        prior="greit" if solver.method == "greit" else solver.prior,
-        hyperparameter=1.0,  # replaced below; the build caches what the choice needs
-        sigma0=sigma0,
-        inverse_mesh=None if inverse_edge is None else inverse_mesh,
-    )
-    h = choose_by_noise_figure(base, target_nf)
-    text = f"{h:.{DIGITS}g}"
-    rm = base.with_hyperparameter(float(text))
+    # the reconstruction's own chain, with h chosen for the target noise figure
+    untuned = replace(solver, hyperparameter=None, noise_figure=target_nf)
+    imager = LayerImager.build(replace(layer, solver=untuned), cache_dir=None)
+    inverse_mesh, grid = imager.mesh, imager.grid
+    text = f"{imager.matrix.hyperparameter:.{DIGITS}g}"
+    rm = imager.matrix.with_hyperparameter(float(text))
 
     # simulated targets on a finer, different mesh
     radius = equivalent_radius(inverse_mesh)
@@ -188,7 +180,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
         DATA_MESH_PER_TARGET_RADIUS * TARGET_RADIUS * radius,
     )
     data_mesh = build_mesh(layer, data_edge)
-    data = ForwardModel(data_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+    data = forward_model(layer, data_mesh)
     centres = target_centres(inverse_mesh, 2 * N_TARGETS)
     # targets not cut by the outline (for a disk: centres within 0.85 R); they may overlap holes
     clear = _outline_distance(layer.outline, centres) >= EDGE_CLEARANCE * TARGET_RADIUS * radius
@@ -204,7 +196,6 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
         sigma[inside] *= TARGET_CONTRAST
         v = data.voltages(sigma)
         frames.append(v + rng.normal(0.0, NOISE * np.sqrt(np.mean((v - v_ref) ** 2)), v.size))
-    grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
     images = grid.to_image(rm.solve(relative_difference(np.stack(frames), v_ref)))
     merits = [
         figures_of_merit(im, grid.x, grid.y, c, sign=1.0)
@@ -213,7 +204,9 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     pe = np.array([f.position_error_m for f in merits]) / radius
     return Tuning(
         layer=layer.name,
-        prior="greit" if solver.method == "greit" else solver.prior,
+        method=solver.method
+        if solver.method == "greit"
+        else f"{solver.method}, prior {solver.prior}",
         target_noise_figure=target_nf,
         hyperparameter=float(text),
         text=text,

@@ -1,9 +1,11 @@
 """Reconstruction: relative voltage changes -> relative conductivity change per element.
 
-Modules: ``one_step`` (:class:`ReconstructionMatrix`, the precomputed difference-imaging
-matrix), ``priors`` (Tikhonov, Laplace, NOSER), ``greit`` (the trained GREIT-style matrix),
-``gauss_newton`` (iterative regularised Gauss-Newton for large contrasts),
-``hyperparameter`` (noise figure, GCV), ``figures_of_merit`` (GREIT figures),
+Modules: ``methods`` (the list of methods, their :class:`Reconstructor` interface and
+:func:`build_method`), ``one_step`` (:class:`ReconstructionMatrix`, the precomputed
+difference-imaging matrix of methods one_step and greit), ``priors`` (Tikhonov, Laplace,
+NOSER), ``greit`` (training the GREIT-style matrix), ``gauss_newton`` (iterative regularised
+Gauss-Newton for large contrasts), ``dual_form`` (``lambda^2`` and ``(K + lambda^2 I)^-1``,
+shared), ``hyperparameter`` (noise figure, GCV), ``figures_of_merit`` (GREIT figures),
 ``electrode_faults`` (detect faulty electrodes, image without them).
 """
 
@@ -17,34 +19,53 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "FaultTolerantReconstructor": "electrode_faults",
+    "GaussNewtonReconstructor": "gauss_newton",
     "GaussNewtonSolver": "gauss_newton",
     "ReconstructionMatrix": "one_step",
+    "Reconstructor": "methods",
+    "build_method": "methods",
     "choose_by_noise_figure": "hyperparameter",
     "faulty_electrodes": "electrode_faults",
     "figures_of_merit": "figures_of_merit",
+    "imaging_jacobian": "one_step",
+    "lambda_squared": "dual_form",
     "noise_figure": "hyperparameter",
     "reference_scale": "one_step",
+    "regularised_inverse": "dual_form",
     "relative_difference": "one_step",
 }
 
 __all__ = [
     "FaultTolerantReconstructor",
+    "GaussNewtonReconstructor",
     "GaussNewtonSolver",
     "ReconstructionMatrix",
+    "Reconstructor",
+    "build_method",
     "choose_by_noise_figure",
     "faulty_electrodes",
     "figures_of_merit",
+    "imaging_jacobian",
+    "lambda_squared",
     "noise_figure",
     "reference_scale",
+    "regularised_inverse",
     "relative_difference",
 ]
 
 if TYPE_CHECKING:
+    from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
     from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor, faulty_electrodes
     from eit_skin.inverse.figures_of_merit import figures_of_merit
-    from eit_skin.inverse.gauss_newton import GaussNewtonSolver
+    from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver
     from eit_skin.inverse.hyperparameter import choose_by_noise_figure, noise_figure
-    from eit_skin.inverse.one_step import ReconstructionMatrix, reference_scale, relative_difference
+    from eit_skin.inverse.methods import Reconstructor, build_method
+    from eit_skin.inverse.one_step import (
+        ReconstructionMatrix,
+        imaging_jacobian,
+        reference_scale,
+        relative_difference,
+    )
 
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -16,19 +16,24 @@ Electrode checks (robust statistics over electrodes, measurements grouped by
     (and the channels' mean relative deviation from the reference is also checked the
     same way, which catches a dead electrode in a single frame).
 
-:class:`FaultTolerantReconstructor` wraps a :class:`ReconstructionMatrix` and images
-with the measurements touching faulty electrodes removed; reduced matrices are cached
-by the excluded-channel set inside the matrix.
+:class:`FaultTolerantReconstructor` wraps any method's reconstructor
+(:class:`~eit_skin.inverse.methods.Reconstructor`) and images with the measurements touching
+faulty electrodes removed; the reconstructor caches what it needs per excluded-channel set
+(reduced matrices, or Gauss-Newton's reduced first factorisation).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from eit_skin.inverse.one_step import ReconstructionMatrix, reference_scale
+from eit_skin.inverse.one_step import reference_scale
 from eit_skin.patch.protocol import Protocol
+
+if TYPE_CHECKING:
+    from eit_skin.inverse.methods import Reconstructor
 
 
 def bad_channels(
@@ -121,16 +126,16 @@ def excluded_channels(
 
 @dataclass
 class FaultTolerantReconstructor:
-    """One-step imaging that leaves out faulty electrodes' and bad channels' measurements.
+    """Imaging (any method) that leaves out faulty electrodes' and bad channels' measurements.
 
     Attributes:
-        matrix: the full reconstruction matrix.
+        reconstructor: the method, set up on all channels.
         protocol: the protocol it was built for.
         threshold: outlier factor for :func:`faulty_electrodes`.
         saturation_v: ADC full scale, volts, or ``None``.
     """
 
-    matrix: ReconstructionMatrix
+    reconstructor: Reconstructor
     protocol: Protocol
     threshold: float = 10.0
     saturation_v: float | None = None
@@ -142,4 +147,4 @@ class FaultTolerantReconstructor:
             frames, reference, self.protocol, self.threshold, self.saturation_v
         )
         self.last_faulty = el
-        return self.matrix.reconstruct(frames, reference, excluded=mask)
+        return self.reconstructor.reconstruct(frames, reference, excluded=mask)

@@ -27,19 +27,33 @@ relative residual ``||r|| / ||v_target / w||`` falls below ``tolerance``, when n
 ``phi`` or lowers it by less than ``stagnation`` (relative), or after ``max_iterations``.
 ``|d|`` is clipped to ``max_log_contrast`` so the output stays bounded and finite even for a
 silver mesh (~zero resistance).
+
+Channels can be left out (saturated, faulty electrode, NaN): the data term then runs over the
+other rows only (rows of ``C_w`` and of ``r``), with ``lambda^2 = h^2 trace(K_used)/M_used``
+and its own first factorisation, cached per excluded set - the one-step rule
+(:meth:`eit_skin.inverse.one_step.ReconstructionMatrix.without_channels`), so that with the
+same prior and ``h`` the first Gauss-Newton step *is* the one-step image on those channels.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
 from eit_skin.fem.mesh import Mesh
-from eit_skin.inverse.one_step import coarse_to_fine, reference_scale, relative_difference
+from eit_skin.inverse.dual_form import lambda_squared
+from eit_skin.inverse.methods import DEFAULT_MAX_ITERATIONS, DEFAULT_NOISE_FIGURE
+from eit_skin.inverse.one_step import (
+    ReconstructionMatrix,
+    coarse_to_fine,
+    imaging_jacobian,
+    reference_scale,
+    relative_difference,
+)
 from eit_skin.inverse.priors import Prior, make_prior
 
 DEFAULT_MAX_LOG_CONTRAST = float(np.log(1e5))
@@ -55,7 +69,9 @@ class GaussNewtonResult:
         relative_change: ``[N]`` ``sigma / sigma0 - 1`` on the forward mesh (positive = more
             conductive).
         iterations: Gauss-Newton steps taken.
-        relative_residuals: ``[iterations + 1]`` ``||r|| / ||v_target / w||`` history.
+        relative_residuals: ``[iterations + 1]`` history of ``||r|| / ||v_target / w||``
+            (:meth:`GaussNewtonSolver.difference`: ``||r|| / ||r_0||``, relative to the
+            measured change), on the channels used.
         converged: True when the residual tolerance was met.
         parameter_change: ``[N_p]`` ``sigma / sigma0 - 1`` per parameter-mesh element.
         forward_solves: forward solves at new conductances (line-search trials included).
@@ -126,21 +142,47 @@ class GaussNewtonSolver:
         else:
             j = np.asarray(self._cw @ gt.T) if prior == "noser" else None
             self.prior = make_prior(prior, parameter_mesh or forward.mesh, j)
-        z, k = self._normal_matrix(gt)
-        self.lam2 = float(hyperparameter) ** 2 * max(float(np.trace(k)) / k.shape[0], 1e-300)
-        self._first = (gt, z, self._cholesky(k))
+        self.hyperparameter = float(hyperparameter)
+        z, k = self._normal_matrix(gt, self._cw)
+        self._first = (gt, z, k)  # the linearisation at sigma0, K not yet regularised
+        self._all = self._channel_set(None)
+        self.lam2 = self._all.lam2
+        self._subsets: dict[bytes, _ChannelSet] = {}
 
     # ------------------------------------------------------------------ pieces
-    def _normal_matrix(self, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(P^-1 G^T [N_p, P], J P^-1 J^T [M, M])`` for ``G^T`` ``[N_p, P]``."""
+    def _normal_matrix(self, gt: np.ndarray, cw: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+        """``(P^-1 G^T [N_p, P], J P^-1 J^T [Mu, Mu])`` for ``G^T`` ``[N_p, P]``, rows ``cw``."""
         z = self.prior.solve(gt)
         kg = gt.T @ z
         kg = 0.5 * (kg + kg.T)
-        return z, np.asarray(self._cw @ np.asarray(self._cw @ kg).T)
+        return z, np.asarray(cw @ np.asarray(cw @ kg).T)
 
-    def _cholesky(self, k: np.ndarray) -> tuple[np.ndarray, bool]:
-        k[np.diag_indices_from(k)] += self.lam2
-        return sla.cho_factor(k, lower=True, check_finite=False)
+    def _channel_set(self, keep: np.ndarray | None) -> _ChannelSet:
+        """The data rows ``keep`` (``None``: all) with their ``lambda^2`` and first factor."""
+        k = self._first[2]
+        cw = self._cw
+        if keep is not None:
+            k, cw = k[np.ix_(keep, keep)], sp.csr_matrix(cw[keep])
+        lam2 = lambda_squared(self.hyperparameter, float(np.trace(k)), k.shape[0])
+        return _ChannelSet(keep, cw, lam2, _cholesky(k.copy(), lam2))
+
+    def _channels(self, excluded: np.ndarray | None) -> _ChannelSet:
+        """The channel set without ``excluded`` (bool ``[M]``); cached per pattern."""
+        if excluded is None:
+            return self._all
+        excluded = np.asarray(excluded, dtype=bool)
+        if excluded.shape != self.v0.shape:
+            raise ValueError(f"excluded mask must be [{self.v0.size}], got {excluded.shape}")
+        if not excluded.any():
+            return self._all
+        key = excluded.tobytes()
+        hit = self._subsets.get(key)
+        if hit is None:
+            keep = np.flatnonzero(~excluded)
+            if keep.size == 0:
+                raise ValueError("all channels excluded: nothing to reconstruct from")
+            hit = self._subsets[key] = self._channel_set(keep)
+        return hit
 
     def _fine_sigma(self, d: np.ndarray) -> np.ndarray:
         return self.sigma0 * np.exp(d if self._owner is None else d[self._owner])
@@ -152,30 +194,54 @@ class GaussNewtonSolver:
         max_iterations: int = 10,
         tolerance: float = 1e-3,
         stagnation: float = 1e-9,
+        excluded: np.ndarray | None = None,
     ) -> GaussNewtonResult:
-        """Fit ``F(sigma)`` to ``v_target`` ``[M]`` volts (finite), starting from ``sigma0``."""
+        """Fit ``F(sigma)`` to ``v_target`` ``[M]`` volts, starting from ``sigma0``.
+
+        ``excluded``: optional bool ``[M]``, channels left out of the data term (their
+        ``v_target`` may be NaN); every other channel must be finite. ``tolerance`` is on
+        ``||r|| / ||v_target / w||``.
+        """
+        return self._fit(v_target, max_iterations, tolerance, stagnation, excluded, False)
+
+    def _fit(
+        self,
+        v_target: np.ndarray,
+        max_iterations: int,
+        tolerance: float,
+        stagnation: float,
+        excluded: np.ndarray | None,
+        relative_to_change: bool,
+    ) -> GaussNewtonResult:
         fwd = self.forward
         v_target = np.asarray(v_target, dtype=np.float64)
-        if v_target.shape != self.v0.shape or not np.isfinite(v_target).all():
+        if v_target.shape != self.v0.shape:
             raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
-        w, cw, p, lam2 = self.weights_v, self._cw, self.prior, self.lam2
-        target = v_target / w
-        norm_target = float(np.linalg.norm(target)) or 1.0
+        channels = self._channels(excluded)
+        rows = slice(None) if channels.keep is None else channels.keep
+        w, p = self.weights_v[rows], self.prior
+        cw, lam2 = channels.cw, channels.lam2
+        target = v_target[rows] / w
+        if not np.isfinite(target).all():
+            raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
         d = np.zeros(self.n_parameters)
         sig = self.sigma0
-        resid = target - self.v0 / w
-        history = [float(np.linalg.norm(resid)) / norm_target]
+        resid = target - self.v0[rows] / w
+        scale = resid if relative_to_change else target
+        norm = float(np.linalg.norm(scale)) or 1.0
+        history = [float(np.linalg.norm(resid)) / norm]
         phi = float(resid @ resid)  # data term at d
         converged = history[0] <= tolerance
         solves, it = 0, 0
         while not converged and it < max_iterations:
             if it == 0:
-                gt, z, chol = self._first
+                gt, z, _ = self._first
+                chol = channels.first_factor
             else:
                 products, _ = _jacobian_factors(fwd, sig)  # the cached factorisation of sig
                 gt = _parameter_jacobian(products, sig, self._to_params)
-                z, k = self._normal_matrix(gt)
-                chol = self._cholesky(k)
+                z, k = self._normal_matrix(gt, cw)
+                chol = _cholesky(k, lam2)
             u = sla.cho_solve(chol, resid + cw @ (d @ gt), check_finite=False)
             step = z @ (cw.T @ u) - d
             it += 1
@@ -184,7 +250,7 @@ class GaussNewtonSolver:
             for _ in range(_LINE_SEARCH_HALVINGS):
                 trial = np.clip(d + alpha * step, -self.max_log_contrast, self.max_log_contrast)
                 sig_trial = self._fine_sigma(trial)
-                r_trial = target - fwd.voltages(sig_trial) / w
+                r_trial = target - fwd.voltages(sig_trial)[rows] / w
                 solves += 1
                 phi_trial = float(r_trial @ r_trial) + lam2 * p.quadratic(trial)
                 if np.isfinite(phi_trial) and phi_trial < objective:
@@ -195,7 +261,7 @@ class GaussNewtonSolver:
                 break
             d, sig, resid = trial, sig_trial, r_trial
             phi = float(resid @ resid)
-            history.append(float(np.linalg.norm(resid)) / norm_target)
+            history.append(float(np.linalg.norm(resid)) / norm)
             converged = history[-1] <= tolerance
             if objective - phi_trial <= stagnation * objective:  # no progress left
                 break
@@ -210,18 +276,55 @@ class GaussNewtonSolver:
         )
 
     def difference(
-        self, frame: np.ndarray, reference: np.ndarray, **kwargs: Any
+        self,
+        frame: np.ndarray,
+        reference: np.ndarray,
+        excluded: np.ndarray | None = None,
+        max_iterations: int = 10,
+        tolerance: float = 1e-3,
+        stagnation: float = 1e-9,
     ) -> GaussNewtonResult:
         """Difference imaging: fit ``F(sigma0) + s(F(sigma0)) (v - v_ref) / s_ref``.
 
         The measured relative change is applied to the model's reference voltages, so an
-        unknown gain or absolute conductance cancels as in one-step imaging. Channels that
-        are NaN/Inf in the frame or reference keep the model's value (no information).
-        ``kwargs``: those of :meth:`fit`.
+        unknown gain or absolute conductance cancels as in one-step imaging. Channels where
+        ``excluded`` (bool ``[M]``) is True or that are NaN/Inf in the frame or reference
+        are left out of the fit (own ``lambda^2`` and factorisation per excluded set, as the
+        one-step matrix does). ``tolerance`` is relative to the measured change: the fit
+        stops when ``||r|| <= tolerance * ||r_0||`` (``r_0`` the data change itself), so a
+        small touch is imaged as fully as a large one, and no change gives no iteration.
         """
         dv = relative_difference(frame, reference)
-        dv = np.where(np.isfinite(dv), dv, 0.0)
-        return self.fit(self.v0 + reference_scale(self.v0) * dv, **kwargs)
+        bad = ~np.isfinite(dv)
+        if excluded is not None:
+            bad = bad | np.asarray(excluded, dtype=bool)
+        target = self.v0 + reference_scale(self.v0) * np.where(bad, 0.0, dv)
+        return self._fit(
+            target, max_iterations, tolerance, stagnation, bad if bad.any() else None, True
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class _ChannelSet:
+    """The data rows of one fit: a channel subset, its ``lambda^2`` and first Cholesky factor.
+
+    Attributes:
+        keep: ``[M_used]`` int64 channel indices, or ``None`` for all channels.
+        cw: ``[M_used, P]`` sparse weighted combination ``C_w`` on those rows.
+        lam2: ``h^2 trace(K_used) / M_used`` at the first linearisation.
+        first_factor: Cholesky factor of ``K_used + lambda^2 I`` at ``sigma0``.
+    """
+
+    keep: np.ndarray | None
+    cw: sp.csr_matrix
+    lam2: float
+    first_factor: tuple[np.ndarray, bool]
+
+
+def _cholesky(k: np.ndarray, lam2: float) -> tuple[np.ndarray, bool]:
+    """Cholesky factor of ``K + lambda^2 I`` (overwrites ``k``)."""
+    k[np.diag_indices_from(k)] += lam2
+    return sla.cho_factor(k, lower=True, check_finite=False)
 
 
 def gauss_newton(
@@ -311,9 +414,132 @@ def gauss_newton_difference(
 
     One-off form of :meth:`GaussNewtonSolver.difference` (build a solver to image many
     frames: the first linearisation is then shared); ``kwargs``: those of
-    :meth:`GaussNewtonSolver.fit`.
+    :meth:`GaussNewtonSolver.difference`.
     """
     solver = GaussNewtonSolver(
         forward, sigma0, prior, hyperparameter, parameter_mesh, None, max_log_contrast
     )
     return solver.difference(frame, reference, **kwargs)
+
+
+@dataclass(frozen=True, eq=False)
+class GaussNewtonReconstructor:
+    """Method ``gauss_newton`` behind the shared reconstructor interface.
+
+    Set up once per layer (:meth:`build`); :meth:`reconstruct` then runs the prepared
+    :class:`GaussNewtonSolver` on every frame. Values are ``sigma / sigma0 - 1`` per element
+    of the imaging (parameter) mesh, the one-step output convention.
+
+    Attributes:
+        solver: the prepared solver; its unknowns live on the imaging mesh.
+        linearised: the one-step matrix of its first step (same Jacobian, prior and ``h``):
+            where the hyperparameter was chosen, and the linear stand-in for callers that
+            need a matrix (e.g. the single-contact spread of :mod:`eit_skin.touch.shapes`).
+        max_iterations: Gauss-Newton steps per frame (>= 1).
+        tolerance: stop when the residual is this fraction of the measured change.
+    """
+
+    solver: GaussNewtonSolver
+    linearised: ReconstructionMatrix
+    max_iterations: int = DEFAULT_MAX_ITERATIONS
+    tolerance: float = 1e-3
+
+    method: ClassVar[str] = "gauss_newton"
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations: must be >= 1, got {self.max_iterations}")
+
+    @classmethod
+    def build(
+        cls,
+        forward: Any,
+        sigma0: np.ndarray | float = 1.0,
+        prior: str | Prior = "laplace",
+        hyperparameter: float | None = None,
+        noise_figure: float | None = None,
+        parameter_mesh: Mesh | None = None,
+        max_iterations: int = DEFAULT_MAX_ITERATIONS,
+        jacobian: np.ndarray | None = None,
+    ) -> GaussNewtonReconstructor:
+        """Prepare the solver and its first linearisation.
+
+        Args:
+            forward: forward model (solved in every iteration).
+            sigma0: reference sheet conductance, siemens, scalar or ``[N_forward]``.
+            prior: kind or a built prior on the imaging mesh.
+            hyperparameter: ``h``; ``None`` chooses it by ``noise_figure`` on the first
+                linearised step (the one-step matrix with the same prior), default the
+                method's :data:`~eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`.
+            noise_figure: see ``hyperparameter``.
+            parameter_mesh: imaging mesh carrying the unknowns (default: the forward mesh).
+            max_iterations: Gauss-Newton steps per frame.
+            jacobian: ``[M, N]`` relative Jacobian on the imaging mesh at ``sigma0`` when
+                already known (:func:`~eit_skin.inverse.one_step.imaging_jacobian`, e.g. from
+                a disk cache).
+        """
+        mesh = forward.mesh if parameter_mesh is None else parameter_mesh
+        if jacobian is None:
+            jacobian = imaging_jacobian(forward, sigma0, parameter_mesh)
+        elif np.shape(jacobian) != (forward.n_measurements, mesh.n_triangles):
+            raise ValueError(
+                f"jacobian: expected [{forward.n_measurements}, {mesh.n_triangles}], "
+                f"got {np.shape(jacobian)}"
+            )
+        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, jacobian)
+        if noise_figure is None:
+            noise_figure = DEFAULT_NOISE_FIGURE[cls.method]
+        linear = ReconstructionMatrix.from_jacobian(
+            jacobian, mesh, p, hyperparameter, noise_figure=noise_figure
+        )
+        solver = GaussNewtonSolver(forward, sigma0, p, linear.hyperparameter, parameter_mesh)
+        return cls(solver, linear, int(max_iterations))
+
+    @property
+    def hyperparameter(self) -> float:
+        return self.solver.hyperparameter
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.solver.v0.size)
+
+    @property
+    def n_elements(self) -> int:
+        return int(self.solver.n_parameters)
+
+    @property
+    def mesh(self) -> Mesh | None:
+        return self.linearised.mesh
+
+    def reconstruct(
+        self,
+        frames: np.ndarray,
+        reference: np.ndarray,
+        excluded: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Frames (volts) -> relative conductivity change per element, one fit per frame.
+
+        Args:
+            frames: ``[M]`` or ``[T, M]`` volts, in the protocol's measurement order.
+            reference: ``[M]`` volts.
+            excluded: optional bool ``[M]`` channels to leave out (faulty electrodes).
+
+        Returns:
+            float32 ``[N]`` or ``[T, N]``; channels that are NaN/Inf in the reference or in a
+            frame are left out of that frame's fit, never imaged.
+        """
+        v = np.asarray(frames, dtype=np.float64)
+        ref = np.asarray(reference, dtype=np.float64)
+        m = self.n_channels
+        if ref.shape != (m,):
+            raise ValueError(f"reference must be [{m}] volts, got {ref.shape}")
+        if v.shape[-1] != m or v.ndim not in (1, 2):
+            raise ValueError(f"frames must be [M] or [T, M] with M={m}, got {v.shape}")
+        mask = None if excluded is None else np.asarray(excluded, dtype=bool)
+        v2 = v[None] if v.ndim == 1 else v
+        out = np.empty((v2.shape[0], self.n_elements), dtype=np.float32)
+        for t, frame in enumerate(v2):
+            out[t] = self.solver.difference(
+                frame, ref, mask, max_iterations=self.max_iterations, tolerance=self.tolerance
+            ).parameter_change
+        return out[0] if v.ndim == 1 else out

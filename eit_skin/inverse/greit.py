@@ -44,8 +44,6 @@ TAIL = 0.07
 TAIL_WIDTH = 4.0
 #: Fixed-point iterations that move blob centres so the quarter-max centre is on the target.
 _CENTRE_ITERATIONS = 4
-#: Noise figure the shipped configs use with the trained matrix (see docs/reconstruction.md).
-DEFAULT_NOISE_FIGURE = 0.13
 #: Training targets (approximately; a hexagonal lattice of centres inside the sheet).
 N_TARGETS = 600
 #: Sample points per element used to compute the covered fraction of each element.
@@ -244,8 +242,6 @@ class GreitModel:
     responses: np.ndarray
     gram_all: np.ndarray
     desired_responses: np.ndarray
-
-    kind = "greit"
 
     @classmethod
     def build(cls, jacobian: np.ndarray, training: TrainingSet) -> GreitModel:

@@ -20,10 +20,12 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.optimize import brentq
 
+from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
+
 if TYPE_CHECKING:
     from eit_skin.inverse.one_step import ReconstructionMatrix
 
-DEFAULT_NOISE_FIGURE = 1.0
 H_RANGE = (1e-4, 1e1)
 
 
@@ -66,10 +68,8 @@ class _NoiseFigure:
         self._trace = float(np.trace(k))
 
     def __call__(self, h: float) -> float:
-        from eit_skin.inverse.one_step import _lambda2_trace
-
         m = self._k.shape[0]
-        c = self._k + _lambda2_trace(h, self._trace, m) * np.eye(m)
+        c = self._k + lambda_squared(h, self._trace, m) * np.eye(m)
         low = np.linalg.cholesky(c)
         w = sla.solve_triangular(low, np.eye(m), lower=True, check_finite=False)  # C^-1 = W^T W
         x = self._y @ (w.T @ (w @ self._dv))
@@ -86,10 +86,11 @@ def choose_by_noise_figure(
 ) -> float:
     """Hyperparameter ``h`` whose noise figure equals ``target`` (Brent's method in ``log h``).
 
-    If the target lies outside what ``h`` in :data:`H_RANGE` can reach, the nearest end of
-    the range is returned.
+    ``target`` ``None``: the default of the matrix's method
+    (:data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`). If the target lies outside what
+    ``h`` in :data:`H_RANGE` can reach, the nearest end of the range is returned.
     """
-    target = DEFAULT_NOISE_FIGURE if target is None else float(target)
+    target = DEFAULT_NOISE_FIGURE[rm.method] if target is None else float(target)
     if not (np.isfinite(target) and target > 0):
         raise ValueError(f"noise figure target must be > 0, got {target}")
     nf = _NoiseFigure(rm)
@@ -109,8 +110,6 @@ def choose_by_gcv(rm: ReconstructionMatrix, dv: np.ndarray, n_grid: int = 60) ->
     ``GCV(h) = M ||(I - A) dv||^2 / trace(I - A)^2`` with influence matrix
     ``A = K (K + lambda^2 I)^-1``, so ``I - A = lambda^2 (K + lambda^2 I)^-1``.
     """
-    from eit_skin.inverse.one_step import _lambda2_trace, _regularised_inverse
-
     k, _ = rm.gram
     m = k.shape[0]
     d = np.asarray(dv, dtype=np.float64)[rm.channels]
@@ -118,7 +117,7 @@ def choose_by_gcv(rm: ReconstructionMatrix, dv: np.ndarray, n_grid: int = 60) ->
     hs = np.exp(np.linspace(np.log(H_RANGE[0]), np.log(H_RANGE[1]), n_grid))
     scores = np.empty(n_grid)
     for i, h in enumerate(hs):
-        lam2 = _lambda2_trace(float(h), trace, m)
-        resid_op = lam2 * _regularised_inverse(k, lam2)  # I - A
+        lam2 = lambda_squared(float(h), trace, m)
+        resid_op = lam2 * regularised_inverse(k, lam2)  # I - A
         scores[i] = m * float(np.sum((resid_op @ d) ** 2)) / float(np.trace(resid_op)) ** 2
     return float(hs[int(np.argmin(scores))])

@@ -10,19 +10,17 @@ Data convention (used everywhere in this package):
     ``s0`` the floored model voltages at ``sigma0``. This cancels the unknown
     absolute sheet conductance, current amplitude and amplifier gain.
 
-Solution (linearised Gauss-Newton around the reference, dual form):
+Solution of method ``one_step`` (linearised Gauss-Newton around the reference, dual form):
     ``x = P^-1 J^T (J P^-1 J^T + lambda^2 I)^-1 dv``
 with ``P`` the sparse prior (:mod:`eit_skin.inverse.priors`). Only ``P^-1 J^T`` (``M``
-sparse solves) and an ``M x M`` eigendecomposition are needed, so building scales
+sparse solves) and an ``M x M`` Cholesky factorisation are needed, so building scales
 with ``N`` (elements), never ``N^3``. ``lambda^2 = h^2 * trace(J P^-1 J^T) / M`` so
-the hyperparameter ``h`` is dimensionless and comparable between meshes.
+the hyperparameter ``h`` is dimensionless and comparable between meshes
+(:mod:`eit_skin.inverse.dual_form`).
 
-``prior="greit"`` builds the GREIT-trained matrix of :mod:`eit_skin.inverse.greit` instead,
-which has the same dual form with ``K = Y Y^T`` and ``D Y^T`` from simulated training targets.
-
-Only Cholesky factorisations of the ``M x M`` matrix are used (no eigendecomposition):
-LAPACK's symmetric eigensolver is level-2 BLAS bound and, with a multi-threaded OpenBLAS
-on a busy machine, took ~1 s for ``M = 208`` (a Cholesky factorisation takes ~0.3 ms).
+Method ``greit`` (:meth:`ReconstructionMatrix.greit`) is the matrix trained on simulated
+targets (:mod:`eit_skin.inverse.greit`): the same dual form with ``K = Y Y^T`` and ``D Y^T``
+in place of ``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
 """
 
 from __future__ import annotations
@@ -31,21 +29,20 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import Mesh
+from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
+from eit_skin.inverse.hyperparameter import choose_by_noise_figure
 from eit_skin.inverse.priors import Prior, make_prior
-
-#: Methods accepted as ``prior``: the sparse priors and the trained (GREIT) matrix.
-METHODS: tuple[str, ...] = ("laplace", "tikhonov", "noser", "greit")
 
 REFERENCE_FLOOR = 1e-2
 """Channels whose reference is below this fraction of the RMS reference are normalised by it."""
 
-DEFAULT_HYPERPARAMETER = 0.05
+#: ``h`` of the matrix assembled before the noise-figure choice (which replaces it).
+_PROVISIONAL_H = 0.05
 
 
 def reference_scale(reference: np.ndarray) -> np.ndarray:
@@ -96,25 +93,53 @@ def relative_jacobian(
     return np.asarray(jacobian, dtype=np.float64) * sig[None, :] / s0[:, None]
 
 
+def imaging_jacobian(
+    forward: Any, sigma0: np.ndarray | float = 1.0, inverse_mesh: Mesh | None = None
+) -> np.ndarray:
+    """``[M, N]`` relative Jacobian of ``forward`` at ``sigma0`` on the imaging mesh.
+
+    Args:
+        forward: the (fine) forward model (``.jacobian(sigma)``, ``.voltages(sigma)``,
+            ``.mesh``).
+        sigma0: reference sheet conductance, siemens, scalar or ``[N_forward]``.
+        inverse_mesh: coarser mesh to reconstruct on (default: the forward mesh); its
+            Jacobian is ``J_fine C`` (:func:`coarse_to_fine`): a coarse element's change is
+            that of all fine elements in it.
+    """
+    n_fwd = forward.mesh.n_triangles
+    sig = np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n_fwd,)).copy()
+    j = relative_jacobian(forward.jacobian(sig), forward.voltages(sig), sig)
+    if inverse_mesh is not None and inverse_mesh is not forward.mesh:
+        j = np.asarray(coarse_to_fine(forward.mesh, inverse_mesh).T @ j.T).T.copy()
+    return j
+
+
 @dataclass(frozen=True, eq=False)
 class ReconstructionMatrix:
-    """A precomputed one-step difference-imaging operator.
+    """A precomputed linear difference-imaging operator ``R = Y (K + lambda^2 I)^-1``.
+
+    Two methods build one (:mod:`eit_skin.inverse.methods`): ``one_step`` with a sparse
+    prior (:meth:`build`, :meth:`from_jacobian`) and ``greit``, the matrix trained on
+    simulated targets (:meth:`greit`); both share the dual form, the hyperparameter rule and
+    the channel handling below.
 
     Attributes:
         matrix: ``[N, M_used]`` float64 reconstruction matrix on the used channels.
         channels: ``[M_used]`` int64 indices of the channels it uses (of ``n_channels``).
         n_channels: ``M``, channels in a full frame.
         hyperparameter: dimensionless ``h`` (see module docstring).
-        prior: the prior it was built with, or the :class:`~eit_skin.inverse.greit.GreitModel`
-            (training set and simulated responses) of a GREIT-trained matrix.
+        model: what supplies ``(K, Y)``: the :class:`~eit_skin.inverse.priors.Prior` of a
+            one-step matrix, or the :class:`~eit_skin.inverse.greit.GreitModel` (training
+            set and simulated responses) of a GREIT-trained one.
         jacobian: ``[M, N]`` relative Jacobian (all channels) it was built from.
+        mesh: the mesh of the ``N`` elements, if known.
     """
 
     matrix: np.ndarray
     channels: np.ndarray
     n_channels: int
     hyperparameter: float
-    prior: Prior | GreitModel
+    model: Prior | GreitModel
     jacobian: np.ndarray
     mesh: Mesh | None = None
     _p_inv_jt: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
@@ -132,26 +157,20 @@ class ReconstructionMatrix:
         inverse_mesh: Mesh | None = None,
         noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
-        """Build from a forward model (``.jacobian(sigma)``, ``.voltages(sigma)``, ``.mesh``).
+        """One-step matrix with a prior, from a forward model (see :func:`imaging_jacobian`).
 
         Args:
             forward: the (fine) forward model.
-            prior: ``"tikhonov"``, ``"laplace"``, ``"noser"`` or ``"greit"`` (trained matrix,
-                :mod:`eit_skin.inverse.greit`).
+            prior: one of :data:`~eit_skin.inverse.priors.PRIOR_KINDS`.
             hyperparameter: dimensionless ``h``; ``None`` chooses it by ``noise_figure``
                 (:func:`eit_skin.inverse.hyperparameter.choose_by_noise_figure`).
             sigma0: reference sheet conductance, siemens, scalar or ``[N_forward]``.
             inverse_mesh: coarser mesh to reconstruct on (default: the forward mesh).
-            noise_figure: target noise figure when ``hyperparameter`` is ``None``.
+            noise_figure: target noise figure when ``hyperparameter`` is ``None`` (default:
+                the method's, :data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`).
         """
-        n_fwd = forward.mesh.n_triangles
-        sig = np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n_fwd,)).copy()
-        j = relative_jacobian(forward.jacobian(sig), forward.voltages(sig), sig)
-        mesh = forward.mesh
-        if inverse_mesh is not None and inverse_mesh is not forward.mesh:
-            # J_coarse = J_fine C: a coarse element's change is that of all fine elements in it
-            j = np.asarray(coarse_to_fine(forward.mesh, inverse_mesh).T @ j.T).T.copy()
-            mesh = inverse_mesh
+        j = imaging_jacobian(forward, sigma0, inverse_mesh)
+        mesh = forward.mesh if inverse_mesh is None else inverse_mesh
         return cls.from_jacobian(j, mesh, prior, hyperparameter, noise_figure=noise_figure)
 
     @classmethod
@@ -159,28 +178,58 @@ class ReconstructionMatrix:
         cls,
         jacobian: np.ndarray,
         mesh: Mesh,
-        prior: str | Prior | GreitModel = "laplace",
+        prior: str | Prior = "laplace",
         hyperparameter: float | None = None,
         channels: np.ndarray | None = None,
         noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
-        """Build from a relative Jacobian ``[M, N]`` (see :func:`relative_jacobian`)."""
-        j = np.asarray(jacobian, dtype=np.float64)
-        if j.ndim != 2 or j.shape[1] != mesh.n_triangles:
-            raise ValueError(f"Jacobian shape {j.shape} does not match {mesh.n_triangles} elements")
-        if not np.isfinite(j).all():
-            raise ValueError("Jacobian contains NaN or Inf")
-        if isinstance(prior, (Prior, GreitModel)):
-            p = prior
-        elif prior == "greit":
-            p = GreitModel.build(j, training_set(mesh))
-        else:
-            p = make_prior(prior, mesh, j)
-        p_inv_jt = p.solve(j.T) if isinstance(p, Prior) else None  # [N, M]
-        base = cls._assemble(j, p, p_inv_jt, np.arange(j.shape[0]), DEFAULT_HYPERPARAMETER, mesh)
-        if hyperparameter is None:
-            from eit_skin.inverse.hyperparameter import choose_by_noise_figure
+        """One-step matrix from a relative Jacobian ``[M, N]`` (:func:`relative_jacobian`).
 
+        ``prior``: a kind (:data:`~eit_skin.inverse.priors.PRIOR_KINDS`) or a built
+        :class:`~eit_skin.inverse.priors.Prior` on ``mesh``; other arguments as in
+        :meth:`build`; ``channels``: the channel subset to use (default: all).
+        """
+        j = _checked_jacobian(jacobian, mesh)
+        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, j)
+        if p.n != mesh.n_triangles:
+            raise ValueError(f"prior has {p.n} elements, the mesh {mesh.n_triangles}")
+        return cls._from_model(j, mesh, p, hyperparameter, channels, noise_figure)
+
+    @classmethod
+    def greit(
+        cls,
+        jacobian: np.ndarray,
+        mesh: Mesh,
+        hyperparameter: float | None = None,
+        noise_figure: float | None = None,
+        channels: np.ndarray | None = None,
+        model: GreitModel | None = None,
+    ) -> ReconstructionMatrix:
+        """GREIT-trained matrix from a relative Jacobian ``[M, N]`` (no prior).
+
+        ``model``: a :class:`~eit_skin.inverse.greit.GreitModel` built from this Jacobian
+        (default: trained on :func:`~eit_skin.inverse.greit.training_set` of ``mesh``, which
+        depends only on the mesh, so the same Jacobian always gives the same matrix); other
+        arguments as in :meth:`from_jacobian`.
+        """
+        j = _checked_jacobian(jacobian, mesh)
+        trained = GreitModel.build(j, training_set(mesh)) if model is None else model
+        return cls._from_model(j, mesh, trained, hyperparameter, channels, noise_figure)
+
+    @classmethod
+    def _from_model(
+        cls,
+        j: np.ndarray,
+        mesh: Mesh,
+        model: Prior | GreitModel,
+        hyperparameter: float | None,
+        channels: np.ndarray | None,
+        noise_figure: float | None,
+    ) -> ReconstructionMatrix:
+        p_inv_jt = model.solve(j.T) if isinstance(model, Prior) else None  # [N, M]
+        all_channels = np.arange(j.shape[0])
+        base = cls._assemble(j, model, p_inv_jt, all_channels, _PROVISIONAL_H, mesh)
+        if hyperparameter is None:
             hyperparameter = choose_by_noise_figure(base, noise_figure)
         return base.with_hyperparameter(float(hyperparameter), channels=channels)
 
@@ -201,18 +250,28 @@ class ReconstructionMatrix:
             y = p_inv_jt[:, channels]
             k = j[channels] @ y
             k = 0.5 * (k + k.T)
-        r = y @ _regularised_inverse(k, _lambda2_trace(h, np.trace(k), k.shape[0]))
+        r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
         return cls(
             matrix=r,
             channels=channels,
             n_channels=j.shape[0],
             hyperparameter=float(h),
-            prior=p,
+            model=p,
             jacobian=j,
             mesh=mesh,
             _p_inv_jt=p_inv_jt,
             _gram=(k, y),
         )
+
+    @property
+    def method(self) -> str:
+        """``"greit"`` for the trained matrix, else ``"one_step"``."""
+        return "greit" if isinstance(self.model, GreitModel) else "one_step"
+
+    @property
+    def linearised(self) -> ReconstructionMatrix:
+        """The method's linear matrix: this one (the shared reconstructor interface)."""
+        return self
 
     @property
     def gram(self) -> tuple[np.ndarray, np.ndarray]:
@@ -227,26 +286,26 @@ class ReconstructionMatrix:
     def with_hyperparameter(
         self, h: float, channels: np.ndarray | None = None
     ) -> ReconstructionMatrix:
-        """Same prior and Jacobian, another ``h`` (and optionally another channel subset)."""
+        """Same model and Jacobian, another ``h`` (and optionally another channel subset)."""
         if not (np.isfinite(h) and h > 0):
             raise ValueError(f"hyperparameter must be a positive number, got {h}")
         ch = self.channels if channels is None else np.asarray(channels, dtype=np.int64)
         if np.array_equal(ch, self.channels):
             k, y = self._gram
-            r = y @ _regularised_inverse(k, _lambda2_trace(h, np.trace(k), k.shape[0]))
+            r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
             return ReconstructionMatrix(
                 matrix=r,
                 channels=ch,
                 n_channels=self.n_channels,
                 hyperparameter=float(h),
-                prior=self.prior,
+                model=self.model,
                 jacobian=self.jacobian,
                 mesh=self.mesh,
                 _p_inv_jt=self._p_inv_jt,
                 _gram=self._gram,
             )
         return ReconstructionMatrix._assemble(
-            self.jacobian, self.prior, self._p_inv_jt, ch, h, self.mesh
+            self.jacobian, self.model, self._p_inv_jt, ch, h, self.mesh
         )
 
     def without_channels(self, excluded: np.ndarray) -> ReconstructionMatrix:
@@ -335,20 +394,11 @@ class ReconstructionMatrix:
         return out[0] if single else out
 
 
-def _lambda2(h: float, s: np.ndarray) -> float:
-    """``lambda^2 = h^2 * trace(K) / M`` from the eigenvalues ``s`` of ``K = J P^-1 J^T``."""
-    return _lambda2_trace(h, float(np.sum(s)), np.size(s))
-
-
-def _lambda2_trace(h: float, trace: float, m: int) -> float:
-    """``lambda^2 = h^2 * trace(K) / M`` (``trace(K) <= 0`` counts as ``M``)."""
-    scale = float(trace) / max(int(m), 1)
-    return float(h) ** 2 * (scale if scale > 0 else 1.0)
-
-
-def _regularised_inverse(k: np.ndarray, lam2: float) -> np.ndarray:
-    """``(K + lambda^2 I)^-1`` ``[M, M]`` by Cholesky (``K`` symmetric positive semi-definite)."""
-    c = k + lam2 * np.eye(k.shape[0])
-    low = np.linalg.cholesky(c)
-    w = sla.solve_triangular(low, np.eye(k.shape[0]), lower=True, check_finite=False)
-    return w.T @ w
+def _checked_jacobian(jacobian: np.ndarray, mesh: Mesh) -> np.ndarray:
+    """``jacobian`` as float64 ``[M, N]``; ValueError unless finite with ``N`` = mesh elements."""
+    j = np.asarray(jacobian, dtype=np.float64)
+    if j.ndim != 2 or j.shape[1] != mesh.n_triangles:
+        raise ValueError(f"Jacobian shape {j.shape} does not match {mesh.n_triangles} elements")
+    if not np.isfinite(j).all():
+        raise ValueError("Jacobian contains NaN or Inf")
+    return j

@@ -26,7 +26,6 @@ Kinds:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,7 +33,6 @@ import scipy.sparse.linalg as spla
 
 from eit_skin.fem.mesh import Mesh
 
-PriorKind = Literal["tikhonov", "laplace", "noser"]
 PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
 
 
@@ -240,4 +238,9 @@ def make_prior(
             raise ValueError("prior 'laplace': laplace_diagonal must be > 0")
         p = laplace_matrix(mesh, laplace_diagonal)
         return Prior(kind, p, None, SparseFactor(p))
+    if kind == "greit":
+        raise ValueError(
+            "'greit' is a method, not a prior: ReconstructionMatrix.greit or "
+            "eit_skin.inverse.methods.build_method('greit', ...)"
+        )
     raise ValueError(f"unknown prior {kind!r}; expected one of {', '.join(PRIOR_KINDS)}")

@@ -1,8 +1,8 @@
 """The per-frame pipeline of one layer, shared by the reconstruction node and the CLI.
 
-Modules: ``builder`` (the only place that builds layer -> forward model -> reconstruction
-matrix, cached on disk by content hash), ``reference`` (no-load reference: capture, drift,
-posture), ``colour_scale`` (false colour for rviz).
+Modules: ``builder`` (the only place that builds layer -> meshes -> forward model -> the
+layer's reconstruction method, cached on disk by content hash), ``reference`` (no-load
+reference: capture, drift, posture), ``colour_scale`` (false colour for rviz).
 """
 
 from __future__ import annotations
@@ -16,21 +16,36 @@ from eit_skin import lazy_exports
 _EXPORTS: dict[str, str] = {
     "ColourScale": "colour_scale",
     "LayerImager": "builder",
+    "Operator": "builder",
     "PostureReferences": "reference",
     "ReferenceTracker": "reference",
+    "build_operator": "builder",
     "default_cache_dir": "builder",
+    "forward_model": "builder",
+    "with_method": "builder",
 }
 
 __all__ = [
     "ColourScale",
     "LayerImager",
+    "Operator",
     "PostureReferences",
     "ReferenceTracker",
+    "build_operator",
     "default_cache_dir",
+    "forward_model",
+    "with_method",
 ]
 
 if TYPE_CHECKING:
-    from eit_skin.pipeline.builder import LayerImager, default_cache_dir
+    from eit_skin.pipeline.builder import (
+        LayerImager,
+        Operator,
+        build_operator,
+        default_cache_dir,
+        forward_model,
+        with_method,
+    )
     from eit_skin.pipeline.colour_scale import ColourScale
     from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 

@@ -1,18 +1,22 @@
-"""From a patch layer's raw frames to images: the whole reconstruction chain of one layer.
+"""From a patch layer to its reconstruction: the one place the chain is built.
 
-:class:`LayerImager` puts together the pieces the patch config asks for - mesh, protocol,
-forward model, one-step reconstruction matrix (with its electrode-fault handling), image
-grid and material - so that the reconstruction node and the offline commands do exactly the
-same thing. Building the matrix needs a forward solve and a Jacobian; the relative Jacobian
-and the chosen hyperparameter are cached on disk keyed by the layer's content hash, so a
-restart with an unchanged config skips that work.
+layer -> protocol -> mesh(es) -> forward model -> the layer's method
+(:func:`eit_skin.inverse.methods.build_method`: ``one_step``, ``greit`` or
+``gauss_newton``) -> image grid. :class:`LayerImager` puts the pieces together so that the
+reconstruction node and the offline commands do exactly the same thing; :func:`forward_model`
+is the layer's physics for everything that simulates it (the simulator, ``eit-skin tune``).
+
+Building needs a forward solve and a Jacobian; the relative Jacobian on the imaging mesh and
+the chosen hyperparameter are cached on disk keyed by the layer's content hash, so a restart
+with an unchanged config skips that work (``gauss_newton`` still sets up its forward model,
+which it solves in every iteration).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +26,13 @@ from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import excluded_channels
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
+from eit_skin.inverse.methods import (
+    DEFAULT_NOISE_FIGURE,
+    METHODS,
+    METHODS_WITH_PRIOR,
+    Reconstructor,
+    build_method,
+)
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.recording import write_npz_atomic
 from eit_skin.patch.model import Layer
@@ -42,6 +53,95 @@ def default_cache_dir() -> Path:
     return Path(base) / "eit_skin"
 
 
+def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
+    """The layer's forward model (protocol, contact impedance, current) on ``mesh``.
+
+    ``mesh``: default the layer's forward mesh (``build_mesh(layer)``); a finer one to
+    simulate data on.
+    """
+    return ForwardModel(
+        build_mesh(layer) if mesh is None else mesh,
+        build_protocol(layer.protocol, layer.n_electrodes),
+        layer.contact_impedance_ohm_m,
+        layer.current_a,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class Operator:
+    """A layer's method, set up (:func:`build_operator`).
+
+    Attributes:
+        protocol: the layer's measurement protocol (``M`` channels).
+        mesh: the imaging (inverse) mesh, ``N`` elements.
+        reconstructor: the method (:class:`~eit_skin.inverse.methods.Reconstructor`).
+        from_cache: whether the Jacobian and hyperparameter came from the disk cache.
+    """
+
+    protocol: Protocol
+    mesh: Mesh
+    reconstructor: Reconstructor
+    from_cache: bool = False
+
+
+def build_operator(layer: Layer, cache_dir: Path | str | None = "default") -> Operator:
+    """Set up the layer's ``solver.method`` (cached in ``cache_dir``; ``None``: no cache).
+
+    The forward mesh is ``mesh.max_edge``; the imaging mesh ``mesh.inverse_max_edge`` (the
+    forward mesh when unset), which also carries Gauss-Newton's unknowns. The hyperparameter
+    is ``solver.hyperparameter``, else chosen for ``solver.noise_figure`` on the method's
+    linear matrix (Gauss-Newton: its first linearised step, the one-step matrix with the
+    same prior).
+    """
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    inverse_edge = layer.mesh.inverse_max_edge_m
+    inverse_mesh = build_mesh(layer, inverse_edge) if inverse_edge else build_mesh(layer)
+    directory = default_cache_dir() if cache_dir == "default" else cache_dir
+    path = None if directory is None else Path(directory) / f"{cache_key(layer)}.npz"
+    forward = None
+    if layer.solver.method == "gauss_newton" or path is None or not path.is_file():
+        forward = _forward(layer, inverse_mesh)
+    if path is not None and path.is_file():
+        try:
+            with np.load(path) as cached:
+                jacobian = cached["jacobian"]
+                h = float(cached["hyperparameter"])
+            method = _method(layer, forward, inverse_mesh, jacobian, h)
+            return Operator(protocol, inverse_mesh, method, from_cache=True)
+        except (OSError, KeyError, ValueError):
+            pass  # unreadable or stale: rebuild and overwrite below
+    if forward is None:
+        forward = _forward(layer, inverse_mesh)
+    method = _method(layer, forward, inverse_mesh, None, layer.solver.hyperparameter)
+    if path is not None:
+        _save_to_cache(
+            path, jacobian=method.linearised.jacobian, hyperparameter=method.hyperparameter
+        )
+    return Operator(protocol, inverse_mesh, method)
+
+
+def with_method(layer: Layer, method: str) -> Layer:
+    """``layer`` with ``solver.method = method`` (e.g. a command's ``--method``).
+
+    ``hyperparameter`` and ``noise_figure`` were chosen for the layer's linear matrix: they
+    are kept between ``one_step`` and ``gauss_newton`` (whose first step is that matrix) and
+    reset to ``None`` and the new method's default
+    (:data:`~eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`) when switching to or from the
+    trained ``greit`` matrix.
+    """
+    solver = layer.solver
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; expected one of {METHODS}")
+    if method == solver.method:
+        return layer
+    if {method, solver.method} <= set(METHODS_WITH_PRIOR):
+        return replace(layer, solver=replace(solver, method=method))
+    new = replace(
+        solver, method=method, hyperparameter=None, noise_figure=DEFAULT_NOISE_FIGURE[method]
+    )
+    return replace(layer, solver=new)
+
+
 @dataclass
 class LayerImager:
     """Reconstruction of one layer: frames (V) -> relative change -> physical images.
@@ -50,9 +150,11 @@ class LayerImager:
         layer: the layer's validated config.
         protocol: its measurement protocol (M channels).
         mesh: the inverse mesh the images are reconstructed on.
-        matrix: the one-step reconstruction matrix.
+        matrix: the method's linear matrix (``one_step``, ``greit``: the method itself;
+            ``gauss_newton``: its first linearised step).
         grid: element -> pixel interpolation (``H x W``), NaN outside the sheet.
         from_cache: whether the Jacobian came from the disk cache.
+        reconstructor: the layer's ``solver.method`` (default: ``matrix``).
     """
 
     layer: Layer
@@ -61,44 +163,24 @@ class LayerImager:
     matrix: ReconstructionMatrix
     grid: ImageGrid
     from_cache: bool = False
+    reconstructor: Reconstructor = None  # type: ignore[assignment]  # None: ``matrix``
+
+    def __post_init__(self) -> None:
+        if self.reconstructor is None:
+            self.reconstructor = self.matrix
 
     @classmethod
     def build(cls, layer: Layer, cache_dir: Path | str | None = "default") -> LayerImager:
         """Build (or load from ``cache_dir``; ``None`` disables the cache) the chain of a layer."""
-        protocol = build_protocol(layer.protocol, layer.n_electrodes)
-        inverse_edge = layer.mesh.inverse_max_edge_m
-        inverse_mesh = build_mesh(layer, inverse_edge) if inverse_edge else build_mesh(layer)
-        solver = layer.solver
-        directory = default_cache_dir() if cache_dir == "default" else cache_dir
-        path = None if directory is None else Path(directory) / f"{cache_key(layer)}.npz"
-        if path is not None and path.is_file():
-            try:
-                with np.load(path) as cached:
-                    jacobian = cached["jacobian"]
-                    h = float(cached["hyperparameter"])
-                matrix = ReconstructionMatrix.from_jacobian(
-                    jacobian, inverse_mesh, _matrix_kind(solver), h
-                )
-                grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
-                return cls(layer, protocol, inverse_mesh, matrix, grid, from_cache=True)
-            except (OSError, KeyError, ValueError):
-                pass  # unreadable or stale: rebuild and overwrite below
-        forward_mesh = build_mesh(layer) if inverse_edge else inverse_mesh
-        forward = ForwardModel(
-            forward_mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a
-        )
-        matrix = ReconstructionMatrix.build(
-            forward,
-            prior=_matrix_kind(solver),
-            hyperparameter=solver.hyperparameter,
-            sigma0=layer.material.sheet_conductance_s,
-            inverse_mesh=None if inverse_edge is None else inverse_mesh,
-            noise_figure=solver.noise_figure,
-        )
-        if path is not None:
-            _save_to_cache(path, jacobian=matrix.jacobian, hyperparameter=matrix.hyperparameter)
-        grid = ImageGrid.build(inverse_mesh, solver.image_pixels)
-        return cls(layer, protocol, inverse_mesh, matrix, grid)
+        op = build_operator(layer, cache_dir)
+        grid = ImageGrid.build(op.mesh, layer.solver.image_pixels)
+        rec = op.reconstructor
+        return cls(layer, op.protocol, op.mesh, rec.linearised, grid, op.from_cache, rec)
+
+    @property
+    def method(self) -> str:
+        """The method imaging the frames (:data:`eit_skin.inverse.methods.METHODS`)."""
+        return self.reconstructor.method
 
     @property
     def n_measurements(self) -> int:
@@ -106,7 +188,7 @@ class LayerImager:
 
     def fault_tolerant(self) -> FaultTolerantReconstructor:
         """A reconstructor that also detects and leaves out faulty electrodes."""
-        return FaultTolerantReconstructor(self.matrix, self.protocol)
+        return FaultTolerantReconstructor(self.reconstructor, self.protocol)
 
     def relative_change(
         self,
@@ -117,13 +199,14 @@ class LayerImager:
         """Frames ``[T, M]`` or ``[M]`` volts -> relative conductivity change per element.
 
         Channels flagged saturated/invalid (``flags`` uint8 ``[M]``, ``EitFrame`` bits) and
-        channels that are NaN in a frame or the reference are left out (cached reduced
-        matrices), never imaged.
+        channels that are NaN in a frame or the reference are left out, never imaged
+        (one-step/GREIT: cached reduced matrices; Gauss-Newton: fitted without them, one
+        fit per frame).
         """
         excluded = None
         if flags is not None and np.size(flags):
             excluded = excluded_channels(flags, self.n_measurements)
-        return self.matrix.reconstruct(frames, reference, excluded=excluded)
+        return self.reconstructor.reconstruct(frames, reference, excluded=excluded)
 
     def images(self, element_values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""
@@ -149,6 +232,33 @@ def cache_key(layer: Layer) -> str:
     return f"{layer.name}-{digest[:24]}"
 
 
+def _forward(layer: Layer, inverse_mesh: Mesh) -> ForwardModel:
+    """Forward model on the layer's forward mesh (the inverse mesh when it has no other)."""
+    return forward_model(layer, inverse_mesh if layer.mesh.inverse_max_edge_m is None else None)
+
+
+def _method(
+    layer: Layer,
+    forward: ForwardModel | None,
+    mesh: Mesh,
+    jacobian: np.ndarray | None,
+    hyperparameter: float | None,
+) -> Reconstructor:
+    """The layer's ``solver`` as :func:`~eit_skin.inverse.methods.build_method` arguments."""
+    solver = layer.solver
+    return build_method(
+        solver.method,
+        forward,
+        jacobian=jacobian,
+        mesh=mesh,
+        prior=solver.prior if solver.method in METHODS_WITH_PRIOR else None,
+        hyperparameter=hyperparameter,
+        noise_figure=solver.noise_figure,
+        sigma0=layer.material.sheet_conductance_s,
+        max_iterations=solver.max_iterations if solver.method == "gauss_newton" else None,
+    )
+
+
 def _save_to_cache(path: Path, **arrays: np.ndarray | float) -> None:
     """Store a cache entry atomically; a read-only cache only costs the rebuild next time."""
     try:
@@ -156,8 +266,3 @@ def _save_to_cache(path: Path, **arrays: np.ndarray | float) -> None:
         write_npz_atomic(path, **arrays)
     except OSError:
         pass
-
-
-def _matrix_kind(solver) -> str:
-    """The one-step matrix of a solver: ``"greit"`` for method greit, else its prior."""
-    return "greit" if solver.method == "greit" else solver.prior

@@ -39,7 +39,8 @@ from eit_skin.fem.forward_update import LocalForwardUpdate
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import FLAG_SATURATED
 from eit_skin.patch.model import Layer, Patch
-from eit_skin.patch.protocol import Protocol, build_protocol
+from eit_skin.patch.protocol import Protocol
+from eit_skin.pipeline.builder import forward_model
 from eit_skin.sim.adc import AdcConfig, AdcModel
 from eit_skin.sim.scenario import Scenario, TouchTruth, resolve_scenario
 
@@ -192,10 +193,8 @@ class _LayerSim:
     def __init__(self, layer: Layer, mesh_factor: float, knit_gauge_factor: float) -> None:
         self.layer = layer
         self.mesh: Mesh = build_mesh(layer, mesh_factor * layer.mesh.max_edge_m)
-        self.protocol: Protocol = build_protocol(layer.protocol, layer.n_electrodes)
-        self.model = ForwardModel(
-            self.mesh, self.protocol, layer.contact_impedance_ohm_m, layer.current_a
-        )
+        self.model: ForwardModel = forward_model(layer, self.mesh)  # the reconstruction's physics
+        self.protocol: Protocol = self.model.protocol
         self.points = self.mesh.centroids
         self.sigma0 = layer.material.sheet_conductance_s
         self.knit_gauge_factor = knit_gauge_factor

@@ -1,0 +1,116 @@
+"""One interface for every reconstruction method: build_method and Reconstructor."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eit_skin.fem.disk import disk_mesh
+from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
+from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver
+from eit_skin.inverse.hyperparameter import noise_figure
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS, build_method
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
+from eit_skin.inverse.priors import make_prior
+from test.reconstruction_phantoms import RADIUS_M, phantom, setup
+
+pytestmark = pytest.mark.filterwarnings("error")
+R = RADIUS_M
+
+
+@pytest.fixture(scope="module")
+def s():
+    return setup()
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return disk_mesh(R, h_m=0.011)  # the imaging mesh, coarser than the forward mesh
+
+
+@pytest.fixture(scope="module")
+def jacobian(s, mesh):
+    return imaging_jacobian(s.coarse, 1.0, mesh)
+
+
+@pytest.fixture(scope="module")
+def built(s, mesh, jacobian):
+    return {m: build_method(m, s.coarse, mesh=mesh, jacobian=jacobian) for m in METHODS}
+
+
+def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built):
+    one = ReconstructionMatrix.from_jacobian(jacobian, mesh, "laplace", noise_figure=0.3)
+    np.testing.assert_array_equal(built["one_step"].matrix, one.matrix)
+    greit = ReconstructionMatrix.greit(jacobian, mesh, noise_figure=0.13)
+    np.testing.assert_array_equal(built["greit"].matrix, greit.matrix)
+    gn = built["gauss_newton"]
+    assert isinstance(gn, GaussNewtonReconstructor)
+    # h by the same noise-figure rule on the first linearised step (the one-step matrix)
+    assert gn.hyperparameter == one.hyperparameter == gn.linearised.hyperparameter
+    np.testing.assert_array_equal(gn.linearised.matrix, one.matrix)
+    for method, rec in built.items():
+        assert rec.method == method and rec.mesh is mesh
+        assert (rec.n_channels, rec.n_elements) == (s.coarse.n_measurements, mesh.n_triangles)
+        assert noise_figure(rec.linearised) == pytest.approx(DEFAULT_NOISE_FIGURE[method], 1e-6)
+    # without a Jacobian the forward model gives the same one
+    again = build_method("greit", s.coarse, mesh=mesh)
+    np.testing.assert_allclose(again.matrix, greit.matrix, rtol=1e-9, atol=1e-12)
+
+
+def test_one_contract_for_every_method(s, built):
+    v = phantom(s, [(0.3 * R, 0.2 * R, 0.15 * R, 2.0)])
+    frames = np.stack([s.v0, v])
+    excluded = s.coarse.protocol.touching([2])
+    for rec in built.values():
+        x = rec.reconstruct(frames, s.v0)
+        assert x.dtype == np.float32 and x.shape == (2, rec.n_elements)
+        assert (x[0] == 0).all()  # no change, no image
+        # one frame as in a batch (float32 products: BLAS may round a batch differently)
+        np.testing.assert_allclose(rec.reconstruct(v, s.v0), x[1], rtol=1e-5, atol=1e-6)
+        k = np.argmax(x[1])  # the conductive disc, found with its sign
+        assert np.linalg.norm(rec.mesh.centroids[k] - [0.3 * R, 0.2 * R]) < 0.25 * R
+        # NaN channels are left out exactly as excluded ones
+        nan = v.copy()
+        nan[excluded] = np.nan
+        np.testing.assert_array_equal(
+            rec.reconstruct(nan, s.v0), rec.reconstruct(v, s.v0, excluded=excluded)
+        )
+
+
+def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
+    gn = built["gauss_newton"]
+    solver = GaussNewtonSolver(
+        s.coarse, 1.0, make_prior("laplace", mesh), gn.hyperparameter, parameter_mesh=mesh
+    )
+    frames = np.stack([phantom(s, [(-0.4 * R, 0.1 * R, 0.2 * R, c)]) for c in (5.0, 0.3)])
+    x = gn.reconstruct(frames, s.v0)
+    for frame, got in zip(frames, x, strict=True):
+        res = solver.difference(frame, s.v0, max_iterations=gn.max_iterations)
+        assert res.iterations == gn.max_iterations  # a large contrast takes every step
+        np.testing.assert_allclose(got, res.parameter_change.astype(np.float32), rtol=1e-6)
+
+
+def test_fault_tolerance_works_for_gauss_newton(s, built):
+    v = phantom(s, [(-0.4 * R, 0.3 * R, 0.1 * R, 2.0)])
+    frames = np.stack([v, v])
+    dead = s.coarse.protocol.touching([3])
+    frames[:, dead] = np.random.default_rng(8).normal(0, 5.0, (2, dead.sum()))
+    imager = FaultTolerantReconstructor(built["gauss_newton"], s.coarse.protocol)
+    x = imager.reconstruct(frames, s.v0)
+    assert imager.last_faulty.tolist() == [3]
+    np.testing.assert_array_equal(x[0], built["gauss_newton"].reconstruct(v, s.v0, dead))
+
+
+def test_arguments_a_method_does_not_take_are_refused(s, jacobian, mesh):
+    with pytest.raises(ValueError, match="unknown 'jac'"):
+        build_method("jac", s.coarse)
+    with pytest.raises(ValueError, match="'greit' takes no prior"):
+        build_method("greit", s.coarse, prior="laplace")
+    with pytest.raises(ValueError, match="'one_step' does not iterate"):
+        build_method("one_step", s.coarse, max_iterations=3)
+    with pytest.raises(ValueError, match="needs a forward model"):
+        build_method("gauss_newton", jacobian=jacobian, mesh=mesh)
+    with pytest.raises(ValueError, match="expected \\[208, "):
+        build_method("gauss_newton", s.coarse, mesh=mesh, jacobian=jacobian[:10])
+    # a linear method needs no forward model once the Jacobian is known
+    assert build_method("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1).mesh is mesh
