@@ -2,7 +2,8 @@
 
 Modules: ``builder`` (the only place that builds layer -> forward model -> reconstruction
 matrix, cached on disk by content hash), ``reference`` (no-load reference: capture, drift,
-posture), ``colour_scale`` (false colour for rviz).
+posture), ``processor`` (the per-frame pipeline of one layer: reference, drift, flags,
+faults, images), ``colour_scale`` (false colour for rviz).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from eit_skin import lazy_exports
 _EXPORTS: dict[str, str] = {
     "ColourScale": "colour_scale",
     "LayerImager": "builder",
+    "LayerImages": "processor",
+    "LayerProcessor": "processor",
     "PostureReferences": "reference",
     "ReferenceTracker": "reference",
     "default_cache_dir": "builder",
@@ -24,6 +27,8 @@ _EXPORTS: dict[str, str] = {
 __all__ = [
     "ColourScale",
     "LayerImager",
+    "LayerImages",
+    "LayerProcessor",
     "PostureReferences",
     "ReferenceTracker",
     "default_cache_dir",
@@ -32,6 +37,7 @@ __all__ = [
 if TYPE_CHECKING:
     from eit_skin.pipeline.builder import LayerImager, default_cache_dir
     from eit_skin.pipeline.colour_scale import ColourScale
+    from eit_skin.pipeline.processor import LayerImages, LayerProcessor
     from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 
 
