@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from eit_skin.frames import FrameRecord
+from eit_skin.frames import FrameRecord, excluded_channels
 
 EIT_FRAME_SCHEMA = "eit_skin_msgs/msg/EitFrame"
 _SEPARATOR = "=" * 80
@@ -374,7 +374,8 @@ def mcap_to_npz(
 ) -> int:
     """Export one topic's frames to the npz format; returns T.
 
-    ``frames`` are the voltages (float32 -> float64, NaN where FLAG_INVALID), ``t`` the header
+    ``frames`` are the voltages (float32 -> float64, NaN where a flag keeps the channel out of
+    imaging: saturated or invalid, as the reconstruction pipeline treats it), ``t`` the header
     stamps in seconds since the epoch, ``reference`` the NaN-ignoring mean of the first
     ``reference_frames`` frames. With ``topic=None`` the file must hold exactly one EitFrame
     topic.
@@ -386,7 +387,7 @@ def mcap_to_npz(
             raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
         volts = record.voltages.astype(np.float64)
         if record.channel_flags.size:
-            volts[(record.channel_flags & 2) != 0] = np.nan
+            volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
         if rows and volts.size != rows[0].size:
             raise ValueError(f"{mcap_path}: topic {name} changes M from {rows[0].size}")
         rows.append(volts)
