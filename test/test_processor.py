@@ -160,6 +160,22 @@ def test_faults_are_checked_on_frame_time(small) -> None:
     assert never.faulty_electrodes.size == 0
 
 
+def test_an_electrode_dead_from_the_start_is_left_out_of_the_first_image(small) -> None:
+    """Checked on the captured frames; the noise that tells touch from drift excludes it."""
+    imager, v0, pressed = small
+    dead = imager.protocol.touching([5])
+    rng = np.random.default_rng(6)
+    frames = np.vstack([noisy(v0, 20, 5), pressed[None]])
+    frames[:, dead] = rng.normal(0.0, 0.5, (21, int(dead.sum())))  # floating from the start
+    processor = LayerProcessor(imager, reference_frames=20, drift_time_constant_s=1.0)
+    for k in range(20):
+        assert processor.step(frames[k], 0.1 * (k - 19)) is None
+    assert processor.faulty_electrodes.tolist() == [5]
+    out = processor.step(frames[20], 0.1)
+    assert out.channels_used == dead.size - dead.sum()
+    assert out.touching and processor.drift_updates == 0  # the press is not learnt
+
+
 def test_posture_angle_comes_with_the_frame(small) -> None:
     imager, v0, _ = small
     table = PostureReferences("elbow", [0.0, 1.0], np.stack([v0, 1.01 * v0]))

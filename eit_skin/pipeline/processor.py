@@ -12,11 +12,13 @@ Per frame ``[M]`` volts at frame time ``t_s``:
 2. **Reference.** Until the reference is ready (:class:`ReferenceTracker`: capture of the
    first ``reference_frames`` frames, or :meth:`LayerProcessor.set_reference`) no image is
    made. The captured frames give the per-element noise of the contact decision.
-3. **Faults.** Every ``fault_check_period_s`` of FRAME time (not wall time: an offline run
-   over recorded frames checks at the same frames as the node did) the last
-   :data:`FAULT_WINDOW_FRAMES` frames are checked for faulty electrodes
+3. **Faults.** The captured frames, and then every ``fault_check_period_s`` of FRAME time
+   (not wall time: an offline run over recorded frames checks at the same frames as the node
+   did) the last :data:`FAULT_WINDOW_FRAMES` frames, are checked for faulty electrodes
    (:func:`~eit_skin.inverse.electrode_faults.faulty_electrodes`); their channels stay out of
-   the images until the next check.
+   the images until the next check. The element noise is re-estimated without them, since
+   a floating electrode's channels would otherwise inflate it so much that no touch counts
+   as a contact and drift tracking learns touches into the reference.
 4. **Image.** Relative change per element against the current reference, then contact
    decision and drift tracking (the reference follows untouched frames), then the physical
    image (the layer's unit) on the image grid.
@@ -107,6 +109,7 @@ class LayerProcessor:
         self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
         self._fault_flags: np.ndarray | None = None
         self._next_fault_check_s: float | None = None
+        self._noise_frames: np.ndarray | None = None  # [K, M] V behind the element noise
         self.frames_in = 0
         self.frames_imaged = 0
         self.frames_unusable = 0
@@ -149,6 +152,7 @@ class LayerProcessor:
         self.tracker.rezero()
         self._recent.clear()
         self._next_fault_check_s = None
+        self._noise_frames = None
 
     def set_reference(
         self, reference_v: np.ndarray, t_s: float, noise_frames_v: np.ndarray | None = None
@@ -161,11 +165,8 @@ class LayerProcessor:
         self.rezero()
         self.tracker.set_reference(reference_v, t_s)
         if noise_frames_v is not None and len(noise_frames_v):
-            frames = np.asarray(noise_frames_v, dtype=np.float64)
-            self.tracker.set_element_noise(
-                self.imager.relative_change(frames, self.tracker.reference()).std(axis=0)
-            )
-        self._schedule_fault_check(t_s)
+            self._noise_frames = np.asarray(noise_frames_v, dtype=np.float64)
+        self._reference_ready(t_s)
 
     # ----------------------------------------------------------------- frames
     def step(
@@ -206,9 +207,8 @@ class LayerProcessor:
             tracker.angle_rad = float(angle_rad)
         if not tracker.ready:
             if tracker.capture(frame, t_s):
-                noise = self.imager.relative_change(tracker.captured_frames, tracker.reference())
-                tracker.set_element_noise(noise.std(axis=0))
-                self._schedule_fault_check(t_s)
+                self._noise_frames = tracker.captured_frames
+                self._reference_ready(t_s)
             return None
         reference = tracker.reference()
         if not np.isfinite(frame).any():
@@ -244,6 +244,22 @@ class LayerProcessor:
         ]
 
     # ----------------------------------------------------------------- faults
+    def _reference_ready(self, t_s: float) -> None:
+        """Fault check on the frames behind the noise, then the noise itself."""
+        frames = self._noise_frames
+        if frames is not None and len(frames) >= MIN_FAULT_FRAMES and self.fault_check_period_s > 0:
+            self._check_faults(frames, self.tracker.reference())
+        self._update_element_noise()
+        self._schedule_fault_check(t_s)
+
+    def _update_element_noise(self) -> None:
+        if self._noise_frames is None:
+            return
+        change = self.imager.relative_change(
+            self._noise_frames, self.tracker.reference(), self._fault_flags
+        )
+        self.tracker.set_element_noise(change.std(axis=0))
+
     def _schedule_fault_check(self, t_s: float) -> None:
         period = self.fault_check_period_s
         self._next_fault_check_s = t_s + period if period > 0 else None
@@ -252,12 +268,21 @@ class LayerProcessor:
         due = self._next_fault_check_s
         if due is None or t_s < due or len(self._recent) < MIN_FAULT_FRAMES:
             return
+        if self._check_faults(np.stack(self._recent), reference):
+            self._update_element_noise()
+        self._schedule_fault_check(t_s)
+
+    def _check_faults(self, frames: np.ndarray, reference: np.ndarray) -> bool:
+        """Find faulty electrodes in ``frames`` ``[T, M]``; returns whether the set changed."""
         protocol = self.imager.protocol
-        self._faulty = faulty_electrodes(np.stack(self._recent), reference, protocol)
-        if self._faulty.size:
-            self._fault_mask = protocol.touching(self._faulty)
+        faulty = faulty_electrodes(frames, reference, protocol)
+        if np.array_equal(faulty, self._faulty):
+            return False
+        self._faulty = faulty
+        if faulty.size:
+            self._fault_mask = protocol.touching(faulty)
             self._fault_flags = self._fault_mask.astype(np.uint8) * np.uint8(FLAG_INVALID)
         else:
             self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
             self._fault_flags = None
-        self._schedule_fault_check(t_s)
+        return True
