@@ -148,7 +148,10 @@ class LayerProcessor:
 
     # ---------------------------------------------------------------- control
     def rezero(self) -> None:
-        """Capture a new reference from the next frames (the fault window restarts)."""
+        """Capture a new reference from the next frames.
+
+        The fault window restarts; the faulty set stands until the captured frames are checked.
+        """
         self.tracker.rezero()
         self._recent.clear()
         self._next_fault_check_s = None
