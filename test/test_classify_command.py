@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from eit_skin.cli.main import main
@@ -36,6 +37,22 @@ def test_classify_prints_the_finished_push(elbow_push, capsys, monkeypatch, tmp_
     assert event["t_end"] == pytest.approx(truth.t_end_s, abs=0.15)
     assert event["centroid"] == pytest.approx(list(truth.contacts[0]), abs=0.01)
     assert 0.0 <= event["confidence"] <= 1.0
+
+
+def test_frame_times_come_from_the_file_without_rate(elbow_push, capsys, monkeypatch, tmp_path):
+    """The simulator's t is k / 50 Hz: the same event as with --rate 50, to the bit."""
+    out, _ = elbow_push
+    monkeypatch.setenv("EIT_SKIN_CACHE", str(tmp_path.parent / "imager-cache"))
+    base = ["classify", "--patch", "elbow", "--frames", str(out / "pressure.npz")]
+    assert main([*base, "--rate", "50"]) == 0
+    with_rate = capsys.readouterr().out
+    assert main(base) == 0
+    assert capsys.readouterr().out == with_rate and '"push"' in with_rate
+    with np.load(out / "pressure.npz") as data:
+        np.savez(tmp_path / "no_t.npz", reference=data["reference"], frames=data["frames"][:5])
+    assert main([*base[:-1], str(tmp_path / "no_t.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "no_t.npz: no 't'" in err and "give --rate" in err and err.count("\n") == 1
 
 
 @pytest.mark.parametrize(

@@ -43,6 +43,35 @@ def test_reconstruct_writes_images(frames_file, tmp_path, capsys):
     k = np.unravel_index(np.nanargmax(images[1]), images[1].shape)
     assert np.hypot(x[k[1]] - centre[0], y[k[0]] - centre[1]) < 0.006
     assert [p.name for p in tmp_path.iterdir()] == ["out.npz"]
+    with np.load(out) as d:  # the node's physical image (Pa) of the same frames
+        physical, imaged = d["physical"], d["imaged"]
+    assert physical.dtype == np.float32 and physical.shape == images.shape and imaged.all()
+    assert np.nanmax(np.abs(physical[0])) == 0.0
+    assert np.nanargmax(physical[1]) == np.nanargmax(images[1]) and np.nanmax(physical[1]) > 1e3
+
+
+def test_capture_reference_like_the_node(frames_file, tmp_path):
+    """--reference capture: the first frames become the reference and are not imaged."""
+    path, centre = frames_file
+    with np.load(path) as d:
+        ref, touched = d["frames"]
+    src = tmp_path / "in.npz"
+    t = 100.0 + 0.1 * np.arange(5)
+    # the file's reference is deliberately wrong: capture mode must not use it
+    np.savez(src, reference=0.9 * ref, frames=np.stack([ref, ref, ref, touched, ref]), t=t)
+    out = tmp_path / "out.npz"
+    args = ["reconstruct", "--patch", "arm", "--frames", str(src), "--out", str(out)]
+    assert main([*args, "--reference", "capture", "--reference-frames", "3"]) == 0
+    with np.load(out) as d:
+        images, imaged, t_out, x, y = d["images"], d["imaged"], d["t"], d["x"], d["y"]
+    assert imaged.tolist() == [False, False, False, True, True]
+    assert np.isnan(images[:3]).all() and np.array_equal(t_out, t)
+    k = np.unravel_index(np.nanargmax(images[3]), images[3].shape)
+    assert np.hypot(x[k[1]] - centre[0], y[k[0]] - centre[1]) < 0.006
+    assert np.nanmax(np.abs(images[4])) < 1e-9  # back to the captured reference
+    assert main([*args, "--reference", "capture", "--rate", "10"]) == 0  # 20 frames: none left
+    with np.load(out) as d:
+        assert not d["imaged"].any() and np.array_equal(d["t"], np.arange(5) / 10.0)
 
 
 def test_reconstruct_with_gauss_newton(frames_file, tmp_path):
@@ -67,13 +96,21 @@ def test_reconstruct_with_gauss_newton(frames_file, tmp_path):
         ({"frames": np.zeros((2, 208))}, "missing key 'reference'"),
         ({"reference": np.ones(100), "frames": np.ones((2, 100))}, "expects 208"),
         ({"reference": np.r_[np.nan, np.ones(207)], "frames": np.ones((2, 208))}, "non-finite"),
+        ({"reference": np.ones(208), "frames": np.ones((2, 208)), "rate": 0}, "--rate: must be"),
+        ({"reference": np.ones(208), "frames": np.ones((2, 208)), "n": -1}, "--reference-frames"),
     ],
 )
 def test_bad_input_one_line_nothing_written(tmp_path, capsys, content, message):
     src = tmp_path / "in.npz"
+    options = []
+    if "rate" in content:
+        options += ["--rate", str(content.pop("rate"))]
+    if "n" in content:
+        options += ["--reference-frames", str(content.pop("n"))]
     np.savez(src, **content)
     out = tmp_path / "out.npz"
-    assert main(["reconstruct", "--patch", "arm", "--frames", str(src), "--out", str(out)]) == 1
+    args = ["reconstruct", "--patch", "arm", "--frames", str(src), "--out", str(out)]
+    assert main([*args, *options]) == 1
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.npz"]

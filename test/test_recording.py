@@ -216,3 +216,23 @@ def test_mcap_to_npz_needs_a_topic_when_several(tmp_path):
     with pytest.raises(ValueError, match="several EitFrame topics"):
         mcap_to_npz(tmp_path / "two.mcap", tmp_path / "x.npz")
     assert mcap_to_npz(tmp_path / "two.mcap", tmp_path / "x.npz", topic="/b/frames") == 1
+
+
+def test_export_makes_flagged_values_missing_even_when_stuck(tmp_path):
+    """Saturated and invalid values become NaN (the pipeline's missing values); a channel stuck
+    at the rail in every frame keeps a finite placeholder reference, so export still works."""
+    flags = np.zeros((2, 208), np.uint8)
+    flags[:, [7, 9]] = [1, 2]  # saturated, invalid: in every frame
+    flags[1, 11] = 1
+    frames = [
+        FrameRecord(**{**vars(record(i)), "voltages": np.full(208, 0.5 + i), "channel_flags": f})
+        for i, f in enumerate(flags)
+    ]
+    with McapFrameWriter(tmp_path / "stuck.mcap") as writer:
+        for rec in frames:
+            writer.write(TOPIC, rec)
+    assert mcap_to_npz(tmp_path / "stuck.mcap", tmp_path / "stuck.npz", reference_frames=2) == 2
+    ref, back, _ = load_frames_npz(tmp_path / "stuck.npz")
+    assert np.isnan(back[:, [7, 9]]).all() and np.isnan(back[1, 11]) and back[0, 11] == 0.5
+    assert np.isnan(back).sum() == 5
+    np.testing.assert_array_equal(ref[[7, 9, 11, 12]], [1.0, 1.0, 0.5, 1.0])

@@ -15,18 +15,26 @@ from eit_skin.pipeline.reference import (
 M = 12
 
 
-def test_capture_averages_the_first_frames_and_skips_non_finite() -> None:
+def test_capture_averages_finite_values_per_channel() -> None:
+    """Missing values: a channel averages its finite values; an all-missing frame is skipped."""
     tracker = ReferenceTracker(M, n_frames=3, drift_time_constant_s=0.0)
     frames = np.arange(4 * M, dtype=float).reshape(4, M)
+    frames[:, 5] = np.nan  # a dead channel: missing in every frame
     bad = frames[0].copy()
-    bad[2] = np.nan
-    assert not tracker.capture(bad, 0.0)
-    assert not tracker.capture(frames[0], 0.1)
+    bad[2] = np.inf
+    assert not tracker.capture(np.full(M, np.nan), 0.0)  # nothing usable: does not count
+    assert not tracker.capture(bad, 0.1)
     assert not tracker.capture(frames[1], 0.2)
     assert tracker.capture(frames[2], 0.3)
-    np.testing.assert_allclose(tracker.reference(), frames[:3].mean(axis=0))
-    np.testing.assert_allclose(tracker.noise_v, frames[:3].std(axis=0, ddof=1))
+    expected = frames[:3].mean(axis=0)
+    expected[2] = frames[1:3, 2].mean()  # the inf left out of channel 2 only
+    np.testing.assert_allclose(tracker.reference(), expected)  # channel 5 stays NaN
+    noise = frames[:3].std(axis=0, ddof=1)
+    noise[2] = frames[1:3, 2].std(ddof=1)
+    np.testing.assert_allclose(tracker.noise_v, noise)
     assert tracker.age_s(1.3) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match=rf"\[{M}\] volts, got shape \(3,\)"):
+        tracker.capture(np.ones(3), 1.0)
     tracker.rezero()
     assert not tracker.ready and np.isnan(tracker.age_s(2.0))
 
@@ -39,8 +47,21 @@ def test_drift_follows_untouched_frames_and_freezes_during_contact() -> None:
     assert not tracker.touching(np.full(5, 0.04))
     tracker.track(np.full(M, 2.0), 10.0, touching=True)
     np.testing.assert_array_equal(tracker.reference(), np.ones(M))
-    tracker.track(np.full(M, 2.0), 10.0, touching=False)  # dt = 10 s = one time constant
-    np.testing.assert_allclose(tracker.reference(), 1.0 + (1.0 - np.exp(-1.0)))
+    frame = np.full(M, 2.0)
+    frame[3] = np.nan  # missing: channel 3 keeps its reference
+    tracker.track(frame, 10.0, touching=False)  # dt = 10 s = one time constant
+    expected = np.full(M, 1.0 + (1.0 - np.exp(-1.0)))
+    expected[3] = 1.0
+    np.testing.assert_allclose(tracker.reference(), expected)
+    assert tracker.drift_updates == 1
+
+
+def test_a_given_reference_counts_as_captured_without_noise() -> None:
+    tracker = ReferenceTracker(M, n_frames=20, drift_time_constant_s=1.0)
+    tracker.set_reference(np.full(M, 3.0), 5.0)
+    assert tracker.ready and tracker.age_s(6.0) == pytest.approx(1.0)
+    np.testing.assert_array_equal(tracker.reference(), 3.0)
+    assert tracker.touching(np.zeros(5))  # noise unknown: never learnt into the baseline
 
 
 def test_posture_table_interpolates_and_scales_with_the_captured_gain() -> None:

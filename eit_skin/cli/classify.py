@@ -1,11 +1,14 @@
 """``eit-skin classify``: detect and label touches in an offline frames file; JSON lines.
 
 Reads the pressure layer's frames (the patch's first layer, ``eit-skin reconstruct`` input
-format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), reconstructs them,
-runs :class:`~eit_skin.touch.classifier.TouchClassifier` and prints one JSON object per
-FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame), ``confidence``,
-``centroid`` ([x, y] m, patch frame). The first ``calibration_s`` (0.5 s) of the file must be
-free of touch: they give the noise level. Errors: one line on stderr, exit status 1.
+format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), images them with the
+reconstruction node's per-frame pipeline (:class:`~eit_skin.pipeline.processor.LayerProcessor`:
+reference, drift tracking, fault checks; the same options as ``eit-skin reconstruct``), runs
+:class:`~eit_skin.touch.classifier.TouchClassifier` on the images and prints one JSON object
+per FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame),
+``confidence``, ``centroid`` ([x, y] m, patch frame). Frame times: ``--rate`` when given, else
+the file's ``t``. The first ``calibration_s`` (0.5 s) of images must be free of touch: they
+give the noise level. Errors: one line on stderr, exit status 1.
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+from eit_skin.cli.reconstruct import add_pipeline_arguments
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,7 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="IN.npz",
         help="frames of the patch's first (pressure) layer, eit-skin reconstruct format",
     )
-    parser.add_argument("--rate", required=True, type=float, metavar="HZ", help="frame rate, Hz")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="frame rate: frame k at k / HZ s (default: the file's t)",
+    )
     parser.add_argument(
         "--stretch-frames",
         type=Path,
@@ -34,11 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="frames of the patch's layer named 'stretch' (same format, same T); optional, "
         "sharpens rub/pinch on patches that have a stretch layer",
     )
-    parser.add_argument(
-        "--cache-dir",
-        default="default",
-        help="reconstruction matrix cache (default: $EIT_SKIN_CACHE or ~/.cache/eit_skin)",
-    )
+    add_pipeline_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,20 +61,20 @@ def run(args: argparse.Namespace) -> int:
 
 def classify_file(args: argparse.Namespace):
     """Finished touch events (END) of the files named in ``args``."""
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.cli.reconstruct import cache_dir
     from eit_skin.patch.model import load_patch
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
     from eit_skin.touch.classifier import TouchClassifier
     from eit_skin.touch.shapes import single_contact_spread
 
-    if not args.rate > 0:
+    if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
     patch_path = args.patch if Path(args.patch).exists() else config_path(args.patch)
     patch = load_patch(patch_path)
-    cache = None if args.cache_dir in ("", "none") else args.cache_dir
+    cache = cache_dir(args)
     imager = LayerImager.build(patch.layers[0], cache_dir=cache)
-    pressure = _images(imager, args.frames, load_frames_npz)
+    times, pressure = _images(imager, args.frames, args)
     stretch = None
     if args.stretch_frames is not None:
         names = [ly.name for ly in patch.layers]
@@ -76,27 +83,36 @@ def classify_file(args: argparse.Namespace):
                 f"--stretch-frames: patch {patch.name!r} has no layer 'stretch' ({names})"
             )
         stretch_imager = LayerImager.build(patch.layer("stretch"), cache_dir=cache)
-        stretch = _images(stretch_imager, args.stretch_frames, load_frames_npz)
-        if stretch.shape[0] != pressure.shape[0]:
+        _, stretch = _images(stretch_imager, args.stretch_frames, args)
+        if len(stretch) != len(pressure):
             raise ValueError(
-                f"{args.stretch_frames}: {stretch.shape[0]} frames, but {args.frames} has "
-                f"{pressure.shape[0]}"
+                f"{args.stretch_frames}: {len(stretch)} frames, but {args.frames} has "
+                f"{len(pressure)}"
             )
     spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
     classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
-    for k in range(pressure.shape[0]):
-        t = k / args.rate
-        for event in classifier.step(t, pressure[k], None if stretch is None else stretch[k]):
+    for k, images in enumerate(pressure):
+        if images is None:  # reference capture (--reference capture) or no usable channel
+            continue
+        extra = None if stretch is None or stretch[k] is None else stretch[k].image
+        for event in classifier.step(times[k] - times[0], images.image, extra):
             if event.state == "end":
                 yield event
     yield from classifier.finish()
 
 
-def _images(imager, path: Path, load_frames_npz):
-    """Physical images ``[T, H, W]`` of one layer's frames file."""
+def _images(imager, path: Path, args: argparse.Namespace):
+    """Frame times ``[T]`` s and per-frame results of one layer's frames file."""
+    from eit_skin.cli.reconstruct import frame_times, make_processor, process_file
+    from eit_skin.io.recording import load_frames_npz
+
     if not Path(path).is_file():
         raise ValueError(f"{path}: no such file")
-    reference, frames, _ = load_frames_npz(path, imager.n_measurements)
-    if frames.shape[0] == 0:
-        raise ValueError(f"{path}: no frames")
-    return imager.physical(imager.images(imager.relative_change(frames, reference)))
+    reference, frames, t = load_frames_npz(path, imager.n_measurements)
+    if t is None and args.rate is None:
+        raise ValueError(f"{path}: no 't' (frame times) in the file: give --rate")
+    times = frame_times(t, frames.shape[0], args.rate, 0.0)
+    results, _ = process_file(
+        make_processor(imager, args), reference, frames, times, args.reference
+    )
+    return times, results

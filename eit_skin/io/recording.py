@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from eit_skin.frames import FrameRecord
+from eit_skin.frames import FrameRecord, excluded_channels
 
 EIT_FRAME_SCHEMA = "eit_skin_msgs/msg/EitFrame"
 _SEPARATOR = "=" * 80
@@ -374,19 +374,25 @@ def mcap_to_npz(
 ) -> int:
     """Export one topic's frames to the npz format; returns T.
 
-    ``frames`` are the voltages (float32 -> float64, NaN where FLAG_INVALID), ``t`` the header
+    ``frames`` are the voltages (float32 -> float64, NaN where a flag keeps the channel out of
+    imaging: saturated or invalid, as the reconstruction pipeline treats it), ``t`` the header
     stamps in seconds since the epoch, ``reference`` the NaN-ignoring mean of the first
-    ``reference_frames`` frames. With ``topic=None`` the file must hold exactly one EitFrame
-    topic.
+    ``reference_frames`` frames (a channel flagged in all of them - e.g. stuck at the rail -
+    gets the mean of its flagged values there: a finite placeholder, never imaged since the
+    channel is NaN in those frames). With ``topic=None`` the file must hold exactly one
+    EitFrame topic.
     """
-    rows, stamps, seen = [], [], set()
+    head_size = max(1, reference_frames)
+    rows, raw_head, stamps, seen = [], [], [], set()
     for name, _, record in read_mcap_frames(mcap_path, [topic] if topic else None):
         seen.add(name)
         if len(seen) > 1:
             raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
         volts = record.voltages.astype(np.float64)
+        if len(raw_head) < head_size:
+            raw_head.append(volts.copy())
         if record.channel_flags.size:
-            volts[(record.channel_flags & 2) != 0] = np.nan
+            volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
         if rows and volts.size != rows[0].size:
             raise ValueError(f"{mcap_path}: topic {name} changes M from {rows[0].size}")
         rows.append(volts)
@@ -394,14 +400,17 @@ def mcap_to_npz(
     if not rows:
         raise ValueError(f"{mcap_path}: no EitFrame messages" + (f" on {topic}" if topic else ""))
     frames = np.stack(rows)
-    head = frames[: max(1, reference_frames)]
-    missing = np.isnan(head).all(axis=0)
-    if missing.any():
+    head = frames[:head_size]
+    reference = np.full(frames.shape[1], np.nan)
+    for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
+        missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
+        reference[missing] = np.nanmean(values[:, missing], axis=0)
+    if not np.isfinite(reference).all():
         raise ValueError(
-            f"{mcap_path}: channel {int(np.flatnonzero(missing)[0])} is invalid in all of the "
-            f"first {len(head)} frames, so there is no reference; raise reference_frames"
+            f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is invalid "
+            f"in all of the first {len(head)} frames, so there is no reference; raise "
+            "reference_frames"
         )
-    reference = np.nanmean(head, axis=0)
     save_frames_npz(npz_path, reference, frames, np.asarray(stamps, dtype=np.int64) / 1e9)
     return len(rows)
 

@@ -2,7 +2,8 @@
 
 Modules: ``builder`` (the only place that builds layer -> meshes -> forward model -> the
 layer's reconstruction method, cached on disk by content hash), ``reference`` (no-load
-reference: capture, drift, posture), ``colour_scale`` (false colour for rviz).
+reference: capture, drift, posture), ``processor`` (the per-frame pipeline of one layer:
+reference, drift, flags, faults, units, images), ``colour_scale`` (false colour for rviz).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ _EXPORTS: dict[str, str] = {
     "ColourScale": "colour_scale",
     "LayerImager": "builder",
     "Operator": "builder",
+    "LayerImages": "processor",
+    "LayerProcessor": "processor",
     "PostureReferences": "reference",
     "ReferenceTracker": "reference",
     "build_operator": "builder",
@@ -28,6 +31,8 @@ _EXPORTS: dict[str, str] = {
 __all__ = [
     "ColourScale",
     "LayerImager",
+    "LayerImages",
+    "LayerProcessor",
     "Operator",
     "PostureReferences",
     "ReferenceTracker",
@@ -47,6 +52,7 @@ if TYPE_CHECKING:
         with_method,
     )
     from eit_skin.pipeline.colour_scale import ColourScale
+    from eit_skin.pipeline.processor import LayerImages, LayerProcessor
     from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 
 

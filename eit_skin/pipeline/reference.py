@@ -6,14 +6,17 @@ Difference imaging compares every frame with a reference frame of the untouched 
 * **Capture.** The first ``n_frames`` frames after start (or after :meth:`rezero`) are
   averaged into the reference (seed paper, Fig. 5). No image is made meanwhile. The skin
   must not be touched during those frames (``n_frames / rate`` seconds, 0.4 s at 50 Hz with
-  the default 20 frames).
+  the default 20 frames). Non-finite values are missing values: each channel averages its
+  finite values, a frame without any is skipped, and a channel missing in every captured
+  frame stays NaN in the reference (so it is left out of the images until the next capture)
+  rather than blocking the capture for ever.
 * **Noise.** The spread of the captured frames gives the per-channel noise, from which the
   contact threshold of the drift tracker is derived.
 * **Drift.** While *no contact* is present (no element's change exceeds ``contact_k``
   times its noise), the reference follows the frames with an exponential moving average of
   time constant ``drift_time_constant_s`` (default 60 s), so slow temperature and ageing
   drift is absorbed but a touch is never learnt into the baseline. During a touch the
-  baseline is frozen.
+  baseline is frozen. Missing (non-finite) values of a frame leave their channel unchanged.
 * **Posture.** For skins over joints a :class:`PostureReferences` table (references captured
   at several joint angles by the calibration sweep) replaces the fixed reference: the
   reference is interpolated at the current joint angle, and drift tracking acts on a
@@ -196,28 +199,57 @@ class ReferenceTracker:
         return self._base * self.posture.at(self.angle_rad)
 
     def capture(self, frame_v: np.ndarray, t_s: float) -> bool:
-        """Add a frame to the capture; returns True when the reference became ready.
+        """Add a frame ``[M]`` V to the capture; returns True when the reference became ready.
 
-        Frames with non-finite values are skipped (never averaged in).
+        Non-finite values are missing (see the module docstring); a frame without any finite
+        value does not count. Raises ValueError for a frame that is not ``[M]``.
         """
-        frame = np.asarray(frame_v, dtype=np.float64)
-        if frame.shape != (self.n_measurements,) or not np.isfinite(frame).all():
+        frame = self._frame(frame_v)
+        if not np.isfinite(frame).any():
             return False
         self._captured.append(frame)
         if len(self._captured) < self.n_frames:
             return False
         stack = np.stack(self._captured)
-        mean = stack.mean(axis=0)
-        self.noise_v = stack.std(axis=0, ddof=1) if len(stack) > 1 else np.zeros_like(mean)
-        if self.posture is None:
-            self._base = mean
-        else:
-            table = self.posture.at(self.angle_rad)
-            self._base = np.divide(mean, table, out=np.ones_like(mean), where=table != 0)
+        finite = np.isfinite(stack)
+        count = finite.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(finite, stack, 0.0).sum(axis=0) / count  # NaN where count == 0
+            spread = np.where(finite, stack - mean, 0.0)
+            self.noise_v = np.sqrt((spread**2).sum(axis=0) / np.maximum(count - 1, 1))
+        self.noise_v[count == 0] = np.nan
+        self._set_base(mean)
         self.captured_frames = stack
         self._captured = []
         self.captured_at_s = self.updated_at_s = t_s
         return True
+
+    def set_reference(self, reference_v: np.ndarray, t_s: float) -> None:
+        """Use a given no-load frame ``[M]`` V as if it had just been captured at ``t_s``.
+
+        For a reference measured elsewhere (the ``reference`` of an offline frames file). The
+        noise stays unknown (``noise_v``, ``captured_frames`` None) until
+        :meth:`set_element_noise`; until then every frame counts as touched (no drift).
+        """
+        reference = self._frame(reference_v)
+        self.rezero()
+        self._set_base(reference)
+        self.captured_at_s = self.updated_at_s = t_s
+
+    def _frame(self, frame_v: np.ndarray) -> np.ndarray:
+        frame = np.asarray(frame_v, dtype=np.float64)
+        if frame.shape != (self.n_measurements,):
+            raise ValueError(
+                f"a frame must be [{self.n_measurements}] volts, got shape {frame.shape}"
+            )
+        return frame
+
+    def _set_base(self, mean_v: np.ndarray) -> None:
+        if self.posture is None:
+            self._base = mean_v.copy()
+        else:
+            table = self.posture.at(self.angle_rad)
+            self._base = np.divide(mean_v, table, out=np.ones_like(mean_v), where=table != 0)
 
     def set_element_noise(self, element_std: np.ndarray) -> None:
         """Per-element noise of the reconstructed change (from the captured frames)."""
@@ -231,20 +263,26 @@ class ReferenceTracker:
         return bool(np.fmax.reduce(score, initial=0.0) > self.contact_k)  # NaN ignored
 
     def track(self, frame_v: np.ndarray, t_s: float, touching: bool) -> None:
-        """Drift tracking: follow an untouched frame slowly; freeze during a touch."""
+        """Drift tracking: follow an untouched frame slowly; freeze during a touch.
+
+        Channels whose value is non-finite in the frame keep their reference.
+        """
         if self._base is None or touching or self.drift_time_constant_s <= 0:
             return
-        frame = np.asarray(frame_v, dtype=np.float64)
-        if not np.isfinite(frame).all():
-            return
-        dt = 0.0 if self.updated_at_s is None else max(0.0, t_s - self.updated_at_s)
-        alpha = 1.0 - np.exp(-dt / self.drift_time_constant_s)
+        frame = self._frame(frame_v)
         if self.posture is None:
             target = frame
         else:
             table = self.posture.at(self.angle_rad)
             target = np.divide(frame, table, out=self._base.copy(), where=table != 0)
-        self._base = self._base + alpha * (target - self._base)
+        finite = np.isfinite(target)
+        if not finite.any():
+            return
+        dt = 0.0 if self.updated_at_s is None else max(0.0, t_s - self.updated_at_s)
+        alpha = 1.0 - np.exp(-dt / self.drift_time_constant_s)
+        with np.errstate(invalid="ignore"):  # inf targets: masked out below
+            moved = self._base + alpha * (target - self._base)
+        self._base = np.where(finite, moved, self._base)
         self.updated_at_s = t_s
         self.drift_updates += 1
 

@@ -1,9 +1,10 @@
 """``eit_reconstruction``: pressure and stretch images of one skin patch.
 
-Subscribes to every layer's ``<layer>/frames`` (``eit_skin_msgs/EitFrame``), images each
-frame against the layer's no-load reference (see :mod:`eit_skin.pipeline.reference` for capture,
-``~/rezero``, drift tracking and posture compensation) and publishes, per layer with
-quantity Q (``pressure`` or ``stretch``):
+Subscribes to every layer's ``<layer>/frames`` (``eit_skin_msgs/EitFrame``), checks that a
+frame fits the layer and hands it to the layer's ``LayerProcessor``
+(:mod:`eit_skin.pipeline.processor`: reference capture, ``~/rezero``, drift tracking, posture
+compensation, flags, fault checks on frame time; the same code ``eit-skin reconstruct`` runs
+offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``):
 
 * ``Q/image``: ``sensor_msgs/Image`` 32FC1 in the layer's physical unit (pressure: Pa,
   stretch: strain), NaN outside the sheet and in holes, stamped with the frame's
@@ -31,11 +32,18 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from eit_skin.hardware.sources import RateMeter, pattern_name
-from eit_skin.inverse.electrode_faults import faulty_electrodes
 from eit_skin.patch.model import Layer, load_patch
 from eit_skin.pipeline.builder import LayerImager, default_cache_dir
 from eit_skin.pipeline.colour_scale import ColourScale
-from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, ReferenceTracker
+from eit_skin.pipeline.processor import (
+    DEFAULT_CONTACT_K,
+    DEFAULT_DRIFT_TIME_CONSTANT_S,
+    DEFAULT_FAULT_CHECK_PERIOD_S,
+    FAULT_WINDOW_FRAMES,
+    LayerProcessor,
+    stamp_to_s,
+)
+from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences
 from eit_skin.resources import config_path
 from eit_skin.ros.node_graph import image_topics
 from eit_skin.ros.node_runner import (
@@ -59,14 +67,27 @@ _PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
     ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
     ("reference_frames", 0, "frames averaged into the reference; 0: the layer's solver setting"),
-    ("drift_time_constant_s", 60.0, "drift tracking time constant while untouched, s; 0: off"),
-    ("contact_k", 5.0, "a change above contact_k x noise counts as contact (freezes drift)"),
+    (
+        "drift_time_constant_s",
+        DEFAULT_DRIFT_TIME_CONSTANT_S,
+        "drift tracking time constant while untouched, s; 0: off",
+    ),
+    (
+        "contact_k",
+        DEFAULT_CONTACT_K,
+        "a change above contact_k x noise counts as contact (freezes drift)",
+    ),
     ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
     ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
     ("pressure_range_pa", 10000.0, "top of the pressure colour scale, Pa"),
     ("stretch_range", 0.05, "top of the stretch colour scale, strain"),
     ("marker_period_s", 0.5, "period of skin_marker updates, s; 0: no marker"),
-    ("fault_check_period_s", 1.0, "how often recent frames are checked for faulty electrodes"),
+    (
+        "fault_check_period_s",
+        DEFAULT_FAULT_CHECK_PERIOD_S,
+        f"frame time between checks of the last {FAULT_WINDOW_FRAMES} frames for faulty "
+        "electrodes, s; 0: never",
+    ),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
 
@@ -77,7 +98,7 @@ class LayerState:
 
     layer: Layer
     imager: LayerImager
-    tracker: ReferenceTracker
+    processor: LayerProcessor
     quantity: str
     image_pub: object
     colour_pub: object
@@ -90,16 +111,12 @@ class LayerState:
     last_sequence: int | None = None
     latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
     processing_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
-    last_values: np.ndarray | None = None
     last_image: np.ndarray | None = None
-    recent: deque[np.ndarray] = field(default_factory=lambda: deque(maxlen=50))
-    faulty: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    excluded: np.ndarray | None = None
     last_reject: str = ""
 
 
 class ReconstructionNode(Node):
-    """Thin adapter: EitFrame -> LayerImager -> images, markers and diagnostics."""
+    """Thin adapter: EitFrame -> LayerProcessor -> images, markers and diagnostics."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_reconstruction", **kwargs)
@@ -130,12 +147,13 @@ class ReconstructionNode(Node):
             self.layers[layer.name] = LayerState(
                 layer=layer,
                 imager=imager,
-                tracker=ReferenceTracker(
-                    imager.n_measurements,
-                    int(p["reference_frames"]) or layer.solver.reference_frames,
+                processor=LayerProcessor(
+                    imager,
+                    int(p["reference_frames"]) or None,
                     float(p["drift_time_constant_s"]),
                     float(p["contact_k"]),
                     posture,
+                    float(p["fault_check_period_s"]),
                 ),
                 quantity=quantity,
                 image_pub=self.create_publisher(Image, f"{topic}/image", qos_profile_sensor_data),
@@ -158,7 +176,6 @@ class ReconstructionNode(Node):
         self.create_service(Trigger, "~/rezero", self._on_rezero)
         self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
-        self.create_timer(float(p["fault_check_period_s"]), self._check_faults)
         self.marker_pub = None
         if float(p["marker_period_s"]) > 0:
             self.marker_pub = self.create_publisher(Marker, "skin_marker", 1)
@@ -201,40 +218,28 @@ class ReconstructionNode(Node):
             if 1 < gap < 2**31:
                 state.dropped += gap - 1
         state.last_sequence = msg.sequence
-        stamp_s = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         started = time.perf_counter()
         frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
         flags = np.frombuffer(msg.channel_flags, np.uint8) if len(msg.channel_flags) else None
-        tracker = state.tracker
-        if self.joint:
-            angle = self.joint_history.at(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
-            tracker.angle_rad = angle if np.isfinite(angle) else tracker.angle_rad
-        if not tracker.ready:
-            if tracker.capture(frame, stamp_s):
-                noise = state.imager.relative_change(
-                    tracker.captured_frames, tracker.reference()
-                ).std(axis=0)
-                tracker.set_element_noise(noise)
-                self.get_logger().info(
-                    f"layer {name}: reference captured from {tracker.n_frames} frames"
-                )
+        if flags is not None and flags.size != m:
+            self._reject(state, f"frame has {flags.size} channel flags for {m} values")
             return
-        state.recent.append(frame)
-        excluded = flags
-        if state.excluded is not None and state.excluded.any():
-            excluded = (flags if flags is not None else np.zeros(m, np.uint8)) | (
-                state.excluded.astype(np.uint8) * 2
+        angle = self.joint_history.at(stamp_ns) if self.joint else None
+        processor = state.processor
+        was_ready = processor.reference_ready
+        out = processor.step(frame, stamp_to_s(stamp_ns), flags, angle)
+        if not was_ready and processor.reference_ready:
+            self.get_logger().info(
+                f"layer {name}: reference captured from {processor.reference_frames} frames"
             )
-        values = state.imager.relative_change(frame, tracker.reference(), excluded)
-        tracker.track(frame, stamp_s, tracker.touching(values))
-        physical = state.imager.images(state.imager.physical(values))
-        self._publish_images(state, msg.header, physical)
-        state.last_values = values
-        state.last_image = physical
+        if out is None:
+            return
+        self._publish_images(state, msg.header, out.image)
+        state.last_image = out.image
         state.imaged += 1
-        now = time.time_ns()
         state.rate.tick()
-        state.latencies_ms.append((now * 1e-9 - stamp_s) * 1e3)
+        state.latencies_ms.append((time.time_ns() - stamp_ns) * 1e-6)
         state.processing_ms.append((time.perf_counter() - started) * 1e3)
 
     def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
@@ -253,9 +258,9 @@ class ReconstructionNode(Node):
     # --------------------------------------------------------------- services
     def _on_rezero(self, request, response):
         for state in self.layers.values():
-            state.tracker.rezero()
+            state.processor.rezero()
         response.success = True
-        frames = {name: s.tracker.n_frames for name, s in self.layers.items()}
+        frames = {name: s.processor.reference_frames for name, s in self.layers.items()}
         response.message = f"re-taking the reference from the next frames: {frames}"
         self.get_logger().info(response.message)
         return response
@@ -265,18 +270,6 @@ class ReconstructionNode(Node):
             stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
             angle = float(msg.position[list(msg.name).index(self.joint)])
             self.joint_history.add(stamp or self.get_clock().now().nanoseconds, angle)
-
-    def _check_faults(self) -> None:
-        for state in self.layers.values():
-            if not state.tracker.ready or len(state.recent) < 10:
-                continue
-            faulty = faulty_electrodes(
-                np.stack(state.recent), state.tracker.reference(), state.imager.protocol
-            )
-            state.faulty = np.asarray(faulty, dtype=np.int64)
-            state.excluded = (
-                state.imager.protocol.touching(state.faulty) if state.faulty.size else None
-            )
 
     # ------------------------------------------------------------------ rviz
     def _marker_mesh(self, state: LayerState) -> tuple[list[Point], np.ndarray]:
@@ -328,7 +321,8 @@ class ReconstructionNode(Node):
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         for name, state in self.layers.items():
-            tracker = state.tracker
+            processor = state.processor
+            faulty = processor.faulty_electrodes
             latency = np.asarray(state.latencies_ms or [np.nan])
             values = {
                 "reconstruction_rate_hz": f"{state.rate.rate_hz():.1f}",
@@ -338,17 +332,18 @@ class ReconstructionNode(Node):
                 "frames_imaged": str(state.imaged),
                 "frames_dropped": str(state.dropped),
                 "frames_rejected": str(state.rejected),
-                "reference_ready": str(tracker.ready).lower(),
-                "reference_age_s": f"{tracker.age_s(now * 1e-9):.1f}",
-                "drift_updates": str(tracker.drift_updates),
-                "faulty_electrodes": ",".join(str(e) for e in state.faulty),
-                "joint_angle_rad": f"{tracker.angle_rad:.3f}",
+                "frames_unusable": str(processor.frames_unusable),
+                "reference_ready": str(processor.reference_ready).lower(),
+                "reference_age_s": f"{processor.reference_age_s(now * 1e-9):.1f}",
+                "drift_updates": str(processor.drift_updates),
+                "faulty_electrodes": ",".join(str(e) for e in faulty),
+                "joint_angle_rad": f"{processor.angle_rad:.3f}",
             }
             if state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"
-            elif state.faulty.size:
+            elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
-            elif not tracker.ready:
+            elif not processor.reference_ready:
                 level, text = 0, "capturing the no-load reference (do not touch)"
             else:
                 level, text = 0, f"{values['reconstruction_rate_hz']} images/s"

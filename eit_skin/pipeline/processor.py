@@ -1,0 +1,291 @@
+"""The per-frame pipeline of one layer, ROS-free, shared by the node and the offline commands.
+
+The reconstruction node and ``eit-skin reconstruct`` / ``eit-skin classify`` all run
+:class:`LayerProcessor`.
+
+Per frame ``[M]`` volts at frame time ``t_s``:
+
+1. **Flags.** Channels whose flag byte has an :data:`~eit_skin.frames.EXCLUDING_FLAGS` bit
+   (saturated, invalid) become missing values (NaN), exactly like the NaN that
+   ``eit-skin frames export`` writes for them; a frame with flags and the same frame with NaN
+   there are the same frame to everything below.
+2. **Reference.** Until the reference is ready (:class:`ReferenceTracker`: capture of the
+   first ``reference_frames`` frames, or :meth:`LayerProcessor.set_reference`) no image is
+   made. The captured frames give the per-element noise of the contact decision.
+3. **Faults.** The captured frames, and then every ``fault_check_period_s`` of FRAME time
+   (not wall time: an offline run over recorded frames checks at the same frames as the node
+   did) the last :data:`FAULT_WINDOW_FRAMES` frames, are checked for faulty electrodes
+   (:func:`~eit_skin.inverse.electrode_faults.faulty_electrodes`); their channels stay out of
+   the images until the next check. The element noise is re-estimated without them, since
+   a floating electrode's channels would otherwise inflate it so much that no touch counts
+   as a contact and drift tracking learns touches into the reference.
+4. **Image.** Relative change per element against the current reference, then contact
+   decision and drift tracking (the reference follows untouched frames), then the physical
+   image (the layer's unit) on the image grid.
+
+Same frames, same times, same settings: bit-identical images, whichever process runs it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from eit_skin.frames import FLAG_INVALID, excluded_channels
+from eit_skin.inverse.electrode_faults import faulty_electrodes
+from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
+
+#: Defaults shared by the node's parameters and the offline commands' options.
+DEFAULT_DRIFT_TIME_CONSTANT_S = 60.0
+DEFAULT_CONTACT_K = 5.0
+DEFAULT_FAULT_CHECK_PERIOD_S = 1.0
+#: Frames the fault check looks at, and the fewest it needs.
+FAULT_WINDOW_FRAMES = 50
+MIN_FAULT_FRAMES = 10
+
+
+def stamp_to_s(stamp_ns: int) -> float:
+    """Frame time, s, of a header stamp, ns: bit for bit the ``t`` of ``eit-skin frames export``."""
+    return int(stamp_ns) / 1e9
+
+
+@dataclass(frozen=True, eq=False)
+class LayerImages:
+    """What one imaged frame gives.
+
+    Attributes:
+        t_s: frame time, s.
+        values: float32 ``[N]`` relative conductivity change per inverse-mesh element.
+        image: float32 ``[H, W]`` physical image in the layer's unit (Pa for pressure,
+            strain for stretch), NaN outside the sheet and in holes.
+        touching: whether the frame showed a contact (drift tracking froze).
+        channels_used: channels that went into the image (of M).
+    """
+
+    t_s: float
+    values: np.ndarray
+    image: np.ndarray
+    touching: bool
+    channels_used: int
+
+
+class LayerProcessor:
+    """Frames of one layer -> images, with reference, drift, flags and fault handling.
+
+    Args:
+        imager: the layer's reconstruction chain.
+        reference_frames: frames averaged into a captured reference; ``None``/0: the layer's
+            ``solver.reference_frames``.
+        drift_time_constant_s: drift tracking time constant while untouched, s; 0: off.
+        contact_k: a change above ``contact_k`` times the element noise is a contact.
+        posture: optional posture reference table (the joint angle comes with each frame).
+        fault_check_period_s: frame time between fault checks, s; <= 0: never.
+    """
+
+    def __init__(
+        self,
+        imager: LayerImager,
+        reference_frames: int | None = None,
+        drift_time_constant_s: float = DEFAULT_DRIFT_TIME_CONSTANT_S,
+        contact_k: float = DEFAULT_CONTACT_K,
+        posture: PostureReferences | None = None,
+        fault_check_period_s: float = DEFAULT_FAULT_CHECK_PERIOD_S,
+    ) -> None:
+        self.imager = imager
+        self.n_measurements = imager.n_measurements
+        self.tracker = ReferenceTracker(
+            self.n_measurements,
+            int(reference_frames or imager.layer.solver.reference_frames),
+            float(drift_time_constant_s),
+            float(contact_k),
+            posture,
+        )
+        self.fault_check_period_s = float(fault_check_period_s)
+        self._recent: deque[np.ndarray] = deque(maxlen=FAULT_WINDOW_FRAMES)
+        self._faulty = np.zeros(0, dtype=np.int64)
+        self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
+        self._fault_flags: np.ndarray | None = None
+        self._next_fault_check_s: float | None = None
+        self._noise_frames: np.ndarray | None = None  # [K, M] V behind the element noise
+        self.frames_in = 0
+        self.frames_imaged = 0
+        self.frames_unusable = 0
+
+    # ------------------------------------------------------------ diagnostics
+    @property
+    def reference_ready(self) -> bool:
+        return self.tracker.ready
+
+    @property
+    def reference_frames(self) -> int:
+        return self.tracker.n_frames
+
+    @property
+    def drift_updates(self) -> int:
+        """Frames the reference followed since it was captured."""
+        return self.tracker.drift_updates
+
+    @property
+    def faulty_electrodes(self) -> np.ndarray:
+        """int64 electrode indices left out since the last fault check."""
+        return self._faulty.copy()
+
+    @property
+    def angle_rad(self) -> float:
+        """Joint angle the reference is taken at, rad (posture compensation)."""
+        return self.tracker.angle_rad
+
+    def reference_age_s(self, now_s: float) -> float:
+        """Seconds from the reference's capture (frame time) to ``now_s``; NaN before."""
+        return self.tracker.age_s(now_s)
+
+    def reference(self) -> np.ndarray:
+        """Copy of the current reference ``[M]`` V; RuntimeError before it is ready."""
+        return self.tracker.reference().copy()
+
+    # ---------------------------------------------------------------- control
+    def rezero(self) -> None:
+        """Capture a new reference from the next frames.
+
+        The fault window restarts; the faulty set stands until the captured frames are checked.
+        """
+        self.tracker.rezero()
+        self._recent.clear()
+        self._next_fault_check_s = None
+        self._noise_frames = None
+
+    def set_reference(
+        self, reference_v: np.ndarray, t_s: float, noise_frames_v: np.ndarray | None = None
+    ) -> None:
+        """Use a reference ``[M]`` V measured elsewhere, as if captured at ``t_s``.
+
+        ``noise_frames_v`` ``[K, M]`` V (untouched frames) give the element noise of the
+        contact decision; without them every frame counts as touched and drift never runs.
+        """
+        self.rezero()
+        self.tracker.set_reference(reference_v, t_s)
+        if noise_frames_v is not None and len(noise_frames_v):
+            self._noise_frames = np.asarray(noise_frames_v, dtype=np.float64)
+        self._reference_ready(t_s)
+
+    # ----------------------------------------------------------------- frames
+    def step(
+        self,
+        frame_v: np.ndarray,
+        t_s: float,
+        flags: np.ndarray | None = None,
+        angle_rad: float | None = None,
+    ) -> LayerImages | None:
+        """One frame ``[M]`` V at frame time ``t_s`` s -> its images, or None.
+
+        Args:
+            frame_v: ``[M]`` volts, protocol order; NaN marks a missing value.
+            t_s: frame (acquisition) time, s; times must not go backwards for drift to act.
+            flags: optional uint8 ``[M]`` ``EitFrame.channel_flags`` (empty: all OK).
+            angle_rad: joint angle at the frame time, rad (posture); None/NaN: keep the last.
+
+        Returns:
+            None while the reference is captured and for a frame without a usable channel.
+
+        Raises:
+            ValueError: wrong frame or flags shape, non-finite time.
+        """
+        m = self.n_measurements
+        frame = np.array(frame_v, dtype=np.float64)  # a copy: flagged values become NaN
+        if frame.shape != (m,):
+            raise ValueError(f"a frame must be [{m}] volts, got shape {frame.shape}")
+        t_s = float(t_s)
+        if not np.isfinite(t_s):
+            raise ValueError(f"frame time must be finite, got {t_s}")
+        if flags is not None and np.size(flags):
+            if np.shape(flags) != (m,):
+                raise ValueError(f"flags must be [{m}] (or empty), got shape {np.shape(flags)}")
+            frame[excluded_channels(flags, m)] = np.nan
+        self.frames_in += 1
+        tracker = self.tracker
+        if angle_rad is not None and np.isfinite(angle_rad):
+            tracker.angle_rad = float(angle_rad)
+        if not tracker.ready:
+            if tracker.capture(frame, t_s):
+                self._noise_frames = tracker.captured_frames
+                self._reference_ready(t_s)
+            return None
+        reference = tracker.reference()
+        if not np.isfinite(frame).any():
+            self.frames_unusable += 1
+            return None
+        self._recent.append(frame)
+        self._check_faults_if_due(t_s, reference)
+        usable = np.isfinite(frame) & np.isfinite(reference) & ~self._fault_mask
+        used = int(np.count_nonzero(usable))
+        if used == 0:
+            self.frames_unusable += 1
+            return None
+        values = self.imager.relative_change(frame, reference, self._fault_flags)
+        touching = tracker.touching(values)
+        tracker.track(frame, t_s, touching)
+        image = self.imager.images(self.imager.physical(values))
+        self.frames_imaged += 1
+        return LayerImages(t_s, values, image, touching, used)
+
+    def process(
+        self, frames_v: np.ndarray, t_s: np.ndarray, flags: np.ndarray | None = None
+    ) -> list[LayerImages | None]:
+        """:meth:`step` over frames ``[T, M]`` V at times ``[T]`` s (flags ``[T, M]``)."""
+        frames = np.asarray(frames_v, dtype=np.float64)
+        times = np.asarray(t_s, dtype=np.float64)
+        if frames.ndim != 2 or times.shape != frames.shape[:1]:
+            raise ValueError(f"need frames [T, M] and times [T], got {frames.shape}, {times.shape}")
+        if flags is not None and np.shape(flags) != frames.shape:
+            raise ValueError(f"flags must be [T, M] = {frames.shape}, got {np.shape(flags)}")
+        return [
+            self.step(frames[k], times[k], None if flags is None else flags[k])
+            for k in range(frames.shape[0])
+        ]
+
+    # ----------------------------------------------------------------- faults
+    def _reference_ready(self, t_s: float) -> None:
+        """Fault check on the frames behind the noise, then the noise itself."""
+        frames = self._noise_frames
+        if frames is not None and len(frames) >= MIN_FAULT_FRAMES and self.fault_check_period_s > 0:
+            self._check_faults(frames, self.tracker.reference())
+        self._update_element_noise()
+        self._schedule_fault_check(t_s)
+
+    def _update_element_noise(self) -> None:
+        if self._noise_frames is None:
+            return
+        change = self.imager.relative_change(
+            self._noise_frames, self.tracker.reference(), self._fault_flags
+        )
+        self.tracker.set_element_noise(change.std(axis=0))
+
+    def _schedule_fault_check(self, t_s: float) -> None:
+        period = self.fault_check_period_s
+        self._next_fault_check_s = t_s + period if period > 0 else None
+
+    def _check_faults_if_due(self, t_s: float, reference: np.ndarray) -> None:
+        due = self._next_fault_check_s
+        if due is None or t_s < due or len(self._recent) < MIN_FAULT_FRAMES:
+            return
+        if self._check_faults(np.stack(self._recent), reference):
+            self._update_element_noise()
+        self._schedule_fault_check(t_s)
+
+    def _check_faults(self, frames: np.ndarray, reference: np.ndarray) -> bool:
+        """Find faulty electrodes in ``frames`` ``[T, M]``; returns whether the set changed."""
+        protocol = self.imager.protocol
+        faulty = faulty_electrodes(frames, reference, protocol)
+        if np.array_equal(faulty, self._faulty):
+            return False
+        self._faulty = faulty
+        if faulty.size:
+            self._fault_mask = protocol.touching(faulty)
+            self._fault_flags = self._fault_mask.astype(np.uint8) * np.uint8(FLAG_INVALID)
+        else:
+            self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
+            self._fault_flags = None
+        return True
