@@ -11,8 +11,9 @@ import pytest
 import yaml
 
 from eit_skin.patch import geometry
+from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.material import Material
-from eit_skin.patch.model import PatchError, load_patch, patch_from_dict
+from eit_skin.patch.model import PatchError
 from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
 from eit_skin.patch.protocol import build_protocol
 

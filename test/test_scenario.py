@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import (
     BUILTIN_SCENARIOS,

@@ -53,7 +53,7 @@ def _reconstruct(args: argparse.Namespace):
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.inverse.gauss_newton import GaussNewtonSolver
     from eit_skin.io.recording import load_frames_npz
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.protocol import build_protocol
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path

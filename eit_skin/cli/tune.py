@@ -155,7 +155,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.inverse.hyperparameter import choose_by_noise_figure
     from eit_skin.inverse.hyperparameter import noise_figure as nf_of
     from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.protocol import build_protocol
 
     patch = load_patch(path)
@@ -247,7 +247,7 @@ def write_hyperparameter(path: Path, layer_name: str, value: float) -> None:
     Only the text of that entry changes; the result is validated with ``load_patch`` and then
     atomically replaces the file.
     """
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
 
     path = Path(path)
     before = load_patch(path)

@@ -1,9 +1,11 @@
 """Patch descriptions: the YAML file of one skin patch -> validated, SI-unit dataclasses.
 
-Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses, loading and validation),
-``geometry`` (plane polygons), ``material`` (sheet conductance -> pressure/stretch),
-``placement`` (the flat sheet on the robot's 3-D surface), ``protocol`` (drive and
-measurement pattern: the one place that knows the measurement order).
+Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses and their content hash),
+``loading`` (:func:`load_patch`: YAML file -> validated :class:`Patch`), ``yaml_reader`` (the
+YAML reader and typed-field validator), ``outline``, ``electrodes``, ``holes`` (reading those
+sections), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
+pressure/stretch), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
+(drive and measurement pattern: the one place that knows the measurement order).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from eit_skin import lazy_exports
 #: Public name -> the module of this subpackage that defines it (imported on first use,
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
+    "ConfigError": "yaml_reader",
     "Electrode": "model",
     "Layer": "model",
     "Material": "material",
@@ -26,11 +29,12 @@ _EXPORTS: dict[str, str] = {
     "ProtocolSpec": "protocol",
     "SolverSpec": "model",
     "build_protocol": "protocol",
-    "load_patch": "model",
-    "patch_from_dict": "model",
+    "load_patch": "loading",
+    "patch_from_dict": "loading",
 }
 
 __all__ = [
+    "ConfigError",
     "Electrode",
     "Layer",
     "Material",
@@ -47,19 +51,12 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from eit_skin.patch.loading import load_patch, patch_from_dict
     from eit_skin.patch.material import Material
-    from eit_skin.patch.model import (
-        Electrode,
-        Layer,
-        MeshSpec,
-        Patch,
-        PatchError,
-        SolverSpec,
-        load_patch,
-        patch_from_dict,
-    )
+    from eit_skin.patch.model import Electrode, Layer, MeshSpec, Patch, PatchError, SolverSpec
     from eit_skin.patch.placement import Placement
     from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
+    from eit_skin.patch.yaml_reader import ConfigError
 
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,271 @@
+"""The YAML reader of the package's input files and its typed-field validator.
+
+:func:`read_yaml` parses a file (``5e-3`` is a float); :class:`Reader` gives typed access
+to the parsed data. Every problem becomes a :class:`ConfigError`
+``"<file>: <key.path[3].x>: <reason>"`` of the caller's subclass (``PatchError``).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+
+class ConfigError(ValueError):
+    """An input file is invalid: ``"<file>: <key path>: <reason>"``.
+
+    Attributes:
+        source: the file (or ``"<dict>"`` for in-memory data).
+        key_path: where in it, e.g. ``layers[0].electrodes.width``; ``(root)`` for the whole
+            document, ``(file)`` for the file itself, ``line L, column C`` for YAML syntax.
+        reason: what is wrong.
+    """
+
+    def __init__(self, source: str, key_path: str, reason: str) -> None:
+        self.source = source
+        self.key_path = key_path or "(root)"
+        self.reason = reason
+        super().__init__(f"{source}: {self.key_path}: {reason}")
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+class Yaml12Loader(yaml.SafeLoader):
+    """Safe YAML loader that also reads ``1e-3`` / ``3.0e4`` as floats (YAML 1.2 style)."""
+
+
+Yaml12Loader.yaml_implicit_resolvers = {
+    key: list(value) for key, value in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+Yaml12Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def read_yaml(path: str | Path, error: type[ConfigError]) -> Any:
+    """Parse a YAML file; problems raise ``error``.
+
+    Refused: an unreadable file (key path ``(file)``) and invalid YAML (``line L, column C``).
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise error(source, "(file)", exc.strerror or str(exc)) from None
+    try:
+        return yaml.load(text, Loader=Yaml12Loader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "(yaml)"
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise error(source, where, f"invalid YAML: {problem}") from None
+
+
+# --------------------------------------------------------------------------- validation
+
+
+_MISSING = object()
+
+
+def describe(value: Any) -> str:
+    """Short description of a parsed YAML value for error messages, e.g. ``a string ('x')``."""
+    if value is None:
+        return "nothing (null)"
+    names = {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}
+    for t, name in names.items():
+        if type(value) is t:
+            return f"{name} ({value!r})"
+    if isinstance(value, Mapping):
+        return "a mapping"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    return type(value).__name__
+
+
+class Reader:
+    """Typed access to parsed YAML data; errors name the file and the key path.
+
+    Args:
+        source: the file the data came from (first part of every message).
+        error: the :class:`ConfigError` subclass to raise.
+    """
+
+    def __init__(self, source: str, error: type[ConfigError]) -> None:
+        self.source = source
+        self._error = error
+
+    def error(self, path: str, reason: str) -> ConfigError:
+        return self._error(self.source, path, reason)
+
+    @staticmethod
+    def join(path: str, key: str | int) -> str:
+        if isinstance(key, int):
+            return f"{path}[{key}]"
+        return f"{path}.{key}" if path else key
+
+    def mapping(
+        self,
+        value: Any,
+        path: str,
+        required: tuple[str, ...] = (),
+        optional: tuple[str, ...] = (),
+        what: str = "",
+    ) -> Mapping:
+        """``value`` as a mapping with string keys, the required present, only allowed ones.
+
+        ``what`` (e.g. ``"circle outline"``) names the kind of mapping in the message about
+        an unknown key.
+        """
+        d = self.any_mapping(value, path)
+        for key in required:
+            if key not in d:
+                raise self.error(self.join(path, key), "missing required key")
+        allowed = (*required, *optional)
+        for key in d:
+            if key not in allowed:
+                raise self.error(self.join(path, key), self._unknown(key, allowed, what))
+        return d
+
+    def any_mapping(self, value: Any, path: str) -> Mapping:
+        """``value`` as a mapping with string keys (any keys)."""
+        if not isinstance(value, Mapping):
+            raise self.error(path, f"expected a mapping, got {describe(value)}")
+        for key in value:
+            if not isinstance(key, str):
+                raise self.error(path, f"keys must be strings, got {key!r}")
+        return value
+
+    def variant(
+        self,
+        value: Any,
+        path: str,
+        kinds: Mapping[str, tuple[str, ...]],
+        what: str,
+        key: str = "type",
+    ) -> tuple[str, Mapping]:
+        """A mapping whose ``key`` (e.g. ``type``) selects its allowed keys ``kinds[kind]``.
+
+        Returns ``(kind, mapping)``; other keys are refused naming the kind (``"circle
+        hole"``).
+        """
+        every = tuple(dict.fromkeys(k for keys in kinds.values() for k in keys))
+        d = self.mapping(value, path, required=(key,), optional=every)
+        kind = self.string(d, key, path, choices=tuple(kinds))
+        self.mapping(d, path, required=(key,), optional=kinds[kind], what=f"{kind} {what}")
+        return kind, d
+
+    @staticmethod
+    def _unknown(key: str, allowed: tuple[str, ...], what: str) -> str:
+        article = "an" if what[:1] in ("a", "e", "i", "o", "u") else "a"
+        head = f"not a key of {article} {what}" if what else "unknown key"
+        return f"{head}; allowed: {', '.join(sorted(allowed))}"
+
+    def sequence(self, value: Any, path: str, min_len: int = 0) -> list:
+        if not isinstance(value, (list, tuple)):
+            raise self.error(path, f"expected a list, got {describe(value)}")
+        if len(value) < min_len:
+            raise self.error(path, f"expected at least {min_len} entries, got {len(value)}")
+        return list(value)
+
+    def number(
+        self,
+        data: Mapping,
+        key: str,
+        path: str,
+        default: Any = _MISSING,
+        minimum: float | None = None,
+        positive: bool = False,
+        allow_none: bool = False,
+    ) -> Any:
+        """``data[key]`` as a finite float (``default`` if absent; required without one)."""
+        where = self.join(path, key)
+        if key not in data:
+            if default is _MISSING:
+                raise self.error(where, "missing required key")
+            return default
+        value = data[key]
+        if value is None and allow_none:
+            return None
+        number = self.as_float(value, where)
+        if positive and not number > 0:
+            raise self.error(where, f"must be > 0, got {number:g}")
+        if minimum is not None and number < minimum:
+            raise self.error(where, f"must be >= {minimum:g}, got {number:g}")
+        return number
+
+    def as_float(self, value: Any, where: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(where, f"expected a number, got {describe(value)}")
+        if not math.isfinite(value):
+            raise self.error(where, f"expected a finite number, got {value}")
+        return float(value)
+
+    def integer(
+        self,
+        data: Mapping,
+        key: str,
+        path: str,
+        default: Any = _MISSING,
+        minimum: int | None = None,
+    ) -> int:
+        where = self.join(path, key)
+        if key not in data:
+            if default is _MISSING:
+                raise self.error(where, "missing required key")
+            return default
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(where, f"expected an integer, got {describe(value)}")
+        if minimum is not None and value < minimum:
+            raise self.error(where, f"must be >= {minimum}, got {value}")
+        return int(value)
+
+    def string(
+        self,
+        data: Mapping,
+        key: str,
+        path: str,
+        default: Any = _MISSING,
+        choices: tuple[str, ...] | None = None,
+    ) -> str:
+        where = self.join(path, key)
+        if key not in data:
+            if default is _MISSING:
+                raise self.error(where, "missing required key")
+            return default
+        value = data[key]
+        if not isinstance(value, str) or not value:
+            raise self.error(where, f"expected a non-empty string, got {describe(value)}")
+        if choices is not None and value not in choices:
+            raise self.error(
+                where, f"unknown value {value!r}; expected one of {', '.join(choices)}"
+            )
+        return value
+
+    def vector(self, value: Any, where: str, size: int) -> np.ndarray:
+        """``[size]`` float array from a list of ``size`` numbers."""
+        items = self.sequence(value, where)
+        if len(items) != size:
+            raise self.error(where, f"expected {size} numbers, got {len(items)}")
+        return np.array([self.as_float(v, self.join(where, i)) for i, v in enumerate(items)])
+
+    def points(self, value: Any, where: str, min_len: int) -> np.ndarray:
+        """``[n, 2]`` float array from a list of at least ``min_len`` ``[x, y]`` pairs."""
+        items = self.sequence(value, where, min_len=min_len)
+        return np.array([self.vector(p, self.join(where, i), 2) for i, p in enumerate(items)])
