@@ -136,6 +136,20 @@ def _grid_pitch(data):
     layer0(data)["holes"] = [{"type": "grid", "diameter": 0.005, "pitch": 0.005}]
 
 
+def _rename(key, new):
+    def mutate(data):
+        layer0(data)[new] = layer0(data).pop(key)
+
+    return mutate
+
+
+def _rename_top(key, new):
+    def mutate(data):
+        data[new] = data.pop(key)
+
+    return mutate
+
+
 def _missing(key):
     def mutate(data):
         del layer0(data)[key]
@@ -212,7 +226,61 @@ BAD = [
         "unknown protocol key",
         _set("protocol", {"drvie": "adjacent"}),
         "layers[0].protocol.drvie",
-        "unknown key",
+        "unknown key; did you mean 'drive'?",
+    ),
+    (
+        "misspelt top-level key",
+        _rename_top("layers", "layerz"),
+        "layerz",
+        "unknown key; did you mean 'layers'?",
+    ),
+    (
+        "misspelt layer key",
+        _rename("electrodes", "electrodez"),
+        "layers[0].electrodez",
+        "unknown key; did you mean 'electrodes'?",
+    ),
+    (
+        "misspelt solver key",
+        _set("solver", {"metod": "greit"}),
+        "layers[0].solver.metod",
+        "unknown key; did you mean 'method'?",
+    ),
+    (
+        "misspelt outline key",
+        _set("outline", {"type": "circle", "raduis": 0.04}),
+        "layers[0].outline.raduis",
+        "unknown key of a circle outline; did you mean 'radius'?",
+    ),
+    (
+        "key of another outline type",
+        _set("outline", {"type": "circle", "radius": 0.04, "width": 0.1}),
+        "layers[0].outline.width",
+        "unknown key of a circle outline; allowed: center, radius, segments, type",
+    ),
+    (
+        "misspelt grid key",
+        _set("holes", [{"type": "grid", "diameter": 0.003, "pich": 0.005}]),
+        "layers[0].holes[0].pich",
+        "unknown key of a grid hole; did you mean 'pitch'?",
+    ),
+    (
+        "misspelt placement key",
+        lambda d: d.update(placement={"type": "cylinder", "raduis": 0.05}),
+        "placement.raduis",
+        "unknown key of a cylinder placement; did you mean 'radius'?",
+    ),
+    (
+        "misspelt type key",
+        _set("outline", {"tpye": "circle", "radius": 0.04}),
+        "layers[0].outline.tpye",
+        "did you mean 'type'?",
+    ),
+    (
+        "misspelt choice",
+        _set("solver", {"method": "gauss-newton"}),
+        "layers[0].solver.method",
+        "unknown value 'gauss-newton' (did you mean 'gauss_newton'?)",
     ),
     (
         "negative conductivity",

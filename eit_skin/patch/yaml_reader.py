@@ -2,11 +2,14 @@
 
 :func:`read_yaml` parses a file (``5e-3`` is a float); :class:`Reader` gives typed access
 to the parsed data. Every problem becomes a :class:`ConfigError`
-``"<file>: <key.path[3].x>: <reason>"`` of the caller's subclass (``PatchError``).
+``"<file>: <key.path[3].x>: <reason>"`` of the caller's subclass (``PatchError``). An
+unknown key is named together with the closest known one (a typo does not pass silently,
+nor hide behind "missing key").
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from collections.abc import Mapping
@@ -127,19 +130,20 @@ class Reader:
         optional: tuple[str, ...] = (),
         what: str = "",
     ) -> Mapping:
-        """``value`` as a mapping with string keys, the required present, only allowed ones.
+        """``value`` as a mapping with string keys, only the allowed ones, the required present.
 
-        ``what`` (e.g. ``"circle outline"``) names the kind of mapping in the message about
-        an unknown key.
+        An unknown key is reported first (with the closest allowed key: a misspelt required
+        key is a typo, not a missing key). ``what`` (e.g. ``"circle outline"``) names the
+        kind of mapping in that message.
         """
         d = self.any_mapping(value, path)
-        for key in required:
-            if key not in d:
-                raise self.error(self.join(path, key), "missing required key")
         allowed = (*required, *optional)
         for key in d:
             if key not in allowed:
                 raise self.error(self.join(path, key), self._unknown(key, allowed, what))
+        for key in required:
+            if key not in d:
+                raise self.error(self.join(path, key), "missing required key")
         return d
 
     def any_mapping(self, value: Any, path: str) -> Mapping:
@@ -162,10 +166,13 @@ class Reader:
         """A mapping whose ``key`` (e.g. ``type``) selects its allowed keys ``kinds[kind]``.
 
         Returns ``(kind, mapping)``; other keys are refused naming the kind (``"circle
-        hole"``).
+        hole"``). While ``key`` itself is missing, an unknown key is matched against the keys
+        of every kind (``tpye`` -> ``type``).
         """
-        every = tuple(dict.fromkeys(k for keys in kinds.values() for k in keys))
-        d = self.mapping(value, path, required=(key,), optional=every)
+        d = self.any_mapping(value, path)
+        if key not in d:
+            every = tuple(dict.fromkeys(k for keys in kinds.values() for k in keys))
+            self.mapping(d, path, required=(key,), optional=every, what=what)
         kind = self.string(d, key, path, choices=tuple(kinds))
         self.mapping(d, path, required=(key,), optional=kinds[kind], what=f"{kind} {what}")
         return kind, d
@@ -173,8 +180,10 @@ class Reader:
     @staticmethod
     def _unknown(key: str, allowed: tuple[str, ...], what: str) -> str:
         article = "an" if what[:1] in ("a", "e", "i", "o", "u") else "a"
-        head = f"not a key of {article} {what}" if what else "unknown key"
-        return f"{head}; allowed: {', '.join(sorted(allowed))}"
+        head = f"unknown key of {article} {what}" if what else "unknown key"
+        close = difflib.get_close_matches(key, allowed, n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ";"
+        return f"{head}{hint} allowed: {', '.join(sorted(allowed))}"
 
     def sequence(self, value: Any, path: str, min_len: int = 0) -> list:
         if not isinstance(value, (list, tuple)):
@@ -253,8 +262,10 @@ class Reader:
         if not isinstance(value, str) or not value:
             raise self.error(where, f"expected a non-empty string, got {describe(value)}")
         if choices is not None and value not in choices:
+            close = difflib.get_close_matches(value, choices, n=1, cutoff=0.6)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise self.error(
-                where, f"unknown value {value!r}; expected one of {', '.join(choices)}"
+                where, f"unknown value {value!r}{hint}; expected one of {', '.join(choices)}"
             )
         return value
 
