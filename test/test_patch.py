@@ -16,6 +16,7 @@ from eit_skin.patch.material import Material
 from eit_skin.patch.model import PatchError
 from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
 from eit_skin.patch.protocol import build_protocol
+from eit_skin.patch.yaml_reader import read_yaml
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 RADIUS = 0.04
@@ -408,6 +409,92 @@ def test_yaml_syntax_error_names_line(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(PatchError, match=r"nothing\.yaml: \(file\): "):
         load_patch(tmp_path / "nothing.yaml")
+
+
+DUPLICATE = """\
+name: disk
+frame_id: disk_link
+layers:
+  - name: sheet
+    outline: {type: circle, radius: 0.04}
+    electrodes: {count: 16, width: 0.004, contact_impedance: 4.0}
+    material: {quantity: pressure, sheet_conductance: 1.0e-4, pressure_scale: 3.0e4}
+    current: 1.0e-3
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            DUPLICATE + "    current: 2.0e-3\n",
+            "layers[0].current: duplicate key: first on line 8, again on line 9",
+        ),
+        (
+            DUPLICATE.replace("radius: 0.04}", "radius: 0.04, radius: 0.05}"),
+            "layers[0].outline.radius: duplicate key: first on line 5, again on line 5",
+        ),
+        ("name: a\n" + DUPLICATE, "name: duplicate key: first on line 1, again on line 2"),
+    ],
+    ids=["layer", "flow mapping", "top"],
+)
+def test_duplicate_key_is_refused_naming_both_lines(tmp_path, text, message):
+    path = tmp_path / "dup.yaml"
+    path.write_text(text)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: {message}"
+    path.write_text(DUPLICATE)
+    assert load_patch(path).layers[0].current_a == 1.0e-3  # the same file without the repeat
+
+
+@pytest.mark.parametrize("text", ["", "  \n\t\n", "# nothing here yet\n\n"])
+def test_empty_file_is_reported_as_empty(tmp_path, text):
+    path = tmp_path / "empty.yaml"
+    path.write_text(text)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: (file): empty file"
+
+
+def test_explicit_null_document_is_not_a_mapping(tmp_path):
+    path = tmp_path / "null.yaml"
+    path.write_text("null\n")
+    with pytest.raises(PatchError, match=r"null\.yaml: \(root\): expected a mapping, got nothing"):
+        load_patch(path)
+
+
+def test_non_utf8_file_names_the_byte_offset(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("name: d\u00fcse\n".encode("latin-1"))
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: (file): not UTF-8 text: bad byte at offset 7"
+
+
+def test_yaml_reader_uses_yaml_1_2_scalars(tmp_path):
+    path = tmp_path / "scalars.yaml"
+    path.write_text(
+        "a: 5e-3\nb: 010\nc: yes\nd: 1:30\ne: 2001-12-14\nf: 0x1F\ng: 0o17\nh: 1_000\n"
+        "i: .5\nj: -.inf\nk: True\nl: ~\nm: +3\n"
+    )
+    data = read_yaml(path, PatchError)
+    assert data == {
+        "a": 0.005,
+        "b": 10,
+        "c": "yes",
+        "d": "1:30",
+        "e": "2001-12-14",
+        "f": 31,
+        "g": 15,
+        "h": "1_000",
+        "i": 0.5,
+        "j": -np.inf,
+        "k": True,
+        "l": None,
+        "m": 3,
+    }
+    assert type(data["a"]) is float and type(data["b"]) is int
 
 
 def test_exponent_without_sign_is_a_number(tmp_path):

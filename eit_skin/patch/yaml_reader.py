@@ -1,10 +1,11 @@
-"""The YAML reader of the package's input files and its typed-field validator.
+"""The one YAML reader of the package's input files and its typed-field validator.
 
-:func:`read_yaml` parses a file (``5e-3`` is a float); :class:`Reader` gives typed access
-to the parsed data. Every problem becomes a :class:`ConfigError`
-``"<file>: <key.path[3].x>: <reason>"`` of the caller's subclass (``PatchError``). An
-unknown key is named together with the closest known one (a typo does not pass silently,
-nor hide behind "missing key").
+:func:`read_yaml` parses a file with the YAML 1.2 core schema (``5e-3`` is a float, ``010``
+is ten, only ``true``/``false`` are booleans, no dates) and refuses an empty file and a key
+written twice in one mapping. :class:`Reader` gives typed access to the parsed data; every
+problem becomes a :class:`ConfigError` ``"<file>: <key.path[3].x>: <reason>"`` of the
+caller's subclass (``PatchError``). An unknown key is named together with
+the closest known one (a typo does not pass silently, nor hide behind "missing key").
 """
 
 from __future__ import annotations
@@ -41,43 +42,106 @@ class ConfigError(ValueError):
 
 
 class Yaml12Loader(yaml.SafeLoader):
-    """Safe YAML loader that also reads ``1e-3`` / ``3.0e4`` as floats (YAML 1.2 style)."""
+    """Safe loader with the YAML 1.2 core schema's plain scalars (null, bool, int, float)."""
+
+    def construct_core_int(self, node: yaml.ScalarNode) -> int:
+        text = self.construct_scalar(node)
+        sign, digits = (-1, text[1:]) if text[0] == "-" else (1, text.lstrip("+"))
+        if digits.startswith("0o"):
+            return sign * int(digits[2:], 8)
+        if digits.startswith("0x"):
+            return sign * int(digits[2:], 16)
+        return sign * int(digits, 10)  # leading zeros are decimal in YAML 1.2
 
 
-Yaml12Loader.yaml_implicit_resolvers = {
-    key: list(value) for key, value in yaml.SafeLoader.yaml_implicit_resolvers.items()
-}
-Yaml12Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(
-        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-        |[-+]?\.(?:inf|Inf|INF)
-        |\.(?:nan|NaN|NAN))$""",
-        re.X,
+#: Plain-scalar resolution of the YAML 1.2 core schema (plus merge keys ``<<``):
+#: ``(tag, regular expression, possible first characters)``.
+_CORE_SCHEMA = (
+    ("null", r"~|null|Null|NULL|", ["~", "n", "N", ""]),
+    ("bool", r"true|True|TRUE|false|False|FALSE", list("tTfF")),
+    ("int", r"[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+", list("-+0123456789")),
+    (
+        "float",
+        r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)",
+        list("-+.0123456789"),
     ),
-    list("-+0123456789."),
+    ("merge", r"<<", ["<"]),
 )
 
 
-def read_yaml(path: str | Path, error: type[ConfigError]) -> Any:
-    """Parse a YAML file; problems raise ``error``.
+def _install_core_schema(loader: type[yaml.SafeLoader]) -> None:
+    loader.yaml_implicit_resolvers = {}  # drop YAML 1.1's (yes/no, 1_000, 1:30, dates, ...)
+    for tag, pattern, first in _CORE_SCHEMA:
+        loader.add_implicit_resolver(
+            f"tag:yaml.org,2002:{tag}", re.compile(f"^(?:{pattern})$"), first
+        )
+    loader.add_constructor("tag:yaml.org,2002:int", Yaml12Loader.construct_core_int)
 
-    Refused: an unreadable file (key path ``(file)``) and invalid YAML (``line L, column C``).
+
+_install_core_schema(Yaml12Loader)
+
+
+def read_yaml(path: str | Path, error: type[ConfigError]) -> Any:
+    """Parse a YAML file (YAML 1.2 core schema); problems raise ``error``.
+
+    Refused: an unreadable or non-UTF-8 file (key path ``(file)``, with the byte offset),
+    an empty file (only whitespace or comments), invalid YAML (``line L, column C``) and a
+    key repeated in one mapping (its key path, with both lines).
     """
     source = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_bytes().decode("utf-8")
     except OSError as exc:
         raise error(source, "(file)", exc.strerror or str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise error(source, "(file)", f"not UTF-8 text: bad byte at offset {exc.start}") from None
+    if not text.strip():  # YAML itself would choke on a tab here
+        raise error(source, "(file)", "empty file")
+    loader = Yaml12Loader(text)
     try:
-        return yaml.load(text, Loader=Yaml12Loader)
+        node = loader.get_single_node()
+        if node is None:  # only comments (or document markers)
+            raise error(source, "(file)", "empty file")
+        _refuse_duplicate_keys(node, "", source, error)
+        return loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "(yaml)"
         problem = getattr(exc, "problem", None) or str(exc)
         raise error(source, where, f"invalid YAML: {problem}") from None
+    finally:
+        loader.dispose()
+
+
+def _refuse_duplicate_keys(
+    root: yaml.Node, path: str, source: str, error: type[ConfigError]
+) -> None:
+    """Raise ``error`` naming the key path and both lines of the first repeated mapping key."""
+    stack, seen_nodes = [(root, path)], set()
+    while stack:
+        node, where = stack.pop()
+        if id(node) in seen_nodes:  # aliases may share (and even contain) nodes
+            continue
+        seen_nodes.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            first_line: dict[tuple[str, str], int] = {}
+            for key, value in node.value:
+                name = key.value if isinstance(key, yaml.ScalarNode) else None
+                child = Reader.join(where, name if name is not None else "?")
+                if name is not None and name != "<<":
+                    line = key.start_mark.line + 1
+                    if (key.tag, name) in first_line:
+                        raise error(
+                            source,
+                            child,
+                            f"duplicate key: first on line {first_line[key.tag, name]}, "
+                            f"again on line {line}",
+                        )
+                    first_line[key.tag, name] = line
+                stack.append((value, child))
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend((item, Reader.join(where, i)) for i, item in enumerate(node.value))
 
 
 # --------------------------------------------------------------------------- validation
