@@ -2,8 +2,9 @@
 
 Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses and their content hash),
 ``loading`` (:func:`load_patch`: YAML file -> validated :class:`Patch`), ``yaml_reader`` (the
-YAML reader and typed-field validator), ``outline``, ``electrodes``, ``holes`` (reading those
-sections), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
+one YAML reader and typed-field validator, shared with scenario files), ``outline``,
+``electrodes``, ``holes`` (reading those sections), ``geometry`` (plane polygons),
+``material`` (sheet conductance ->
 pressure/stretch), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
 (drive and measurement pattern: the one place that knows the measurement order).
 """

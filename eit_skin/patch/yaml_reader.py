@@ -1,10 +1,10 @@
-"""The one YAML reader of the package's input files and its typed-field validator.
+"""The one YAML reader of the package's input files (patches, scenarios) and its validator.
 
 :func:`read_yaml` parses a file with the YAML 1.2 core schema (``5e-3`` is a float, ``010``
 is ten, only ``true``/``false`` are booleans, no dates) and refuses an empty file and a key
 written twice in one mapping. :class:`Reader` gives typed access to the parsed data; every
 problem becomes a :class:`ConfigError` ``"<file>: <key.path[3].x>: <reason>"`` of the
-caller's subclass (``PatchError``). An unknown key is named together with
+caller's subclass (``PatchError``, ``ScenarioError``). An unknown key is named together with
 the closest known one (a typo does not pass silently, nor hide behind "missing key").
 """
 
@@ -82,12 +82,13 @@ def _install_core_schema(loader: type[yaml.SafeLoader]) -> None:
 _install_core_schema(Yaml12Loader)
 
 
-def read_yaml(path: str | Path, error: type[ConfigError]) -> Any:
+def read_yaml(path: str | Path, error: type[ConfigError], list_key: str = "") -> Any:
     """Parse a YAML file (YAML 1.2 core schema); problems raise ``error``.
 
     Refused: an unreadable or non-UTF-8 file (key path ``(file)``, with the byte offset),
     an empty file (only whitespace or comments), invalid YAML (``line L, column C``) and a
-    key repeated in one mapping (its key path, with both lines).
+    key repeated in one mapping (its key path, with both lines). ``list_key`` is the key
+    path of a document that is a plain list (scenario files: the touches).
     """
     source = str(path)
     try:
@@ -103,7 +104,8 @@ def read_yaml(path: str | Path, error: type[ConfigError]) -> Any:
         node = loader.get_single_node()
         if node is None:  # only comments (or document markers)
             raise error(source, "(file)", "empty file")
-        _refuse_duplicate_keys(node, "", source, error)
+        root = list_key if isinstance(node, yaml.SequenceNode) else ""
+        _refuse_duplicate_keys(node, root, source, error)
         return loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
