@@ -230,6 +230,18 @@ BAD = [
         "unknown key; did you mean 'drive'?",
     ),
     (
+        "drive_skip wraps around",
+        _set("protocol", {"drive": "skip", "drive_skip": 16}),
+        "layers[0].protocol.drive_skip",
+        "16 is not below the electrode count 16",
+    ),
+    (
+        "measure_skip wraps around",
+        _set("protocol", {"measure": "skip", "measure_skip": 40}),
+        "layers[0].protocol.measure_skip",
+        "40 is not below the electrode count 16",
+    ),
+    (
         "misspelt top-level key",
         _rename_top("layers", "layerz"),
         "layerz",
