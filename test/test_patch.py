@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 import warnings
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import yaml
 from eit_skin.patch import geometry
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.material import Material
+from eit_skin.patch.mesh_budget import estimate_layer
 from eit_skin.patch.model import PatchError
 from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
 from eit_skin.patch.protocol import build_protocol
@@ -739,3 +741,92 @@ def test_heightmap_bounds_default_to_outline_box():
     patch = load_patch(CONFIG / "face.yaml")
     lo, hi = patch.layers[0].outline.min(axis=0), patch.layers[0].outline.max(axis=0)
     np.testing.assert_allclose(patch.placement.bounds, [lo[0], hi[0], lo[1], hi[1]])
+
+
+def disc50(**mesh) -> dict:
+    data = base()
+    layer0(data)["outline"]["radius"] = 0.025
+    layer0(data)["mesh"] = mesh
+    return data
+
+
+@pytest.fixture
+def no_meshing(monkeypatch):
+    """Any attempt to mesh fails the test: the budget is checked before meshing."""
+    import triangle
+
+    def triangulate(*args, **kwargs):
+        raise AssertionError("the loader started meshing")
+
+    monkeypatch.setattr(triangle, "triangulate", triangulate)
+
+
+def suggested(message: str, key: str) -> float:
+    match = re.search(rf"{key} >= ([0-9.e+-]+) m would fit", message)
+    assert match, message
+    return float(match.group(1))
+
+
+def test_mesh_too_big_is_refused_with_estimate_and_fitting_max_edge(tmp_path, no_meshing):
+    path = write(tmp_path, disc50(max_edge=1.0e-5))
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: layers[0].mesh.max_edge: ~"), message
+    # 1.58 * area / (sqrt(3)/4 h^2) = 1.58 * 1.963e-3 / 4.33e-11 = 7.2e7 triangles, ~500 GB
+    triangles = float(re.search(r"~([0-9.e+]+) triangles", message).group(1))
+    assert 6.5e7 < triangles < 8e7
+    assert "GiB" in message and "the limit is 2 GiB and 60 s" in message
+    fit = suggested(message, "max_edge")
+    assert 1e-4 < fit < 2e-4
+    patch_from_dict(disc50(max_edge=fit), source="fits")  # the suggestion is accepted ...
+    with pytest.raises(PatchError, match=r"mesh\.max_edge: .* max_edge >= "):
+        patch_from_dict(disc50(max_edge=0.8 * fit))  # ... and is (nearly) the smallest
+
+
+def test_too_fine_electrode_edge_is_refused(no_meshing):
+    with pytest.raises(PatchError) as info:
+        patch_from_dict(disc50(max_edge=1e-3, electrode_edge=1e-9))
+    assert info.value.key_path == "layers[0].mesh.electrode_edge"
+    fit = suggested(str(info.value), "electrode_edge")
+    patch_from_dict(disc50(max_edge=1e-3, electrode_edge=fit))
+
+
+def test_too_fine_inverse_mesh_is_refused(no_meshing):
+    with pytest.raises(PatchError) as info:
+        patch_from_dict(disc50(max_edge=1e-3, inverse_max_edge=2e-5))
+    assert info.value.key_path == "layers[0].mesh.inverse_max_edge"
+    assert "inverse_max_edge >= " in str(info.value)
+
+
+def test_more_measurements_lower_the_limit(no_meshing):
+    data = disc50(max_edge=1.6e-4)
+    patch_from_dict(data)  # 16 electrodes, 208 measurements: fits
+    layer0(data)["electrodes"] = {"count": 32, "width": 0.002, "contact_impedance": 4.0}
+    with pytest.raises(PatchError, match=r"layers\[0\]\.mesh\.max_edge: "):
+        patch_from_dict(data)  # 928 measurements: the Jacobian alone is 4x bigger
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [
+        {"max_edge": 5e-4, "electrode_edge": 5e-4},
+        {"max_edge": 5e-4, "electrode_edge": 3e-5},
+        {"max_edge": 2e-3, "electrode_edge": 1.25e-4},
+    ],
+)
+def test_triangle_estimate_matches_the_mesh(mesh):
+    from eit_skin.fem.mesh import build_mesh
+
+    layer = patch_from_dict(disc50(**mesh)).layers[0]
+    actual = build_mesh(layer).n_triangles
+    assert 0.95 * actual < estimate_layer(layer).triangles < 1.25 * actual
+
+
+@pytest.mark.parametrize("name", ["arm", "face", "elbow"])
+def test_triangle_estimate_of_shipped_layers(name):
+    from eit_skin.fem.mesh import build_mesh
+
+    for layer in load_patch(CONFIG / f"{name}.yaml").layers:
+        actual = build_mesh(layer).n_triangles
+        assert 0.75 * actual < estimate_layer(layer).triangles < 1.5 * actual

@@ -3,8 +3,8 @@
 Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses and their content hash),
 ``loading`` (:func:`load_patch`: YAML file -> validated :class:`Patch`), ``yaml_reader`` (the
 one YAML reader and typed-field validator, shared with scenario files), ``outline``,
-``electrodes``, ``holes`` (reading those sections), ``geometry`` (plane polygons),
-``material`` (sheet conductance ->
+``electrodes``, ``holes`` (reading those sections), ``mesh_budget`` (refusing a mesh too big
+to build), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
 pressure/stretch), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
 (drive and measurement pattern: the one place that knows the measurement order).
 """
@@ -22,6 +22,7 @@ _EXPORTS: dict[str, str] = {
     "Electrode": "model",
     "Layer": "model",
     "Material": "material",
+    "MeshCost": "mesh_budget",
     "MeshSpec": "model",
     "Patch": "model",
     "PatchError": "model",
@@ -30,6 +31,7 @@ _EXPORTS: dict[str, str] = {
     "ProtocolSpec": "protocol",
     "SolverSpec": "model",
     "build_protocol": "protocol",
+    "estimate_layer": "mesh_budget",
     "load_patch": "loading",
     "patch_from_dict": "loading",
 }
@@ -39,6 +41,7 @@ __all__ = [
     "Electrode",
     "Layer",
     "Material",
+    "MeshCost",
     "MeshSpec",
     "Patch",
     "PatchError",
@@ -47,6 +50,7 @@ __all__ = [
     "ProtocolSpec",
     "SolverSpec",
     "build_protocol",
+    "estimate_layer",
     "load_patch",
     "patch_from_dict",
 ]
@@ -54,6 +58,7 @@ __all__ = [
 if TYPE_CHECKING:
     from eit_skin.patch.loading import load_patch, patch_from_dict
     from eit_skin.patch.material import Material
+    from eit_skin.patch.mesh_budget import MeshCost, estimate_layer
     from eit_skin.patch.model import Electrode, Layer, MeshSpec, Patch, PatchError, SolverSpec
     from eit_skin.patch.placement import Placement
     from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol

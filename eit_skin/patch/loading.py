@@ -1,9 +1,11 @@
 """Patch files -> validated :class:`~eit_skin.patch.model.Patch` (schema: docs/patch-schema.md).
 
-:func:`load_patch` reads a YAML file with the package's YAML reader
-(:mod:`eit_skin.patch.yaml_reader`); :func:`patch_from_dict` validates already-parsed data.
-Outlines, electrodes and holes have their own modules; the small sections (material,
-protocol, mesh, solver, placement) are read here. Any problem raises
+:func:`load_patch` reads a YAML file with the package's one YAML reader
+(:mod:`eit_skin.patch.yaml_reader`: YAML 1.2 numbers, duplicate keys refused);
+:func:`patch_from_dict` validates already-parsed data. Outlines, electrodes and holes have
+their own modules; the small sections (material, protocol, mesh, solver, placement) are
+read here. A layer whose mesh would be too big to build is refused with an estimate
+(:mod:`eit_skin.patch.mesh_budget`). Any problem raises
 :class:`~eit_skin.patch.model.PatchError` ``"<file>: <key.path[3].x>: <reason>"``.
 """
 
@@ -22,6 +24,7 @@ from eit_skin.patch import geometry
 from eit_skin.patch.electrodes import read_electrodes
 from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
+from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import Electrode, Layer, MeshSpec, Patch, PatchError, SolverSpec
 from eit_skin.patch.outline import read_outline
 from eit_skin.patch.placement import (
@@ -63,8 +66,11 @@ def load_patch(path: str | Path) -> Patch:
     return patch_from_dict(read_yaml(path, PatchError), source=str(path))
 
 
-def patch_from_dict(data: Any, source: str = "<dict>") -> Patch:
-    """Validate already-parsed patch data (same schema as the YAML file)."""
+def patch_from_dict(data: Any, source: str = "<dict>", *, check_budget: bool = True) -> Patch:
+    """Validate already-parsed patch data (same schema as the YAML file).
+
+    ``check_budget=False`` skips the mesh size limit (only for measuring it, bench/).
+    """
     r = Reader(source, PatchError)
     top = r.mapping(data, "", required=("name", "frame_id", "layers"), optional=("placement",))
     name = r.string(top, "name", "")
@@ -72,7 +78,7 @@ def patch_from_dict(data: Any, source: str = "<dict>") -> Patch:
     items = r.sequence(top["layers"], "layers", min_len=1)
     layers = []
     for i, item in enumerate(items):
-        layer = _layer(r, item, f"layers[{i}]")
+        layer = _layer(r, item, f"layers[{i}]", check_budget)
         if any(existing.name == layer.name for existing in layers):
             raise r.error(f"layers[{i}].name", f"duplicate layer name {layer.name!r}")
         layers.append(layer)
@@ -80,7 +86,7 @@ def patch_from_dict(data: Any, source: str = "<dict>") -> Patch:
     return Patch(name, frame_id, tuple(layers), placement, source)
 
 
-def _layer(r: Reader, data: Any, path: str) -> Layer:
+def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
     d = r.mapping(data, path, required=LAYER_KEYS[:4], optional=LAYER_KEYS[4:])
     name = r.string(d, "name", path)
     kind, outline = read_outline(r, d["outline"], r.join(path, "outline"))
@@ -95,7 +101,7 @@ def _layer(r: Reader, data: Any, path: str) -> Layer:
     solver = _solver_spec(r, d.get("solver", {}), r.join(path, "solver"))
     for array in (outline, *holes):
         array.setflags(write=False)
-    return Layer(
+    layer = Layer(
         name=name,
         outline_kind=kind,
         outline=outline,
@@ -108,6 +114,12 @@ def _layer(r: Reader, data: Any, path: str) -> Layer:
         mesh=mesh,
         solver=solver,
     )
+    if check_budget:
+        problem = budget_problem(layer)
+        if problem is not None:
+            key, reason = problem
+            raise r.error(r.join(r.join(path, "mesh"), key), reason)
+    return layer
 
 
 def _material(r: Reader, data: Any, path: str) -> Material:
