@@ -462,6 +462,25 @@ def test_duplicate_key_is_refused_naming_both_lines(tmp_path, text, message):
     assert load_patch(path).layers[0].current_a == 1.0e-3  # the same file without the repeat
 
 
+def test_first_duplicate_in_document_order_is_reported(tmp_path):
+    path = tmp_path / "dup.yaml"
+    path.write_text("a: [{x: 1, y: 2}, {x: 1, x: 2}]\nb: {y: 1, y: 2}\n")
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: a[1].x: duplicate key: first on line 1, again on line 1"
+
+
+def test_second_document_is_refused(tmp_path):
+    path = tmp_path / "two.yaml"
+    path.write_text(DUPLICATE + "---\nname: other\n")
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == (
+        f"{path}: line 9, column 1: invalid YAML: expected a single document in the stream, "
+        "but found another document"
+    )
+
+
 @pytest.mark.parametrize("text", ["", "  \n\t\n", "# nothing here yet\n\n"])
 def test_empty_file_is_reported_as_empty(tmp_path, text):
     path = tmp_path / "empty.yaml"

@@ -111,6 +111,9 @@ def read_yaml(path: str | Path, error: type[ConfigError], list_key: str = "") ->
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "(yaml)"
         problem = getattr(exc, "problem", None) or str(exc)
+        context = getattr(exc, "context", None)
+        if context and problem.startswith("but "):  # "expected a single document ..."
+            problem = f"{context}, {problem}"
         raise error(source, where, f"invalid YAML: {problem}") from None
     finally:
         loader.dispose()
@@ -126,6 +129,7 @@ def _refuse_duplicate_keys(
         if id(node) in seen_nodes:  # aliases may share (and even contain) nodes
             continue
         seen_nodes.add(id(node))
+        children = []
         if isinstance(node, yaml.MappingNode):
             first_line: dict[tuple[str, str], int] = {}
             for key, value in node.value:
@@ -141,9 +145,10 @@ def _refuse_duplicate_keys(
                             f"again on line {line}",
                         )
                     first_line[key.tag, name] = line
-                stack.append((value, child))
+                children.append((value, child))
         elif isinstance(node, yaml.SequenceNode):
-            stack.extend((item, Reader.join(where, i)) for i, item in enumerate(node.value))
+            children = [(item, Reader.join(where, i)) for i, item in enumerate(node.value)]
+        stack.extend(reversed(children))  # depth first, in document order
 
 
 # --------------------------------------------------------------------------- validation
