@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eit_skin.patch.model import Patch, load_patch
+from eit_skin.patch.loading import load_patch
+from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario

@@ -15,7 +15,7 @@ import numpy as np
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import build_mesh
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 
 REPO = Path(__file__).resolve().parents[1]

@@ -45,7 +45,8 @@ import real_data_scoring as scoring
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
-from eit_skin.patch.model import Layer, load_patch
+from eit_skin.patch.loading import load_patch
+from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 

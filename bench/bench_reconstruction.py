@@ -46,7 +46,7 @@ from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton_differ
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.inverse.priors import make_prior
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager, with_method
 from eit_skin.resources import config_path

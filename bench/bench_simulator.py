@@ -7,7 +7,7 @@ import os
 import time
 from pathlib import Path
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
 

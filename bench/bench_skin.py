@@ -38,7 +38,7 @@ from eit_skin_msgs.msg import EitFrame  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
-from eit_skin.patch.model import load_patch  # noqa: E402
+from eit_skin.patch.loading import load_patch  # noqa: E402
 from eit_skin.pipeline.builder import LayerImager  # noqa: E402
 from eit_skin.resources import config_path  # noqa: E402
 from eit_skin.ros.probe import Probe, start_node, stop_node  # noqa: E402

@@ -9,7 +9,7 @@ import subprocess
 import pytest
 from PIL import Image as PilImage
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable

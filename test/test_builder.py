@@ -10,7 +10,7 @@ from eit_skin.fem.mesh import build_mesh
 from eit_skin.frames import FLAG_SATURATED
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver
 from eit_skin.inverse.one_step import ReconstructionMatrix
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager, forward_model, with_method
 from eit_skin.resources import config_path

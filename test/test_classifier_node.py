@@ -13,7 +13,7 @@ from sensor_msgs.msg import Image
 
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import build_mesh
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
 

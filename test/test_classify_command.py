@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from eit_skin.cli.main import main
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
 

@@ -9,7 +9,7 @@ from eit_skin_msgs.msg import EitFrame
 
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.io.recording import read_mcap_frames
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
 

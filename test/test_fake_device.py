@@ -124,7 +124,7 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
 
 def test_cli_without_frames_streams_the_simulator(tmp_path):
     """Without --frames the device sends physics: the arm's pressure layer under a push."""
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.resources import config_path
     from eit_skin.sim.simulator import SkinSimulator
 

@@ -267,7 +267,7 @@ def test_factorisation_is_reused_across_calls(coarse):
 
 def test_patch_mesh_with_holes_from_build_mesh():
     from eit_skin.fem.mesh import build_mesh
-    from eit_skin.patch.model import patch_from_dict
+    from eit_skin.patch.loading import patch_from_dict
 
     patch = patch_from_dict(
         {

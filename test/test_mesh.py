@@ -9,7 +9,8 @@ import pytest
 
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch import geometry
-from eit_skin.patch.model import Layer, load_patch, patch_from_dict
+from eit_skin.patch.loading import load_patch, patch_from_dict
+from eit_skin.patch.model import Layer
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 LAYERS = [

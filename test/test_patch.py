@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 import warnings
 from pathlib import Path
 
@@ -11,10 +12,13 @@ import pytest
 import yaml
 
 from eit_skin.patch import geometry
+from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.material import Material
-from eit_skin.patch.model import PatchError, load_patch, patch_from_dict
+from eit_skin.patch.mesh_budget import estimate_layer
+from eit_skin.patch.model import PatchError
 from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, PlanePlacement
 from eit_skin.patch.protocol import build_protocol
+from eit_skin.patch.yaml_reader import read_yaml
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 RADIUS = 0.04
@@ -135,6 +139,20 @@ def _grid_pitch(data):
     layer0(data)["holes"] = [{"type": "grid", "diameter": 0.005, "pitch": 0.005}]
 
 
+def _rename(key, new):
+    def mutate(data):
+        layer0(data)[new] = layer0(data).pop(key)
+
+    return mutate
+
+
+def _rename_top(key, new):
+    def mutate(data):
+        data[new] = data.pop(key)
+
+    return mutate
+
+
 def _missing(key):
     def mutate(data):
         del layer0(data)[key]
@@ -211,7 +229,73 @@ BAD = [
         "unknown protocol key",
         _set("protocol", {"drvie": "adjacent"}),
         "layers[0].protocol.drvie",
-        "unknown key",
+        "unknown key; did you mean 'drive'?",
+    ),
+    (
+        "drive_skip wraps around",
+        _set("protocol", {"drive": "skip", "drive_skip": 16}),
+        "layers[0].protocol.drive_skip",
+        "16 is not below the electrode count 16",
+    ),
+    (
+        "measure_skip wraps around",
+        _set("protocol", {"measure": "skip", "measure_skip": 40}),
+        "layers[0].protocol.measure_skip",
+        "40 is not below the electrode count 16",
+    ),
+    (
+        "misspelt top-level key",
+        _rename_top("layers", "layerz"),
+        "layerz",
+        "unknown key; did you mean 'layers'?",
+    ),
+    (
+        "misspelt layer key",
+        _rename("electrodes", "electrodez"),
+        "layers[0].electrodez",
+        "unknown key; did you mean 'electrodes'?",
+    ),
+    (
+        "misspelt solver key",
+        _set("solver", {"metod": "greit"}),
+        "layers[0].solver.metod",
+        "unknown key; did you mean 'method'?",
+    ),
+    (
+        "misspelt outline key",
+        _set("outline", {"type": "circle", "raduis": 0.04}),
+        "layers[0].outline.raduis",
+        "unknown key of a circle outline; did you mean 'radius'?",
+    ),
+    (
+        "key of another outline type",
+        _set("outline", {"type": "circle", "radius": 0.04, "width": 0.1}),
+        "layers[0].outline.width",
+        "unknown key of a circle outline; allowed: center, radius, segments, type",
+    ),
+    (
+        "misspelt grid key",
+        _set("holes", [{"type": "grid", "diameter": 0.003, "pich": 0.005}]),
+        "layers[0].holes[0].pich",
+        "unknown key of a grid hole; did you mean 'pitch'?",
+    ),
+    (
+        "misspelt placement key",
+        lambda d: d.update(placement={"type": "cylinder", "raduis": 0.05}),
+        "placement.raduis",
+        "unknown key of a cylinder placement; did you mean 'radius'?",
+    ),
+    (
+        "misspelt type key",
+        _set("outline", {"tpye": "circle", "radius": 0.04}),
+        "layers[0].outline.tpye",
+        "did you mean 'type'?",
+    ),
+    (
+        "misspelt choice",
+        _set("solver", {"method": "gauss-newton"}),
+        "layers[0].solver.method",
+        "unknown value 'gauss-newton' (did you mean 'gauss_newton'?)",
     ),
     (
         "negative conductivity",
@@ -339,6 +423,111 @@ def test_yaml_syntax_error_names_line(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(PatchError, match=r"nothing\.yaml: \(file\): "):
         load_patch(tmp_path / "nothing.yaml")
+
+
+DUPLICATE = """\
+name: disk
+frame_id: disk_link
+layers:
+  - name: sheet
+    outline: {type: circle, radius: 0.04}
+    electrodes: {count: 16, width: 0.004, contact_impedance: 4.0}
+    material: {quantity: pressure, sheet_conductance: 1.0e-4, pressure_scale: 3.0e4}
+    current: 1.0e-3
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            DUPLICATE + "    current: 2.0e-3\n",
+            "layers[0].current: duplicate key: first on line 8, again on line 9",
+        ),
+        (
+            DUPLICATE.replace("radius: 0.04}", "radius: 0.04, radius: 0.05}"),
+            "layers[0].outline.radius: duplicate key: first on line 5, again on line 5",
+        ),
+        ("name: a\n" + DUPLICATE, "name: duplicate key: first on line 1, again on line 2"),
+    ],
+    ids=["layer", "flow mapping", "top"],
+)
+def test_duplicate_key_is_refused_naming_both_lines(tmp_path, text, message):
+    path = tmp_path / "dup.yaml"
+    path.write_text(text)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: {message}"
+    path.write_text(DUPLICATE)
+    assert load_patch(path).layers[0].current_a == 1.0e-3  # the same file without the repeat
+
+
+def test_first_duplicate_in_document_order_is_reported(tmp_path):
+    path = tmp_path / "dup.yaml"
+    path.write_text("a: [{x: 1, y: 2}, {x: 1, x: 2}]\nb: {y: 1, y: 2}\n")
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: a[1].x: duplicate key: first on line 1, again on line 1"
+
+
+def test_second_document_is_refused(tmp_path):
+    path = tmp_path / "two.yaml"
+    path.write_text(DUPLICATE + "---\nname: other\n")
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == (
+        f"{path}: line 9, column 1: invalid YAML: expected a single document in the stream, "
+        "but found another document"
+    )
+
+
+@pytest.mark.parametrize("text", ["", "  \n\t\n", "# nothing here yet\n\n"])
+def test_empty_file_is_reported_as_empty(tmp_path, text):
+    path = tmp_path / "empty.yaml"
+    path.write_text(text)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: (file): empty file"
+
+
+def test_explicit_null_document_is_not_a_mapping(tmp_path):
+    path = tmp_path / "null.yaml"
+    path.write_text("null\n")
+    with pytest.raises(PatchError, match=r"null\.yaml: \(root\): expected a mapping, got nothing"):
+        load_patch(path)
+
+
+def test_non_utf8_file_names_the_byte_offset(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("name: d\u00fcse\n".encode("latin-1"))
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert str(info.value) == f"{path}: (file): not UTF-8 text: bad byte at offset 7"
+
+
+def test_yaml_reader_uses_yaml_1_2_scalars(tmp_path):
+    path = tmp_path / "scalars.yaml"
+    path.write_text(
+        "a: 5e-3\nb: 010\nc: yes\nd: 1:30\ne: 2001-12-14\nf: 0x1F\ng: 0o17\nh: 1_000\n"
+        "i: .5\nj: -.inf\nk: True\nl: ~\nm: +3\n"
+    )
+    data = read_yaml(path, PatchError)
+    assert data == {
+        "a": 0.005,
+        "b": 10,
+        "c": "yes",
+        "d": "1:30",
+        "e": "2001-12-14",
+        "f": 31,
+        "g": 15,
+        "h": "1_000",
+        "i": 0.5,
+        "j": -np.inf,
+        "k": True,
+        "l": None,
+        "m": 3,
+    }
+    assert type(data["a"]) is float and type(data["b"]) is int
 
 
 def test_exponent_without_sign_is_a_number(tmp_path):
@@ -571,3 +760,92 @@ def test_heightmap_bounds_default_to_outline_box():
     patch = load_patch(CONFIG / "face.yaml")
     lo, hi = patch.layers[0].outline.min(axis=0), patch.layers[0].outline.max(axis=0)
     np.testing.assert_allclose(patch.placement.bounds, [lo[0], hi[0], lo[1], hi[1]])
+
+
+def disc50(**mesh) -> dict:
+    data = base()
+    layer0(data)["outline"]["radius"] = 0.025
+    layer0(data)["mesh"] = mesh
+    return data
+
+
+@pytest.fixture
+def no_meshing(monkeypatch):
+    """Any attempt to mesh fails the test: the budget is checked before meshing."""
+    import triangle
+
+    def triangulate(*args, **kwargs):
+        raise AssertionError("the loader started meshing")
+
+    monkeypatch.setattr(triangle, "triangulate", triangulate)
+
+
+def suggested(message: str, key: str) -> float:
+    match = re.search(rf"{key} >= ([0-9.e+-]+) m would fit", message)
+    assert match, message
+    return float(match.group(1))
+
+
+def test_mesh_too_big_is_refused_with_estimate_and_fitting_max_edge(tmp_path, no_meshing):
+    path = write(tmp_path, disc50(max_edge=1.0e-5))
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: layers[0].mesh.max_edge: ~"), message
+    # 1.58 * area / (sqrt(3)/4 h^2) = 1.58 * 1.963e-3 / 4.33e-11 = 7.2e7 triangles, ~500 GB
+    triangles = float(re.search(r"~([0-9.e+]+) triangles", message).group(1))
+    assert 6.5e7 < triangles < 8e7
+    assert "GiB" in message and "the limit is 2 GiB and 60 s" in message
+    fit = suggested(message, "max_edge")
+    assert 1e-4 < fit < 2e-4
+    patch_from_dict(disc50(max_edge=fit), source="fits")  # the suggestion is accepted ...
+    with pytest.raises(PatchError, match=r"mesh\.max_edge: .* max_edge >= "):
+        patch_from_dict(disc50(max_edge=0.8 * fit))  # ... and is (nearly) the smallest
+
+
+def test_too_fine_electrode_edge_is_refused(no_meshing):
+    with pytest.raises(PatchError) as info:
+        patch_from_dict(disc50(max_edge=1e-3, electrode_edge=1e-9))
+    assert info.value.key_path == "layers[0].mesh.electrode_edge"
+    fit = suggested(str(info.value), "electrode_edge")
+    patch_from_dict(disc50(max_edge=1e-3, electrode_edge=fit))
+
+
+def test_too_fine_inverse_mesh_is_refused(no_meshing):
+    with pytest.raises(PatchError) as info:
+        patch_from_dict(disc50(max_edge=1e-3, inverse_max_edge=2e-5))
+    assert info.value.key_path == "layers[0].mesh.inverse_max_edge"
+    assert "inverse_max_edge >= " in str(info.value)
+
+
+def test_more_measurements_lower_the_limit(no_meshing):
+    data = disc50(max_edge=1.6e-4)
+    patch_from_dict(data)  # 16 electrodes, 208 measurements: fits
+    layer0(data)["electrodes"] = {"count": 32, "width": 0.002, "contact_impedance": 4.0}
+    with pytest.raises(PatchError, match=r"layers\[0\]\.mesh\.max_edge: "):
+        patch_from_dict(data)  # 928 measurements: the Jacobian alone is 4x bigger
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [
+        {"max_edge": 5e-4, "electrode_edge": 5e-4},
+        {"max_edge": 5e-4, "electrode_edge": 3e-5},
+        {"max_edge": 2e-3, "electrode_edge": 1.25e-4},
+    ],
+)
+def test_triangle_estimate_matches_the_mesh(mesh):
+    from eit_skin.fem.mesh import build_mesh
+
+    layer = patch_from_dict(disc50(**mesh)).layers[0]
+    actual = build_mesh(layer).n_triangles
+    assert 0.95 * actual < estimate_layer(layer).triangles < 1.25 * actual
+
+
+@pytest.mark.parametrize("name", ["arm", "face", "elbow"])
+def test_triangle_estimate_of_shipped_layers(name):
+    from eit_skin.fem.mesh import build_mesh
+
+    for layer in load_patch(CONFIG / f"{name}.yaml").layers:
+        actual = build_mesh(layer).n_triangles
+        assert 0.75 * actual < estimate_layer(layer).triangles < 1.5 * actual

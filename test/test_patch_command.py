@@ -57,3 +57,23 @@ def test_png(tmp_path, capsys):
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert out_png.stat().st_size > 10_000
     assert f"wrote {out_png}" in capsys.readouterr().out
+
+
+def test_oversized_mesh_is_refused_before_meshing(tmp_path, capsys, monkeypatch):
+    import triangle
+
+    def triangulate(*args, **kwargs):
+        raise AssertionError("eit-skin patch started meshing")
+
+    monkeypatch.setattr(triangle, "triangulate", triangulate)
+    data = yaml.safe_load((CONFIG / "elbow.yaml").read_text())
+    data["layers"][0]["mesh"].update(max_edge=1.0e-5, electrode_edge=1.0e-5)
+    path = tmp_path / "elbow_fine.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert main(["patch", str(path)]) == 1
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1
+    assert f"{path}: layers[0].mesh.max_edge: ~" in lines[0]
+    assert "GiB" in lines[0] and "max_edge >= " in lines[0] and lines[0].endswith("would fit")

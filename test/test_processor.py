@@ -7,7 +7,7 @@ import pytest
 
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.frames import FLAG_INVALID, FLAG_SATURATED
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor, stamp_to_s
 from eit_skin.pipeline.reference import PostureReferences

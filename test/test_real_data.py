@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 
 REPO = Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ import pytest
 from eit_skin.cli.main import main
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import build_mesh
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import (
     BUILTIN_SCENARIOS,
@@ -112,7 +112,7 @@ def test_yaml_scenario_loads(tmp_path: Path) -> None:
         ("- {at: 1, touch: pinch, position: [0, 0], end_gap: 0.05}", "touches[0].end_gap"),
         ("touches: []\nposture: [{at: 1, angle: 0}, {at: 0.5, angle: 1}]", "posture[1].at"),
         ("touches: []\nspeed: 3", "speed"),
-        ("touches: [\n", "(root)"),
+        ("touches: [\n", "line 3, column 1"),
     ],
 )
 def test_yaml_errors_name_the_file_and_key(tmp_path: Path, text: str, key: str) -> None:
@@ -122,3 +122,48 @@ def test_yaml_errors_name_the_file_and_key(tmp_path: Path, text: str, key: str) 
     with pytest.raises(ScenarioError) as info:
         load_scenario(path, arm)
     assert str(info.value).startswith(f"{path}: {key}: "), str(info.value)
+
+
+def test_yaml_1_2_exponents_are_numbers(tmp_path: Path) -> None:
+    arm = load_patch(config_path("arm"))
+    path = tmp_path / "s.yaml"
+    path.write_text("- {at: 1, touch: push, position: [5e-3, -4e-3], radius: 5e-3, ramp: 2e-1}\n")
+    push = load_scenario(path, arm).touches[0]
+    assert push.center == pytest.approx([0.005, -0.004])
+    assert push.radius_m == 0.005 and push.ramp_s == 0.2
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            "- {at: 1, touch: push, posiiton: [0, 0]}",
+            "touches[0].posiiton: unknown key of a push touch; did you mean 'position'?",
+        ),
+        (
+            "- {at: 1, touch: rub, position: [0, 0], sped: 0.05}",
+            "touches[0].sped: unknown key of a rub touch; did you mean 'speed'?",
+        ),
+        ("- {at: 1, tuch: push, position: [0, 0]}", "touches[0].tuch: unknown key of a touch; "),
+        ("touchs: []", "touchs: unknown key; did you mean 'touches'?"),
+        ("touches: []\nposture: [{at: 0, angel: 1}]", "posture[0].angel: unknown key of a "),
+        (
+            "touches: []\nname: a\nname: b",
+            "name: duplicate key: first on line 2, again on line 3",
+        ),
+        (
+            "- {at: 1, touch: push, position: [0, 0], at: 2}",
+            "touches[0].at: duplicate key: first on line 1, again on line 1",
+        ),
+        ("", "(file): empty file"),
+        (" \n\t \n", "(file): empty file"),
+        ("# to do\n", "(file): empty file"),
+    ],
+)
+def test_yaml_errors_give_the_reason(tmp_path: Path, text: str, message: str) -> None:
+    arm = load_patch(config_path("arm"))
+    path = tmp_path / "bad.yaml"
+    path.write_text(text + "\n")
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, arm)
+    assert str(info.value).startswith(f"{path}: {message}"), str(info.value)

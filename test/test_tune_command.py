@@ -10,7 +10,7 @@ import yaml
 
 from eit_skin.cli.main import main
 from eit_skin.cli.tune import set_solver_hyperparameter
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 
 

@@ -34,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import JointState
 
-    from eit_skin.patch.model import PatchError, load_patch
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import PatchError
     from eit_skin.pipeline.reference import JointAngleHistory, bin_posture_frames
     from eit_skin.resources import config_path
 

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 def classify_file(args: argparse.Namespace):
     """Finished touch events (END) of the files named in ``args``."""
     from eit_skin.cli.reconstruct import cache_dir
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
     from eit_skin.touch.classifier import TouchClassifier

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 def _simulated_source(args: argparse.Namespace):
     """Frame source of one simulated layer (looped script) and the header fields it implies."""
     from eit_skin.hardware.sources import pattern_id
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.resources import config_path
     from eit_skin.sim.simulator import SkinSimulator
 

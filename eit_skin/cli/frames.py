@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote {args.npz}: {n} frames")
             return 0
         from eit_skin.hardware.sources import pattern_name
-        from eit_skin.patch.model import load_patch
+        from eit_skin.patch.loading import load_patch
         from eit_skin.resources import config_path
 
         patch = load_patch(config_path(args.patch))

@@ -21,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from eit_skin.fem.mesh import build_mesh
-    from eit_skin.patch.model import PatchError, load_patch
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import PatchError
     from eit_skin.patch.protocol import build_protocol
     from eit_skin.resources import config_path
 

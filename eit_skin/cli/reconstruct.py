@@ -163,7 +163,7 @@ class OfflineImages:
 
 def _reconstruct(args: argparse.Namespace) -> OfflineImages:
     from eit_skin.io.recording import load_frames_npz
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, with_method
     from eit_skin.resources import config_path
 

@@ -84,7 +84,7 @@ def _monitor_aware(spec):
 
 def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:
     """Frames in one pass of each simulated patch's touch script, by namespace."""
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.sim.scenario import resolve_scenario
 
     frames = {}

@@ -156,7 +156,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.inverse.greit import equivalent_radius, target_centres
     from eit_skin.inverse.hyperparameter import noise_figure as nf_of
     from eit_skin.inverse.one_step import relative_difference
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, forward_model
 
     patch = load_patch(path)
@@ -240,7 +240,7 @@ def write_hyperparameter(path: Path, layer_name: str, value: float) -> None:
     Only the text of that entry changes; the result is validated with ``load_patch`` and then
     atomically replaces the file.
     """
-    from eit_skin.patch.model import load_patch
+    from eit_skin.patch.loading import load_patch
 
     path = Path(path)
     before = load_patch(path)

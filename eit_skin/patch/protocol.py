@@ -109,6 +109,11 @@ class ProtocolSpec:
             ("drive", self.drive, self.drive_skip),
             ("measure", self.measure, self.measure_skip),
         ):
+            if pattern == "skip" and skip >= n:
+                raise ValueError(
+                    f"{name}_skip: {skip} is not below the electrode count {n} (it would wrap "
+                    f"around to skip {skip % n}); use 0..{n - 2}"
+                )
             if pattern != "explicit":
                 offset = _offset(pattern, skip, n)
                 if offset % n == 0:

@@ -32,7 +32,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from eit_skin.hardware.sources import RateMeter, pattern_name
-from eit_skin.patch.model import Layer, load_patch
+from eit_skin.patch.loading import load_patch
+from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, default_cache_dir
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.pipeline.processor import (

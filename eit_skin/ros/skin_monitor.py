@@ -22,7 +22,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.ros.bringup import RunningNode, last_lines, start, stop
 from eit_skin.ros.node_graph import NodeSpec, image_topics

@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from eit_skin.patch import geometry
 from eit_skin.patch.model import Patch
+from eit_skin.patch.yaml_reader import ConfigError, Reader, describe, read_yaml
 from eit_skin.sim.stimuli import TOUCH_TYPES, Grab, Pinch, PostureTrack, Push, Rub, Stimulus
 
 BUILTIN_SCENARIOS = ("demo", "push", "rub", "pinch", "grab", "idle", "elbow_bend", "random")
@@ -34,14 +34,8 @@ EDGE_MARGIN_M = 0.004
 LABELS = tuple(TOUCH_TYPES)
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigError):
     """A scenario file is invalid: ``"<file>: <key path>: <reason>"``."""
-
-    def __init__(self, source: str, key_path: str, reason: str) -> None:
-        self.source = source
-        self.key_path = key_path or "(root)"
-        self.reason = reason
-        super().__init__(f"{source}: {self.key_path}: {reason}")
 
 
 @dataclass(frozen=True)
@@ -347,194 +341,135 @@ def _random_touch(rng, label: str, t: float, frame: SheetFrame, ext: float) -> S
 # --------------------------------------------------------------------------- YAML files
 
 
-_COMMON_KEYS = ("at", "touch", "duration", "force_n", "radius", "ramp")
-_TOUCH_KEYS = {
-    "push": ("position",),
-    "rub": ("position", "direction_deg", "speed"),
-    "pinch": ("position", "axis_deg", "start_gap", "end_gap"),
-    "grab": ("positions",),
+_COMMON_KEYS = ("at", "duration", "force_n", "radius", "ramp")
+TOUCH_KEYS = {
+    "push": (*_COMMON_KEYS, "position"),
+    "rub": (*_COMMON_KEYS, "position", "direction_deg", "speed"),
+    "pinch": (*_COMMON_KEYS, "position", "axis_deg", "start_gap", "end_gap"),
+    "grab": (*_COMMON_KEYS, "positions"),
 }
+"""Keys of each ``touch`` kind of a scenario file (besides ``touch``)."""
 
 
 def load_scenario(path: str | Path, patch: Patch) -> Scenario:
-    """Read and validate a YAML scenario file against ``patch`` (positions must fit)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScenarioError(str(path), "", f"cannot read: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ScenarioError(str(path), "", f"not valid YAML: {exc}") from None
-    return scenario_from_dict(data, patch, source=str(path), name=path.stem)
+    """Read and validate a YAML scenario file against ``patch`` (positions must fit).
+
+    Read like patch files (:func:`eit_skin.patch.yaml_reader.read_yaml`: YAML 1.2 numbers,
+    empty files and duplicate keys refused).
+    """
+    data = read_yaml(path, ScenarioError, list_key="touches")
+    return scenario_from_dict(data, patch, source=str(path), name=Path(path).stem)
 
 
 def scenario_from_dict(
     data: Any, patch: Patch, source: str = "<dict>", name: str = "scenario"
 ) -> Scenario:
     """Validate parsed YAML (a list of touches or a mapping; see docs/simulator.md)."""
-
-    def err(key: str, reason: str) -> ScenarioError:
-        return ScenarioError(source, key, reason)
-
+    r = Reader(source, ScenarioError)
     if isinstance(data, list):
         data = {"touches": data}
     if not isinstance(data, Mapping):
-        raise err("", f"expected a list of touches or a mapping, got {type(data).__name__}")
-    allowed = ("name", "duration", "touches", "posture")
-    for key in data:
-        if key not in allowed:
-            raise err(str(key), f"unknown key; allowed: {', '.join(allowed)}")
-    name = str(data.get("name", name))
-    items = data.get("touches", []) or []
-    if not isinstance(items, list):
-        raise err("touches", f"expected a list, got {type(items).__name__}")
+        raise r.error("", f"expected a list of touches or a mapping, got {describe(data)}")
+    data = r.mapping(data, "", optional=("name", "duration", "touches", "posture"))
+    name = r.string(data, "name", "", default=name)
+    items = r.sequence(data.get("touches") or [], "touches")
     frame = SheetFrame.of(patch)
-    touches = [_touch(item, f"touches[{i}]", err, frame) for i, item in enumerate(items)]
+    touches = [_touch(r, item, f"touches[{i}]", frame) for i, item in enumerate(items)]
     order = sorted(range(len(touches)), key=lambda i: touches[i].t_start_s)
     for a, b in itertools.pairwise(order):
         if touches[b].t_start_s < touches[a].t_end_s:
-            raise err(
+            raise r.error(
                 f"touches[{b}].at",
                 f"starts at {touches[b].t_start_s:g} s while touches[{a}] lasts until "
                 f"{touches[a].t_end_s:g} s (touches must not overlap)",
             )
     touches = [touches[i] for i in order]
     posture = None
-    if "posture" in data and data["posture"] is not None:
-        posture = _posture(data["posture"], err, frame)
+    if data.get("posture") is not None:
+        posture = _posture(r, data["posture"], frame)
     end = max([s.t_end_s + s.settle_s for s in touches] + [0.0])
     if posture is not None:
         end = max(end, posture.changing_until_s)
     if "duration" in data:
-        duration = _number(data, "duration", "", err, positive=True)
+        duration = r.number(data, "duration", "", positive=True)
         if duration < end:
-            raise err("duration", f"{duration:g} s ends before the last touch ({end:g} s)")
+            raise r.error("duration", f"{duration:g} s ends before the last touch ({end:g} s)")
     else:
         duration = end + 1.5
     return Scenario(name, tuple(touches), duration, posture)
 
 
-def _number(
-    d: Mapping,
-    key: str,
-    path: str,
-    err,
-    positive: bool = False,
-    default: Any = None,
-    signed: bool = False,
-):
-    where = f"{path}.{key}" if path else key
-    if key not in d:
-        if default is None:
-            raise err(where, "missing required key")
-        return default
-    value = d[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise err(where, f"expected a finite number, got {value!r}")
-    if positive and not value > 0:
-        raise err(where, f"must be > 0, got {value!r}")
-    if not positive and not signed and value < 0:
-        raise err(where, f"must be >= 0, got {value!r}")
-    return float(value)
-
-
-def _point(value: Any, where: str, err) -> tuple[float, float]:
-    if (
-        not isinstance(value, (list, tuple))
-        or len(value) != 2
-        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-    ):
-        raise err(where, f"expected [x, y] in metres, got {value!r}")
-    return (float(value[0]), float(value[1]))
-
-
-def _touch(item: Any, path: str, err, frame: SheetFrame) -> Stimulus:
-    if not isinstance(item, Mapping):
-        raise err(path, f"expected a mapping, got {type(item).__name__}")
-    kind = item.get("touch")
-    if kind not in TOUCH_TYPES:
-        raise err(f"{path}.touch", f"expected one of {', '.join(TOUCH_TYPES)}, got {kind!r}")
-    allowed = _COMMON_KEYS + _TOUCH_KEYS[kind]
-    for key in item:
-        if key not in allowed:
-            raise err(f"{path}.{key}", f"not a key of a {kind}; allowed: {', '.join(allowed)}")
+def _touch(r: Reader, item: Any, path: str, frame: SheetFrame) -> Stimulus:
+    kind, item = r.variant(item, path, TOUCH_KEYS, "touch", key="touch")
     common = {
-        "t_start_s": _number(item, "at", path, err),
-        "duration_s": _number(item, "duration", path, err, positive=True, default=1.5),
-        "force_n": _number(item, "force_n", path, err, positive=True, default=4.0),
-        "radius_m": _number(item, "radius", path, err, positive=True, default=0.006),
-        "ramp_s": _number(item, "ramp", path, err, positive=True, default=0.25),
+        "t_start_s": r.number(item, "at", path, minimum=0.0),
+        "duration_s": r.number(item, "duration", path, positive=True, default=1.5),
+        "force_n": r.number(item, "force_n", path, positive=True, default=4.0),
+        "radius_m": r.number(item, "radius", path, positive=True, default=0.006),
+        "ramp_s": r.number(item, "ramp", path, positive=True, default=0.25),
     }
     try:
         if kind == "grab":
+            where = r.join(path, "positions")
             if "positions" not in item:
-                raise err(f"{path}.positions", "missing required key")
-            raw = item["positions"]
-            if not isinstance(raw, list) or len(raw) < 2:
-                raise err(f"{path}.positions", "expected a list of >= 2 [x, y] points")
-            pts = np.array([_point(p, f"{path}.positions[{i}]", err) for i, p in enumerate(raw)])
+                raise r.error(where, "missing required key")
+            pts = r.points(item["positions"], where, min_len=2)
             c = pts.mean(axis=0)
             offsets = tuple((float(x), float(y)) for x, y in pts - c)
             stimulus: Stimulus = Grab(
                 position=(float(c[0]), float(c[1])), offsets=offsets, **common
             )
         else:
+            where = r.join(path, "position")
             if "position" not in item:
-                raise err(f"{path}.position", "missing required key")
-            pos = _point(item["position"], f"{path}.position", err)
+                raise r.error(where, "missing required key")
+            x, y = r.vector(item["position"], where, 2)
+            pos = (float(x), float(y))
             if kind == "push":
                 stimulus = Push(position=pos, **common)
             elif kind == "rub":
                 stimulus = Rub(
                     position=pos,
-                    direction_rad=math.radians(
-                        _number(item, "direction_deg", path, err, default=0.0, signed=True)
-                    ),
-                    speed_mps=_number(item, "speed", path, err, positive=True, default=0.05),
+                    direction_rad=math.radians(r.number(item, "direction_deg", path, default=0.0)),
+                    speed_mps=r.number(item, "speed", path, positive=True, default=0.05),
                     **common,
                 )
             else:
                 stimulus = Pinch(
                     position=pos,
-                    axis_rad=math.radians(
-                        _number(item, "axis_deg", path, err, default=0.0, signed=True)
-                    ),
-                    start_gap_m=_number(item, "start_gap", path, err, positive=True, default=0.04),
-                    end_gap_m=_number(item, "end_gap", path, err, positive=True, default=0.015),
+                    axis_rad=math.radians(r.number(item, "axis_deg", path, default=0.0)),
+                    start_gap_m=r.number(item, "start_gap", path, positive=True, default=0.04),
+                    end_gap_m=r.number(item, "end_gap", path, positive=True, default=0.015),
                     **common,
                 )
     except ScenarioError:
         raise
     except ValueError as exc:
         key, _, reason = str(exc).partition(": ")
-        raise err(f"{path}.{key}", reason) from None
+        raise r.error(r.join(path, key), reason) from None
     if not frame.fits(stimulus):
         key = "positions" if kind == "grab" else "position"
-        raise err(
-            f"{path}.{key}",
+        raise r.error(
+            r.join(path, key),
             f"the {kind} leaves the sheet (every contact of radius {stimulus.radius_m:g} m must "
             f"stay {EDGE_MARGIN_M:g} m inside the outline)",
         )
     return stimulus
 
 
-def _posture(raw: Any, err, frame: SheetFrame) -> PostureTrack:
+def _posture(r: Reader, raw: Any, frame: SheetFrame) -> PostureTrack:
     if not isinstance(raw, list) or not raw:
-        raise err("posture", "expected a non-empty list of {at: s, angle: rad} keyframes")
+        raise r.error("posture", "expected a non-empty list of {at: s, angle: rad} keyframes")
     keys = []
     for i, item in enumerate(raw):
         where = f"posture[{i}]"
-        if not isinstance(item, Mapping):
-            raise err(where, f"expected a mapping, got {type(item).__name__}")
-        for key in item:
-            if key not in ("at", "angle"):
-                raise err(f"{where}.{key}", "not a key of a posture keyframe; allowed: at, angle")
-        keys.append((_number(item, "at", where, err), _number(item, "angle", where, err)))
+        d = r.mapping(item, where, required=("at", "angle"), what="posture keyframe")
+        keys.append(
+            (r.number(d, "at", where, minimum=0.0), r.number(d, "angle", where, minimum=0.0))
+        )
     for i in range(1, len(keys)):
         if keys[i][0] <= keys[i - 1][0]:
-            raise err(f"posture[{i}].at", "keyframe times must increase")
+            raise r.error(f"posture[{i}].at", "keyframe times must increase")
     try:
         return PostureTrack(
             tuple(keys),
@@ -542,7 +477,7 @@ def _posture(raw: Any, err, frame: SheetFrame) -> PostureTrack:
             width_m=0.25 * float(2 * frame.half_extent[1]),
         )
     except ValueError as exc:
-        raise err("posture", str(exc).removeprefix("posture: ")) from None
+        raise r.error("posture", str(exc).removeprefix("posture: ")) from None
 
 
 def resolve_scenario(
