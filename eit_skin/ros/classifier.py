@@ -30,6 +30,7 @@ from eit_skin.ros.node_runner import (
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.topics import patch_topics
 from eit_skin.touch.classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
 from eit_skin.touch.contacts import SegmentationConfig
 from eit_skin.touch.shapes import single_contact_spread
@@ -101,21 +102,22 @@ class ClassifierNode(Node):
         self.counts = {"images": 0, "rejected": 0, "events": 0, "unpaired": 0}
         self._busy_s = 0.0
 
+        topics = patch_topics(self.patch)
         self.create_subscription(
-            Image, f"{layer.name}/image", self._on_pressure, qos_profile_sensor_data
+            Image, topics.layers[layer.name].image, self._on_pressure, qos_profile_sensor_data
         )
         if self.has_stretch:
             self.create_subscription(
-                Image, "stretch/image", self._on_stretch, qos_profile_sensor_data
+                Image, topics.layers["stretch"].image, self._on_stretch, qos_profile_sensor_data
             )
             self.create_timer(0.02, self._flush_unpaired)
         from eit_skin_msgs.msg import ContactArray, TouchEvent
 
         self._msgs = (TouchEvent, ContactArray)
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        self.events_pub = self.create_publisher(TouchEvent, "touch_events", reliable)
-        self.contacts_pub = self.create_publisher(ContactArray, "contacts", 10)
-        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.events_pub = self.create_publisher(TouchEvent, topics.touch_events, reliable)
+        self.contacts_pub = self.create_publisher(ContactArray, topics.contacts, 10)
+        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): image {self.grid.shape[0]}x"
