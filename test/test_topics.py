@@ -7,28 +7,12 @@ import copy
 import re
 from pathlib import Path
 
-import yaml
-
 from eit_skin.patch.model import load_patch, patch_from_dict
 from eit_skin.resources import config_path
 from eit_skin.ros.topics import frames_topic, patch_topics
+from test.patch_copies import shipped_patch_data
 
 PACKAGE = Path(__file__).resolve().parents[1] / "eit_skin"
-
-
-def arm_data() -> dict:
-    """The arm patch file as data (YAML 1.1 reads ``3.0e4`` as a string: made a number)."""
-
-    def numbers(value):
-        if isinstance(value, dict):
-            return {k: numbers(v) for k, v in value.items()}
-        if isinstance(value, list):
-            return [numbers(v) for v in value]
-        if isinstance(value, str) and re.fullmatch(r"[-+]?\d+(\.\d*)?[eE][-+]?\d+", value):
-            return float(value)
-        return value
-
-    return numbers(yaml.safe_load(config_path("arm").read_text()))
 
 
 def test_arm_names_relative_and_in_its_namespace() -> None:
@@ -60,7 +44,7 @@ def test_arm_names_relative_and_in_its_namespace() -> None:
 
 
 def test_frames_follow_the_layer_name_and_images_its_quantity() -> None:
-    data = arm_data()
+    data = shipped_patch_data("arm")
     data["layers"][0]["name"] = "front"
     data["layers"][1]["name"] = "back"
     topics = patch_topics(patch_from_dict(data), "/arm")

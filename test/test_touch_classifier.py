@@ -6,13 +6,19 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from eit_skin.patch.model import load_patch
+from eit_skin.patch.model import PatchError, load_patch, patch_from_dict
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.classifier import (
+    ClassifierConfig,
+    TouchClassifier,
+    classifier_layers,
+    classify_stream,
+)
 from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
 from eit_skin.touch.shapes import blob_moments, single_contact_spread
+from test.patch_copies import shipped_patch_data
 from test.synthetic_touches import (
     INSIDE,
     SIGMA_PA,
@@ -127,6 +133,22 @@ def test_bad_configuration_is_refused() -> None:
         ClassifierConfig(pinch_closing=1.5)
     with pytest.raises(ValueError, match="start_frames"):
         ClassifierConfig(start_frames=0)
+
+
+def test_layers_are_chosen_by_quantity_whatever_their_names() -> None:
+    data = shipped_patch_data("arm")
+    stretch, pressure = data["layers"][1], data["layers"][0]
+    stretch["name"], pressure["name"] = "sleeve", "front"
+    second = {**pressure, "name": "inner"}
+    data["layers"] = [stretch, pressure, second]  # stretch first, two pressure layers
+    p, s = classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
+    assert (p.name, s.name) == ("front", "sleeve")  # the first of each quantity
+    data["layers"] = [second]
+    p, s = classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
+    assert (p.name, s) == ("inner", None)
+    data["layers"] = [stretch]
+    with pytest.raises(PatchError, match=r"arm_copy.yaml: layers: no layer measures pressure"):
+        classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
 
 
 # --------------------------------------------------------------------------- blob shape

@@ -1,13 +1,16 @@
 """``eit_classifier``: touch events (push, rub, pinch, grab) from a patch's reconstructed images.
 
-Subscribes (sensor-data QoS) to ``pressure/image`` and, when the patch has a layer named
-``stretch``, ``stretch/image`` (``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
+Subscribes (sensor-data QoS) to the image of the patch's pressure layer and, when it has one,
+of its stretch layer (chosen by material quantity, whatever their names:
+:func:`~eit_skin.touch.classifier.classifier_layers`; topic names from
+:mod:`eit_skin.ros.topics`; ``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
 sheet); a pressure image is paired with the stretch image of the same ``header.stamp`` (or
-classified alone after ``pair_timeout_s``). Publishes ``touch_events``
-(``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts`` (``ContactArray``) and
-``/diagnostics``. Pixel geometry: row i, column j is centred at (x[j], y[i]) of the pressure
-layer's image grid, rebuilt from ``patch_config``. The first ``calibration_s`` of images must
-be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
+classified alone after ``pair_timeout_s``). A patch without a pressure layer is refused.
+Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts``
+(``ContactArray``) and ``/diagnostics``. Pixel geometry: row i, column j is centred at
+(x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config``. The first
+``calibration_s`` of images must be free of touch (noise and baseline). Method and
+parameters: docs/classifier.md.
 """
 
 from __future__ import annotations
@@ -31,7 +34,13 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.topics import patch_topics
-from eit_skin.touch.classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
+from eit_skin.touch.classifier import (
+    LABELS,
+    STATES,
+    ClassifierConfig,
+    TouchClassifier,
+    classifier_layers,
+)
 from eit_skin.touch.contacts import SegmentationConfig
 from eit_skin.touch.shapes import single_contact_spread
 
@@ -68,7 +77,7 @@ class ClassifierNode(Node):
         p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
-        layer = self.patch.layers[0]
+        layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
         imager = LayerImager.build(layer, cache_dir=str(p["cache_dir"]) or default_cache_dir())
         self.grid = imager.grid
         spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
@@ -95,7 +104,7 @@ class ClassifierNode(Node):
             self.grid.x, self.grid.y, config, noise, contact_spread_m=spread
         )
         self.pressure_layer = layer.name
-        self.has_stretch = any(ly.name == "stretch" for ly in self.patch.layers)
+        self.has_stretch = stretch is not None
         self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
         self._pending: dict[int, tuple[Image, float]] = {}
         self._stretch: dict[int, np.ndarray] = {}
@@ -108,7 +117,7 @@ class ClassifierNode(Node):
         )
         if self.has_stretch:
             self.create_subscription(
-                Image, topics.layers["stretch"].image, self._on_stretch, qos_profile_sensor_data
+                Image, topics.layers[stretch.name].image, self._on_stretch, qos_profile_sensor_data
             )
             self.create_timer(0.02, self._flush_unpaired)
         from eit_skin_msgs.msg import ContactArray, TouchEvent
@@ -120,8 +129,9 @@ class ClassifierNode(Node):
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
-            f"patch {self.patch.name!r} ({path}): image {self.grid.shape[0]}x"
-            f"{self.grid.shape[1]}, stretch layer: {self.has_stretch}"
+            f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
+            f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
+            f"{stretch.name if stretch else None!r}"
         )
 
     # ------------------------------------------------------------------ input

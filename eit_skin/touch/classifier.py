@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from eit_skin.patch.model import Layer, Patch, PatchError
 from eit_skin.touch.contacts import (
     Contact,
     ContactSegmenter,
@@ -52,6 +53,29 @@ LABELS = ("push", "rub", "pinch", "grab")
 """Touch labels, in the order of ``eit_skin_msgs/TouchEvent`` (PUSH=0 ... GRAB=3)."""
 STATES = ("start", "update", "end")
 """Event states, in the order of ``eit_skin_msgs/TouchEvent`` (START=0, UPDATE=1, END=2)."""
+
+
+def classifier_layers(patch: Patch) -> tuple[Layer, Layer | None]:
+    """The layers the classifier reads: ``(pressure layer, stretch layer or None)``.
+
+    Chosen by material quantity, whatever the layers are called: the first layer (in the
+    patch file's order) that measures pressure, and the first that measures stretch, if any.
+    Further layers of the same quantity are not classified.
+
+    Raises:
+        PatchError: no layer measures pressure (naming the file and every layer's quantity).
+    """
+    first = {}
+    for layer in patch.layers:
+        first.setdefault(layer.material.quantity, layer)
+    if "pressure" not in first:
+        quantities = ", ".join(f"{ly.name}: {ly.material.quantity}" for ly in patch.layers)
+        raise PatchError(
+            patch.source,
+            "layers",
+            f"no layer measures pressure ({quantities}); the touch classifier needs one",
+        )
+    return first["pressure"], first.get("stretch")
 
 
 @dataclass(frozen=True)
