@@ -45,7 +45,7 @@ def test_classify_prints_the_finished_push(elbow_push, capsys, monkeypatch, tmp_
         (["--frames", "{out}/pressure.npz", "--rate", "0"], "--rate: must be > 0"),
         (
             ["--frames", "{out}/pressure.npz", "--rate", "50", "--stretch-frames", "x.npz"],
-            "has no layer 'stretch'",
+            "has no layer measuring stretch",
         ),
     ],
 )

@@ -1,7 +1,8 @@
 """``eit-skin classify``: detect and label touches in an offline frames file; JSON lines.
 
-Reads the pressure layer's frames (the patch's first layer, ``eit-skin reconstruct`` input
-format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), reconstructs them,
+Reads the pressure layer's frames (the patch's first layer measuring pressure, chosen like
+the node does: :func:`~eit_skin.touch.classifier.classifier_layers`; ``eit-skin reconstruct``
+input format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), reconstructs them,
 runs :class:`~eit_skin.touch.classifier.TouchClassifier` and prints one JSON object per
 FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame), ``confidence``,
 ``centroid`` ([x, y] m, patch frame). The first ``calibration_s`` (0.5 s) of the file must be
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         type=Path,
         metavar="IN.npz",
-        help="frames of the patch's first (pressure) layer, eit-skin reconstruct format",
+        help="frames of the patch's (first) pressure layer, eit-skin reconstruct format",
     )
     parser.add_argument("--rate", required=True, type=float, metavar="HZ", help="frame rate, Hz")
     parser.add_argument(
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="IN2.npz",
-        help="frames of the patch's layer named 'stretch' (same format, same T); optional, "
+        help="frames of the patch's (first) stretch layer (same format, same T); optional, "
         "sharpens rub/pinch on patches that have a stretch layer",
     )
     parser.add_argument(
@@ -58,24 +59,25 @@ def classify_file(args: argparse.Namespace):
     from eit_skin.patch.model import load_patch
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
-    from eit_skin.touch.classifier import TouchClassifier
+    from eit_skin.touch.classifier import TouchClassifier, classifier_layers
     from eit_skin.touch.shapes import single_contact_spread
 
     if not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
     patch_path = args.patch if Path(args.patch).exists() else config_path(args.patch)
     patch = load_patch(patch_path)
+    pressure_layer, stretch_layer = classifier_layers(patch)
     cache = None if args.cache_dir in ("", "none") else args.cache_dir
-    imager = LayerImager.build(patch.layers[0], cache_dir=cache)
+    imager = LayerImager.build(pressure_layer, cache_dir=cache)
     pressure = _images(imager, args.frames, load_frames_npz)
     stretch = None
     if args.stretch_frames is not None:
-        names = [ly.name for ly in patch.layers]
-        if "stretch" not in names:
+        if stretch_layer is None:
+            names = [ly.name for ly in patch.layers]
             raise ValueError(
-                f"--stretch-frames: patch {patch.name!r} has no layer 'stretch' ({names})"
+                f"--stretch-frames: patch {patch.name!r} has no layer measuring stretch ({names})"
             )
-        stretch_imager = LayerImager.build(patch.layer("stretch"), cache_dir=cache)
+        stretch_imager = LayerImager.build(stretch_layer, cache_dir=cache)
         stretch = _images(stretch_imager, args.stretch_frames, load_frames_npz)
         if stretch.shape[0] != pressure.shape[0]:
             raise ValueError(
