@@ -14,21 +14,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.fem.image_grid import ImageGrid
-from eit_skin.fem.mesh import build_mesh
-from eit_skin.patch.model import Layer, load_patch
+from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
+from eit_skin.touch.shapes import layer_image_grid
 from test.patch_copies import shipped_patch_data, write_patch
 
 pytestmark = pytest.mark.ros
-
-
-def layer_grid(layer: Layer) -> ImageGrid:
-    """The pixel grid the reconstruction images ``layer`` on (its inverse mesh)."""
-    return ImageGrid.build(
-        build_mesh(layer, layer.mesh.inverse_max_edge_m), layer.solver.image_pixels
-    )
 
 
 @dataclass
@@ -83,7 +76,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
     case = make_case(tmp_path)
     patch = load_patch(config_path(case.config))
     topics = patch_topics(patch, case.namespace)
-    grid = layer_grid(patch.layer(case.pressure))
+    grid = layer_image_grid(patch.layer(case.pressure))
     probe = Probe("classifier_probe")
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     probe.subscribe(TouchEvent, topics.touch_events, reliable)
@@ -94,7 +87,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
     )
     pubs = [pub]
     if case.stretch is not None:
-        stretch_grid = layer_grid(patch.layer(case.stretch))
+        stretch_grid = layer_image_grid(patch.layer(case.stretch))
         stretch_pub = probe.node.create_publisher(
             Image, topics.layers[case.stretch].image, qos_profile_sensor_data
         )

@@ -17,7 +17,12 @@ from eit_skin.touch.classifier import (
     classify_stream,
 )
 from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
-from eit_skin.touch.shapes import blob_moments, single_contact_spread
+from eit_skin.touch.shapes import (
+    blob_moments,
+    contact_geometry,
+    layer_image_grid,
+    single_contact_spread,
+)
 from test.patch_copies import shipped_patch_data
 from test.synthetic_touches import (
     INSIDE,
@@ -202,7 +207,7 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     rec = SkinSimulator(patch, scenario, 50.0, seed=seed).run()
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
-    spread = single_contact_spread(imager)
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
     return [e for e in events if e.state == "end"], rec.truth, spread, imager
 
@@ -210,12 +215,46 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
 def test_one_fingertip_blurs_least_next_to_the_electrodes(imager_cache) -> None:
     patch = load_patch(config_path("elbow"))  # electrodes on the long edges x = +-45 mm
     imager = LayerImager.build(patch.layers[0], cache_dir=imager_cache)
-    spread = single_contact_spread(imager)
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     x, y = imager.grid.x, imager.grid.y
     row = np.argmin(np.abs(y - 0.0))
     edge = spread[row, np.argmin(np.abs(x - 0.035))]
     middle = spread[row, np.argmin(np.abs(x - 0.0))]
     assert 0.002 < edge < middle < 0.015
+
+
+def test_classifier_geometry_comes_from_the_cache_without_the_matrix(tmp_path, monkeypatch) -> None:
+    layer = load_patch(config_path("elbow")).layers[0]
+    imager = LayerImager.build(layer, cache_dir=None)  # the reference, no cache
+    grid = layer_image_grid(layer)  # the same pixels as the reconstruction's, no matrix
+    np.testing.assert_array_equal(grid.x, imager.grid.x)
+    np.testing.assert_array_equal(grid.y, imager.grid.y)
+    np.testing.assert_array_equal(grid.inside, imager.grid.inside)
+    expected = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    # an empty cache: the matrix is built (and cached for the reconstruction), then the map
+    first = contact_geometry(layer, tmp_path / "empty")
+    assert first.source == "built"
+    np.testing.assert_allclose(first.spread_m, expected, rtol=1e-9)
+    # the reconstruction already cached its matrix: no forward model
+    LayerImager.build(layer, cache_dir=tmp_path / "matrix")
+    assert contact_geometry(layer, tmp_path / "matrix").source == "matrix cache"
+
+    # the spread map cached: no matrix at all (building one would raise)
+    def no_matrix(*args, **kwargs):
+        raise AssertionError("LayerImager.build called although the spread map is cached")
+
+    monkeypatch.setattr(LayerImager, "build", no_matrix)
+    again = contact_geometry(layer, tmp_path / "empty")
+    assert again.source == "spread cache"
+    np.testing.assert_array_equal(again.spread_m, first.spread_m)
+    np.testing.assert_array_equal(again.grid.inside, imager.grid.inside)
+    # another disc radius, or a damaged file: recomputed, never used
+    with pytest.raises(AssertionError, match="spread map is cached"):
+        contact_geometry(layer, tmp_path / "empty", radius_m=0.004)
+    (spread_file,) = (tmp_path / "empty").glob("*-spread.npz")
+    spread_file.write_bytes(b"not an npz")
+    with pytest.raises(AssertionError, match="spread map is cached"):
+        contact_geometry(layer, tmp_path / "empty")
 
 
 @pytest.mark.parametrize(

@@ -84,7 +84,8 @@ def classify_file(args: argparse.Namespace):
                 f"{args.stretch_frames}: {stretch.shape[0]} frames, but {args.frames} has "
                 f"{pressure.shape[0]}"
             )
-    spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+    # one fingertip's blur at every pixel, m
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
     for k in range(pressure.shape[0]):
         t = k / args.rate

@@ -8,9 +8,10 @@ sheet); a pressure image is paired with the stretch image of the same ``header.s
 classified alone after ``pair_timeout_s``). A patch without a pressure layer is refused.
 Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts``
 (``ContactArray``) and ``/diagnostics``. Pixel geometry: row i, column j is centred at
-(x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config``. The first
-``calibration_s`` of images must be free of touch (noise and baseline). Method and
-parameters: docs/classifier.md.
+(x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config`` (its inverse
+mesh; the single-finger spread map comes from the reconstruction cache:
+:func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
+must be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.patch.model import load_patch
-from eit_skin.pipeline.builder import LayerImager, default_cache_dir
+from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     ParameterTable,
@@ -42,7 +43,7 @@ from eit_skin.touch.classifier import (
     classifier_layers,
 )
 from eit_skin.touch.contacts import SegmentationConfig
-from eit_skin.touch.shapes import single_contact_spread
+from eit_skin.touch.shapes import contact_geometry
 
 _SEG = SegmentationConfig()
 _CFG = ClassifierConfig()
@@ -63,7 +64,11 @@ _PARAMETERS: ParameterTable = [
     ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
     ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
     ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
-    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
+    (
+        "cache_dir",
+        "",
+        "reconstruction cache (spread map, matrix); empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin",
+    ),
     ("pair_timeout_s", 0.1, "wait for the stretch image of the same stamp, s"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
@@ -78,9 +83,13 @@ class ClassifierNode(Node):
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
-        imager = LayerImager.build(layer, cache_dir=str(p["cache_dir"]) or default_cache_dir())
-        self.grid = imager.grid
-        spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+        started = time.perf_counter()
+        # the pixel grid and one fingertip's blur at every pixel (m); no reconstruction
+        # matrix unless the spread map is not cached yet
+        geometry = contact_geometry(layer, str(p["cache_dir"]) or default_cache_dir())
+        self.grid = geometry.grid
+        spread = geometry.spread_m
+        geometry_s = time.perf_counter() - started
         config = ClassifierConfig(
             segmentation=SegmentationConfig(
                 k_high=float(p["k_high"]),
@@ -131,7 +140,8 @@ class ClassifierNode(Node):
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
             f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
-            f"{stretch.name if stretch else None!r}"
+            f"{stretch.name if stretch else None!r}; single-finger spread from "
+            f"{geometry.source} in {geometry_s:.2f} s"
         )
 
     # ------------------------------------------------------------------ input
