@@ -11,7 +11,9 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import (
+    SHAPE_DTYPE,
     ClassifierConfig,
+    ShapeHistory,
     TouchClassifier,
     classifier_layers,
     classify_stream,
@@ -138,6 +140,45 @@ def test_bad_configuration_is_refused() -> None:
         ClassifierConfig(pinch_closing=1.5)
     with pytest.raises(ValueError, match="start_frames"):
         ClassifierConfig(start_frames=0)
+
+
+def test_every_tuning_constant_is_a_validated_config_field() -> None:
+    for field, bad in [
+        ("closing_window", 0),
+        ("anchor_frames", 0),
+        ("lookback_frames", 0),
+        ("noise_window", 0),
+        ("track_missed_frames", -1),
+        ("noise_floor_fraction", -0.1),
+        ("learn_fraction", 0.0),
+        ("learn_fraction", 1.5),
+        ("blob_fraction", 1.0),
+        ("finger_radius_m", 0.0),
+        ("confidence_gain", 0.0),
+    ]:
+        with pytest.raises(ValueError, match=field):
+            ClassifierConfig(**{field: bad})
+
+    # they act: a wider closing window smooths a pinch's narrowing away
+    def pinch(t):
+        half = 0.02 - 0.013 * np.clip((t - ONSET_S - 0.1) / 1.0, 0, 1)
+        return [(0.0, -half), (0.0, half)], 4000.0 * envelope(t, ONSET_S, RELEASE_S)
+
+    t, images = sequence(pinch, 3.0)
+    wide = classify_stream(t, images, X, Y, config=ClassifierConfig(closing_window=200))
+    assert wide[-1].label != "pinch"
+
+
+def test_shape_history_grows_and_keeps_every_record_by_name() -> None:
+    history = ShapeHistory()
+    for k in range(150):  # past the initial capacity, twice
+        history.append(np.array((k, 2.0 * k, 0.0, 0.0, 1.0, 1.0, np.nan), dtype=SHAPE_DTYPE))
+    assert len(history) == 150
+    np.testing.assert_array_equal(history.rows["t_s"], np.arange(150))
+    np.testing.assert_array_equal(history.rows["peak"], 2.0 * np.arange(150))
+    copy = ShapeHistory(history.rows[100:])
+    copy.append(history.rows[0])
+    assert list(copy.rows["t_s"]) == [*range(100, 150), 0]
 
 
 def test_layers_are_chosen_by_quantity_whatever_their_names() -> None:

@@ -83,13 +83,6 @@ class ClassifierNode(Node):
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
-        started = time.perf_counter()
-        # the pixel grid and one fingertip's blur at every pixel (m); no reconstruction
-        # matrix unless the spread map is not cached yet
-        geometry = contact_geometry(layer, str(p["cache_dir"]) or default_cache_dir())
-        self.grid = geometry.grid
-        spread = geometry.spread_m
-        geometry_s = time.perf_counter() - started
         config = ClassifierConfig(
             segmentation=SegmentationConfig(
                 k_high=float(p["k_high"]),
@@ -108,6 +101,18 @@ class ClassifierNode(Node):
             pinch_closing=float(p["pinch_closing"]),
             grab_spread=float(p["grab_spread"]),
         )
+        started = time.perf_counter()
+        # the pixel grid and one fingertip's blur at every pixel (m); no reconstruction
+        # matrix unless the spread map is not cached yet
+        geometry = contact_geometry(
+            layer,
+            str(p["cache_dir"]) or default_cache_dir(),
+            radius_m=config.finger_radius_m,
+            fraction=config.blob_fraction,
+        )
+        self.grid = geometry.grid
+        spread = geometry.spread_m
+        geometry_s = time.perf_counter() - started
         noise = float(p["noise_pa"]) or None
         self.classifier = TouchClassifier(
             self.grid.x, self.grid.y, config, noise, contact_spread_m=spread

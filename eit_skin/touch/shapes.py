@@ -32,9 +32,11 @@ from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir
 
 BLOB_FRACTION = 0.3
-"""Pixels count towards the moments by how far they exceed this fraction of the maximum."""
+"""Pixels count towards the moments by how far they exceed this fraction of the maximum
+(default of ``ClassifierConfig.blob_fraction``)."""
 FINGER_RADIUS_M = 0.006
-"""Radius of the fingertip-sized disc of :func:`single_contact_spread`, m."""
+"""Radius of the fingertip-sized disc of :func:`single_contact_spread`, m (default of
+``ClassifierConfig.finger_radius_m``)."""
 
 
 def blob_moments(
