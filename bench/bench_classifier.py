@@ -223,7 +223,8 @@ def main() -> None:
         def sim(kind, seed, seconds, patch=patch):
             return simulate(patch, kind, seed, seconds, args.data_dir, args.cache_dir)
 
-        spread = single_contact_spread(LayerImager.build(patch.layers[0], args.cache_dir))
+        imager = LayerImager.build(patch.layers[0], args.cache_dir)
+        spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
         runs = [sim("touch", s, args.seconds) for s in seeds]
         rows, extra = evaluate(runs, spread)
         idle = sim("idle", idle_seed, args.idle_seconds)

@@ -31,9 +31,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.hardware.wire import encode_frame
+from eit_skin.patch.loading import load_patch
+from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.topics import patch_topics
 
-TOPIC = "/bench/pressure/frames"
+TOPIC = patch_topics(load_patch(config_path("arm")), "/bench").layers["pressure"].frames
 
 
 def frame_writer(
@@ -160,10 +163,10 @@ PUBLISHER = """
 import sys, time, array, rclpy
 from eit_skin_msgs.msg import EitFrame
 from rclpy.qos import qos_profile_sensor_data
-rate, seconds = float(sys.argv[1]), float(sys.argv[2])
+rate, seconds, topic = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
 rclpy.init()
 node = rclpy.create_node("bench_dds_publisher")
-pub = node.create_publisher(EitFrame, "/bench/pressure/frames", qos_profile_sensor_data)
+pub = node.create_publisher(EitFrame, topic, qos_profile_sensor_data)
 time.sleep(2.0)
 volts = array.array("f", [0.01] * 208)
 start = time.perf_counter()
@@ -192,7 +195,7 @@ def dds_baseline(rate_hz: float, seconds: float) -> dict[str, float]:
         ),
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT),
     )
-    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(rate_hz), str(seconds)])
+    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(rate_hz), str(seconds), TOPIC])
     probe.spin_until(lambda: proc.poll() is not None, seconds + 30)
     probe.spin_for(0.3)
     probe.close()

@@ -42,6 +42,7 @@ from eit_skin.patch.loading import load_patch  # noqa: E402
 from eit_skin.pipeline.builder import LayerImager  # noqa: E402
 from eit_skin.resources import config_path  # noqa: E402
 from eit_skin.ros.probe import Probe, start_node, stop_node  # noqa: E402
+from eit_skin.ros.topics import patch_topics  # noqa: E402
 from eit_skin.sim.simulator import SkinSimulator  # noqa: E402
 
 BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -91,16 +92,17 @@ def build_cache(cache: Path, patches: list[str]) -> None:
 # ---------------------------------------------------------------------------- latency
 def latency(seconds: float, workdir: Path, cache: Path) -> dict[str, float]:
     frames = simulated_frames("arm", 500)
+    topics = patch_topics(load_patch(config_path("arm")), "/arm")
     probe = Probe("bench_latency")
     pubs = {
-        layer: probe.node.create_publisher(EitFrame, f"/arm/{layer}/frames", BEST_EFFORT)
+        layer: probe.node.create_publisher(EitFrame, topics.layers[layer].frames, BEST_EFFORT)
         for layer in frames
     }
     sent: dict[int, int] = {}
     got: dict[int, int] = {}
     probe.node.create_subscription(
         Image,
-        "/arm/pressure/image",
+        topics.layers["pressure"].image,
         lambda m: got.setdefault(
             m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.time_ns()
         ),
@@ -111,7 +113,7 @@ def latency(seconds: float, workdir: Path, cache: Path) -> dict[str, float]:
         {"patch_config": "arm", "cache_dir": str(cache), "marker_period_s": 0.5},
         workdir / "latency.log",
     )  # fmt: skip
-    _wait_matched(probe, list(pubs.values()), "/arm/pressure/image")
+    _wait_matched(probe, list(pubs.values()), topics.layers["pressure"].image)
     period = 0.01
     start = time.perf_counter()
     k = 0
@@ -175,15 +177,14 @@ def throughput(
     )  # fmt: skip
     assert proc.stdout.readline().strip() == "ready", (workdir / f"worker_{k}.log").read_text()
     probe = Probe(f"bench_feed_{k}")
-    pubs = [
-        probe.node.create_publisher(EitFrame, f"/p{i}/pressure/frames", BEST_EFFORT)
-        for i in range(k)
-    ]
+    face = load_patch(config_path("face"))
+    topics = [patch_topics(face, f"/p{i}").layers["pressure"] for i in range(k)]
+    pubs = [probe.node.create_publisher(EitFrame, t.frames, BEST_EFFORT) for t in topics]
     counts = [0] * k
     for i in range(k):
         probe.node.create_subscription(
             Image,
-            f"/p{i}/pressure/image",
+            topics[i].image,
             lambda m, i=i: counts.__setitem__(i, counts[i] + 1),
             BEST_EFFORT,
         )
@@ -218,14 +219,15 @@ def throughput(
 # ----------------------------------------------------------------------------- memory
 def memory(seconds: float, workdir: Path, cache: Path) -> list[tuple[float, float]]:
     frames = simulated_frames("face", 500)["pressure"]
+    topics = patch_topics(load_patch(config_path("face")), "/m").layers["pressure"]
     probe = Probe("bench_memory")
-    pub = probe.node.create_publisher(EitFrame, "/m/pressure/frames", BEST_EFFORT)
+    pub = probe.node.create_publisher(EitFrame, topics.frames, BEST_EFFORT)
     node = start_node(
         "eit_reconstruction", "/m",
         {"patch_config": "face", "cache_dir": str(cache), "marker_period_s": 0.5},
         workdir / "memory.log",
     )  # fmt: skip
-    _wait_matched(probe, [pub], "/m/pressure/image")
+    _wait_matched(probe, [pub], topics.image)
     samples = []
     start = time.perf_counter()
     n = 0

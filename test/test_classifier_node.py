@@ -3,37 +3,57 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import ContactArray, TouchEvent
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.fem.image_grid import ImageGrid
-from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
+from eit_skin.touch.shapes import layer_image_grid
+from test.patch_copies import shipped_patch_data, write_patch
 
 pytestmark = pytest.mark.ros
 
-NS = "/elbow_cls_test"
-LAYER = load_patch(config_path("elbow")).layers[0]
-GRID = ImageGrid.build(build_mesh(LAYER, LAYER.mesh.inverse_max_edge_m), LAYER.solver.image_pixels)
-CENTRE = (0.012, -0.03)
+
+@dataclass
+class Case:
+    """A patch file, where its pressure image is and where the synthetic touch is."""
+
+    namespace: str
+    config: str  # patch_config parameter
+    pressure: str  # pressure layer name
+    stretch: str | None  # stretch layer name
+    centre: tuple[float, float]  # m
 
 
-def image_msg(k: int, touch: bool, rng) -> Image:
-    xx, yy = np.meshgrid(GRID.x, GRID.y)
-    values = 10.0 * rng.standard_normal(xx.shape)
-    if touch:
-        values += 6000.0 * np.exp(-((xx - CENTRE[0]) ** 2 + (yy - CENTRE[1]) ** 2) / 2e-5)
-    values = np.where(GRID.inside, values, np.nan).astype("<f4")
+def elbow(tmp_path) -> Case:
+    """The shipped elbow patch: one pressure layer, named ``pressure``."""
+    return Case("/elbow_cls_test", "elbow", "pressure", None, (0.012, -0.03))
+
+
+def renamed_arm(tmp_path) -> Case:
+    """The arm with its layers renamed ``front`` (pressure) and ``back`` (stretch)."""
+    data = shipped_patch_data("arm")
+    names = [layer["name"] for layer in data["layers"]]
+    assert names == ["pressure", "stretch"]
+    data["layers"][0]["name"], data["layers"][1]["name"] = "front", "back"
+    return Case("/arm_cls_test", str(write_patch(tmp_path, data)), "front", "back", (0.01, -0.005))
+
+
+def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
+    values = np.where(grid.inside, values, np.nan).astype("<f4")
     msg = Image()
     msg.header.stamp = Time(sec=1000 + k // 50, nanosec=(k % 50) * 20_000_000)
-    msg.header.frame_id = "elbow_skin_link"
+    msg.header.frame_id = "skin_link"
     msg.height, msg.width = values.shape
     msg.encoding = "32FC1"
     msg.is_bigendian = 0
@@ -42,24 +62,57 @@ def image_msg(k: int, touch: bool, rng) -> Image:
     return msg
 
 
-def test_blob_appears_stays_disappears(tmp_path) -> None:
+def classifier_values(probe: Probe) -> dict[str, str]:
+    """The values of the classifier's latest diagnostics status ({} before the first)."""
+    for _, msg in reversed(probe.messages[DIAGNOSTICS]):
+        for status in msg.status:
+            if "touch classifier" in status.name:
+                return {kv.key: kv.value for kv in status.values}
+    return {}
+
+
+@pytest.mark.parametrize("make_case", [elbow, renamed_arm], ids=["elbow", "renamed_arm"])
+def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
+    case = make_case(tmp_path)
+    patch = load_patch(config_path(case.config))
+    topics = patch_topics(patch, case.namespace)
+    grid = layer_image_grid(patch.layer(case.pressure))
     probe = Probe("classifier_probe")
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    probe.subscribe(TouchEvent, f"{NS}/touch_events", reliable)
-    probe.subscribe(ContactArray, f"{NS}/contacts", 10)
-    pub = probe.node.create_publisher(Image, f"{NS}/pressure/image", qos_profile_sensor_data)
+    probe.subscribe(TouchEvent, topics.touch_events, reliable)
+    probe.subscribe(ContactArray, topics.contacts, 10)
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
+    pub = probe.node.create_publisher(
+        Image, topics.layers[case.pressure].image, qos_profile_sensor_data
+    )
+    pubs = [pub]
+    if case.stretch is not None:
+        stretch_grid = layer_image_grid(patch.layer(case.stretch))
+        stretch_pub = probe.node.create_publisher(
+            Image, topics.layers[case.stretch].image, qos_profile_sensor_data
+        )
+        pubs.append(stretch_pub)
     log = tmp_path / "classifier.log"
-    node = start_node("eit_classifier", NS, {"patch_config": "elbow"}, log)
+    node = start_node("eit_classifier", case.namespace, {"patch_config": case.config}, log)
     try:
-        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 20), log.read_text()
-        assert probe.spin_until(lambda: probe.node.count_publishers(f"{NS}/touch_events") > 0, 10)
+        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs), 30), (
+            log.read_text()
+        )
+        assert probe.spin_until(lambda: probe.node.count_publishers(topics.touch_events) > 0, 10)
         probe.spin_for(0.5)
         rng = np.random.default_rng(0)
+        xx, yy = np.meshgrid(grid.x, grid.y)
+        cx, cy = case.centre
+        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
         for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
-            pub.publish(image_msg(k, 30 <= k < 80, rng))
+            if case.stretch is not None:  # the stretch image of the same stamp comes first
+                strain = 1e-4 * rng.standard_normal(stretch_grid.shape)
+                stretch_pub.publish(image_msg(stretch_grid, k, strain))
+            touch = 30 <= k < 80
+            pub.publish(image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob))
             probe.spin_for(0.01)
             time.sleep(0.01)
-        topic = f"{NS}/touch_events"
+        topic = topics.touch_events
         probe.spin_until(
             lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), 10
         )
@@ -74,21 +127,46 @@ def test_blob_appears_stays_disappears(tmp_path) -> None:
             start.header.stamp.sec * 1e9 + start.header.stamp.nanosec - (1000e9 + 30 * 20e6)
             <= 150e6
         )
-        assert end.label == TouchEvent.PUSH and end.patch == "elbow"
-        assert end.header.frame_id == "elbow_skin_link"
-        pixel = GRID.x[1] - GRID.x[0]
+        assert end.label == TouchEvent.PUSH and end.patch == patch.name
+        assert end.header.frame_id == "skin_link"
+        pixel = grid.x[1] - grid.x[0]
         mid = events[len(events) // 2]
-        assert (mid.centroid.x, mid.centroid.y) == pytest.approx(CENTRE, abs=pixel)
+        assert (mid.centroid.x, mid.centroid.y) == pytest.approx(case.centre, abs=pixel)
         assert end.duration.sec + 1e-9 * end.duration.nanosec == pytest.approx(1.0, abs=0.1)
-        arrays = [m for _, m in probe.messages[f"{NS}/contacts"] if m.contacts]
+        arrays = [m for _, m in probe.messages[topics.contacts] if m.contacts]
         assert arrays and arrays[len(arrays) // 2].contacts[0].peak > 3000.0
+        assert arrays[-1].contacts[0].layer == case.pressure
+        if case.stretch is not None:  # the stretch layer is heard: images were paired
+            assert probe.spin_until(
+                lambda: (
+                    int(classifier_values(probe).get("images", 0))
+                    - int(classifier_values(probe).get("unpaired", 0))
+                    >= 50
+                ),
+                10,
+            ), classifier_values(probe)
     finally:
         assert stop_node(node) == 0, log.read_text()
         probe.close()
 
 
+def test_patch_without_a_pressure_layer_is_refused(tmp_path) -> None:
+    data = shipped_patch_data("arm")
+    data["layers"] = [layer for layer in data["layers"] if layer["name"] == "stretch"]
+    data["layers"][0]["name"] = "sleeve"
+    path = write_patch(tmp_path, data)
+    log = tmp_path / "stretch_only.log"
+    node = start_node("eit_classifier", "/stretch_only", {"patch_config": str(path)}, log)
+    assert node.wait(30) == 2
+    text = log.read_text()
+    assert "refusing to start" in text
+    assert f"{path}: layers: no layer measures pressure (sleeve: stretch)" in text
+
+
 def test_bad_patch_refuses_to_start(tmp_path) -> None:
     log = tmp_path / "bad.log"
-    node = start_node("eit_classifier", NS, {"patch_config": str(tmp_path / "none.yaml")}, log)
+    node = start_node(
+        "eit_classifier", "/bad_cls_test", {"patch_config": str(tmp_path / "none.yaml")}, log
+    )
     assert node.wait(30) == 2
     assert "refusing to start" in log.read_text()

@@ -62,7 +62,7 @@ def test_frame_times_come_from_the_file_without_rate(elbow_push, capsys, monkeyp
         (["--frames", "{out}/pressure.npz", "--rate", "0"], "--rate: must be > 0"),
         (
             ["--frames", "{out}/pressure.npz", "--rate", "50", "--stretch-frames", "x.npz"],
-            "has no layer 'stretch'",
+            "has no layer measuring stretch",
         ),
     ],
 )

@@ -12,11 +12,12 @@ from eit_skin.io.recording import read_mcap_frames
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
+from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 
 pytestmark = pytest.mark.ros
 
-TOPIC = "/arm/pressure/frames"
 ARM = load_patch(config_path("arm"))
+TOPIC = patch_topics(ARM, "/arm").layers["pressure"].frames
 
 
 def pattern_frames(n: int = 64, m: int = 208, seed: int = 3) -> np.ndarray:
@@ -27,15 +28,13 @@ def pattern_frames(n: int = 64, m: int = 208, seed: int = 3) -> np.ndarray:
 def probe():
     probe = Probe()
     probe.subscribe(EitFrame, TOPIC)
-    probe.subscribe(DiagnosticArray, "/diagnostics", 10)
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
     yield probe
     probe.close()
 
 
 def _driver_status(probe: Probe) -> list:
-    return [
-        s for _, m in probe.messages["/diagnostics"] for s in m.status if "eit_driver" in s.name
-    ]
+    return [s for _, m in probe.messages[DIAGNOSTICS] for s in m.status if "eit_driver" in s.name]
 
 
 def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) -> None:

@@ -9,12 +9,15 @@ import pytest
 from eit_skin_msgs.msg import EitFrame
 
 from eit_skin.io.recording import load_frames_npz, read_mcap_frames, save_frames_npz
+from eit_skin.patch.loading import load_patch
+from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.topics import patch_topics
 
 pytestmark = pytest.mark.ros
 
-TOPIC = "/arm/pressure/frames"
+TOPIC = patch_topics(load_patch(config_path("arm")), "/arm").layers["pressure"].frames
 
 
 def eit_skin(*args: str) -> str:

@@ -6,13 +6,27 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from eit_skin.patch.loading import load_patch
+from eit_skin.patch.loading import load_patch, patch_from_dict
+from eit_skin.patch.model import PatchError
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.classifier import (
+    SHAPE_DTYPE,
+    ClassifierConfig,
+    ShapeHistory,
+    TouchClassifier,
+    classifier_layers,
+    classify_stream,
+)
 from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
-from eit_skin.touch.shapes import blob_moments, single_contact_spread
+from eit_skin.touch.shapes import (
+    blob_moments,
+    contact_geometry,
+    layer_image_grid,
+    single_contact_spread,
+)
+from test.patch_copies import shipped_patch_data
 from test.synthetic_touches import (
     INSIDE,
     SIGMA_PA,
@@ -129,6 +143,61 @@ def test_bad_configuration_is_refused() -> None:
         ClassifierConfig(start_frames=0)
 
 
+def test_every_tuning_constant_is_a_validated_config_field() -> None:
+    for field, bad in [
+        ("closing_window", 0),
+        ("anchor_frames", 0),
+        ("lookback_frames", 0),
+        ("noise_window", 0),
+        ("track_missed_frames", -1),
+        ("noise_floor_fraction", -0.1),
+        ("learn_fraction", 0.0),
+        ("learn_fraction", 1.5),
+        ("blob_fraction", 1.0),
+        ("finger_radius_m", 0.0),
+        ("confidence_gain", 0.0),
+    ]:
+        with pytest.raises(ValueError, match=field):
+            ClassifierConfig(**{field: bad})
+
+    # they act: a wider closing window smooths a pinch's narrowing away
+    def pinch(t):
+        half = 0.02 - 0.013 * np.clip((t - ONSET_S - 0.1) / 1.0, 0, 1)
+        return [(0.0, -half), (0.0, half)], 4000.0 * envelope(t, ONSET_S, RELEASE_S)
+
+    t, images = sequence(pinch, 3.0)
+    wide = classify_stream(t, images, X, Y, config=ClassifierConfig(closing_window=200))
+    assert wide[-1].label != "pinch"
+
+
+def test_shape_history_grows_and_keeps_every_record_by_name() -> None:
+    history = ShapeHistory()
+    for k in range(150):  # past the initial capacity, twice
+        history.append(np.array((k, 2.0 * k, 0.0, 0.0, 1.0, 1.0, np.nan), dtype=SHAPE_DTYPE))
+    assert len(history) == 150
+    np.testing.assert_array_equal(history.rows["t_s"], np.arange(150))
+    np.testing.assert_array_equal(history.rows["peak"], 2.0 * np.arange(150))
+    copy = ShapeHistory(history.rows[100:])
+    copy.append(history.rows[0])
+    assert list(copy.rows["t_s"]) == [*range(100, 150), 0]
+
+
+def test_layers_are_chosen_by_quantity_whatever_their_names() -> None:
+    data = shipped_patch_data("arm")
+    stretch, pressure = data["layers"][1], data["layers"][0]
+    stretch["name"], pressure["name"] = "sleeve", "front"
+    second = {**pressure, "name": "inner"}
+    data["layers"] = [stretch, pressure, second]  # stretch first, two pressure layers
+    p, s = classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
+    assert (p.name, s.name) == ("front", "sleeve")  # the first of each quantity
+    data["layers"] = [second]
+    p, s = classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
+    assert (p.name, s) == ("inner", None)
+    data["layers"] = [stretch]
+    with pytest.raises(PatchError, match=r"arm_copy.yaml: layers: no layer measures pressure"):
+        classifier_layers(patch_from_dict(data, "arm_copy.yaml"))
+
+
 # --------------------------------------------------------------------------- blob shape
 
 
@@ -180,7 +249,7 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     rec = SkinSimulator(patch, scenario, 50.0, seed=seed).run()
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
-    spread = single_contact_spread(imager)
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
     return [e for e in events if e.state == "end"], rec.truth, spread, imager
 
@@ -188,12 +257,46 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
 def test_one_fingertip_blurs_least_next_to_the_electrodes(imager_cache) -> None:
     patch = load_patch(config_path("elbow"))  # electrodes on the long edges x = +-45 mm
     imager = LayerImager.build(patch.layers[0], cache_dir=imager_cache)
-    spread = single_contact_spread(imager)
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     x, y = imager.grid.x, imager.grid.y
     row = np.argmin(np.abs(y - 0.0))
     edge = spread[row, np.argmin(np.abs(x - 0.035))]
     middle = spread[row, np.argmin(np.abs(x - 0.0))]
     assert 0.002 < edge < middle < 0.015
+
+
+def test_classifier_geometry_comes_from_the_cache_without_the_matrix(tmp_path, monkeypatch) -> None:
+    layer = load_patch(config_path("elbow")).layers[0]
+    imager = LayerImager.build(layer, cache_dir=None)  # the reference, no cache
+    grid = layer_image_grid(layer)  # the same pixels as the reconstruction's, no matrix
+    np.testing.assert_array_equal(grid.x, imager.grid.x)
+    np.testing.assert_array_equal(grid.y, imager.grid.y)
+    np.testing.assert_array_equal(grid.inside, imager.grid.inside)
+    expected = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    # an empty cache: the matrix is built (and cached for the reconstruction), then the map
+    first = contact_geometry(layer, tmp_path / "empty")
+    assert first.source == "built"
+    np.testing.assert_allclose(first.spread_m, expected, rtol=1e-9)
+    # the reconstruction already cached its matrix: no forward model
+    LayerImager.build(layer, cache_dir=tmp_path / "matrix")
+    assert contact_geometry(layer, tmp_path / "matrix").source == "matrix cache"
+
+    # the spread map cached: no matrix at all (building one would raise)
+    def no_matrix(*args, **kwargs):
+        raise AssertionError("LayerImager.build called although the spread map is cached")
+
+    monkeypatch.setattr(LayerImager, "build", no_matrix)
+    again = contact_geometry(layer, tmp_path / "empty")
+    assert again.source == "spread cache"
+    np.testing.assert_array_equal(again.spread_m, first.spread_m)
+    np.testing.assert_array_equal(again.grid.inside, imager.grid.inside)
+    # another disc radius, or a damaged file: recomputed, never used
+    with pytest.raises(AssertionError, match="spread map is cached"):
+        contact_geometry(layer, tmp_path / "empty", radius_m=0.004)
+    (spread_file,) = (tmp_path / "empty").glob("*-spread.npz")
+    spread_file.write_bytes(b"not an npz")
+    with pytest.raises(AssertionError, match="spread map is cached"):
+        contact_geometry(layer, tmp_path / "empty")
 
 
 @pytest.mark.parametrize(

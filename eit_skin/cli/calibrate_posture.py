@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from eit_skin.patch.model import PatchError
     from eit_skin.pipeline.reference import JointAngleHistory, bin_posture_frames
     from eit_skin.resources import config_path
+    from eit_skin.ros.topics import patch_topics
 
     try:
         patch = load_patch(config_path(args.patch))
@@ -45,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"eit-skin calibrate-posture: {error}", file=sys.stderr)
         return 2
     namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
+    topics = patch_topics(patch, namespace)
     rclpy.init()
     node = rclpy.create_node("eit_posture_calibration")
     history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
@@ -61,11 +63,11 @@ def run(args: argparse.Namespace) -> int:
         frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
         samples[layer].append((stamp_ns(msg), frame))
 
-    node.create_subscription(JointState, "/joint_states", on_joint, 50)
+    node.create_subscription(JointState, topics.joint_states, on_joint, 50)
     for layer in patch.layer_names:
         node.create_subscription(
             EitFrame,
-            f"{namespace}/{layer}/frames",
+            topics.layers[layer].frames,
             lambda msg, name=layer: on_frame(name, msg),
             qos_profile_sensor_data,
         )
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     code = 0
     for layer, items in samples.items():
         if not items:
-            print(f"{layer}: no frames on {namespace}/{layer}/frames", file=sys.stderr)
+            print(f"{layer}: no frames on {topics.layers[layer].frames}", file=sys.stderr)
             code = 1
             continue
         # the angle at each frame's acquisition time, not at its arrival

@@ -1,7 +1,8 @@
 """``eit-skin classify``: detect and label touches in an offline frames file; JSON lines.
 
-Reads the pressure layer's frames (the patch's first layer, ``eit-skin reconstruct`` input
-format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), images them with the
+Reads the pressure layer's frames (the patch's first layer measuring pressure, chosen like
+the node does: :func:`~eit_skin.touch.classifier.classifier_layers`; ``eit-skin reconstruct``
+input format: ``reference`` [M] V, ``frames`` [T, M] V, optional ``t`` [T] s), images them with the
 reconstruction node's per-frame pipeline (:class:`~eit_skin.pipeline.processor.LayerProcessor`:
 reference, drift tracking, fault checks; the same options as ``eit-skin reconstruct``), runs
 :class:`~eit_skin.touch.classifier.TouchClassifier` on the images and prints one JSON object
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         type=Path,
         metavar="IN.npz",
-        help="frames of the patch's first (pressure) layer, eit-skin reconstruct format",
+        help="frames of the patch's (first) pressure layer, eit-skin reconstruct format",
     )
     parser.add_argument(
         "--rate",
@@ -42,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="IN2.npz",
-        help="frames of the patch's layer named 'stretch' (same format, same T); optional, "
+        help="frames of the patch's (first) stretch layer (same format, same T); optional, "
         "sharpens rub/pinch on patches that have a stretch layer",
     )
     add_pipeline_arguments(parser)
@@ -65,31 +66,33 @@ def classify_file(args: argparse.Namespace):
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
-    from eit_skin.touch.classifier import TouchClassifier
+    from eit_skin.touch.classifier import TouchClassifier, classifier_layers
     from eit_skin.touch.shapes import single_contact_spread
 
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
     patch_path = args.patch if Path(args.patch).exists() else config_path(args.patch)
     patch = load_patch(patch_path)
+    pressure_layer, stretch_layer = classifier_layers(patch)
     cache = cache_dir(args)
-    imager = LayerImager.build(patch.layers[0], cache_dir=cache)
+    imager = LayerImager.build(pressure_layer, cache_dir=cache)
     times, pressure = _images(imager, args.frames, args)
     stretch = None
     if args.stretch_frames is not None:
-        names = [ly.name for ly in patch.layers]
-        if "stretch" not in names:
+        if stretch_layer is None:
+            names = [ly.name for ly in patch.layers]
             raise ValueError(
-                f"--stretch-frames: patch {patch.name!r} has no layer 'stretch' ({names})"
+                f"--stretch-frames: patch {patch.name!r} has no layer measuring stretch ({names})"
             )
-        stretch_imager = LayerImager.build(patch.layer("stretch"), cache_dir=cache)
+        stretch_imager = LayerImager.build(stretch_layer, cache_dir=cache)
         _, stretch = _images(stretch_imager, args.stretch_frames, args)
         if len(stretch) != len(pressure):
             raise ValueError(
                 f"{args.stretch_frames}: {len(stretch)} frames, but {args.frames} has "
                 f"{len(pressure)}"
             )
-    spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+    # one fingertip's blur at every pixel, m
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
     for k, images in enumerate(pressure):
         if images is None:  # reference capture (--reference capture) or no usable channel

@@ -39,10 +39,11 @@ def run(args: argparse.Namespace) -> int:
         from eit_skin.hardware.sources import pattern_name
         from eit_skin.patch.loading import load_patch
         from eit_skin.resources import config_path
+        from eit_skin.ros.topics import patch_topics
 
         patch = load_patch(config_path(args.patch))
         layer = patch.layer(args.layer) if args.layer else patch.layers[0]
-        topic = f"/{patch.name}/{layer.name}/frames"
+        topic = patch_topics(patch, patch.name).layers[layer.name].frames
         n = npz_to_mcap(
             args.npz,
             args.mcap,

@@ -23,6 +23,7 @@ from eit_skin.hardware.wire import PatternId
 from eit_skin.io.recording import read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
+from eit_skin.ros.topics import frames_topic
 
 FrameSink = Callable[[FrameRecord], None]
 
@@ -308,7 +309,7 @@ class ReplaySource:
 
     def _records(self) -> Iterator[tuple[int, FrameRecord]]:
         for topic, log_ns, record in read_mcap_frames(self.path):
-            if record.layer in self.layers and topic.endswith(f"{record.layer}/frames"):
+            if record.layer in self.layers and topic.endswith(frames_topic(record.layer, "/")):
                 yield log_ns, record
 
     def tick(self, now_ns: int, sink: FrameSink, max_frames: int = 1000) -> None:

@@ -3,7 +3,8 @@
 Modules (imported on demand: importing this package does not import rclpy): ``driver``,
 ``reconstruction`` and ``classifier`` (the three nodes), ``node_runner`` (what every node does
 the same way), ``node_graph`` (the nodes of a patch, shared by launch files and ``eit-skin
-run``), ``bringup`` (start/stop node processes), ``launch_actions`` (launch_ros actions),
+run``), ``topics`` (every topic and service name of a patch, derived from the patch),
+``bringup`` (start/stop node processes), ``launch_actions`` (launch_ros actions),
 ``skin_monitor`` (the watching side of ``eit-skin run``), ``probe`` (a subscriber for tests
 and benchmarks).
 """

@@ -1,13 +1,17 @@
 """``eit_classifier``: touch events (push, rub, pinch, grab) from a patch's reconstructed images.
 
-Subscribes (sensor-data QoS) to ``pressure/image`` and, when the patch has a layer named
-``stretch``, ``stretch/image`` (``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
+Subscribes (sensor-data QoS) to the image of the patch's pressure layer and, when it has one,
+of its stretch layer (chosen by material quantity, whatever their names:
+:func:`~eit_skin.touch.classifier.classifier_layers`; topic names from
+:mod:`eit_skin.ros.topics`; ``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
 sheet); a pressure image is paired with the stretch image of the same ``header.stamp`` (or
-classified alone after ``pair_timeout_s``). Publishes ``touch_events``
-(``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts`` (``ContactArray``) and
-``/diagnostics``. Pixel geometry: row i, column j is centred at (x[j], y[i]) of the pressure
-layer's image grid, rebuilt from ``patch_config``. The first ``calibration_s`` of images must
-be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
+classified alone after ``pair_timeout_s``). A patch without a pressure layer is refused.
+Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts``
+(``ContactArray``) and ``/diagnostics``. Pixel geometry: row i, column j is centred at
+(x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config`` (its inverse
+mesh; the single-finger spread map comes from the reconstruction cache:
+:func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
+must be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.patch.loading import load_patch
-from eit_skin.pipeline.builder import LayerImager, default_cache_dir
+from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     ParameterTable,
@@ -30,9 +34,16 @@ from eit_skin.ros.node_runner import (
     diagnostic_status,
     run_node,
 )
-from eit_skin.touch.classifier import LABELS, STATES, ClassifierConfig, TouchClassifier
+from eit_skin.ros.topics import patch_topics
+from eit_skin.touch.classifier import (
+    LABELS,
+    STATES,
+    ClassifierConfig,
+    TouchClassifier,
+    classifier_layers,
+)
 from eit_skin.touch.contacts import SegmentationConfig
-from eit_skin.touch.shapes import single_contact_spread
+from eit_skin.touch.shapes import contact_geometry
 
 _SEG = SegmentationConfig()
 _CFG = ClassifierConfig()
@@ -53,7 +64,11 @@ _PARAMETERS: ParameterTable = [
     ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
     ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
     ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
-    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
+    (
+        "cache_dir",
+        "",
+        "reconstruction cache (spread map, matrix); empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin",
+    ),
     ("pair_timeout_s", 0.1, "wait for the stretch image of the same stamp, s"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
@@ -67,10 +82,7 @@ class ClassifierNode(Node):
         p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
-        layer = self.patch.layers[0]
-        imager = LayerImager.build(layer, cache_dir=str(p["cache_dir"]) or default_cache_dir())
-        self.grid = imager.grid
-        spread = single_contact_spread(imager)  # one fingertip's blur at every pixel, m
+        layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
         config = ClassifierConfig(
             segmentation=SegmentationConfig(
                 k_high=float(p["k_high"]),
@@ -89,37 +101,52 @@ class ClassifierNode(Node):
             pinch_closing=float(p["pinch_closing"]),
             grab_spread=float(p["grab_spread"]),
         )
+        started = time.perf_counter()
+        # the pixel grid and one fingertip's blur at every pixel (m); no reconstruction
+        # matrix unless the spread map is not cached yet
+        geometry = contact_geometry(
+            layer,
+            str(p["cache_dir"]) or default_cache_dir(),
+            radius_m=config.finger_radius_m,
+            fraction=config.blob_fraction,
+        )
+        self.grid = geometry.grid
+        spread = geometry.spread_m
+        geometry_s = time.perf_counter() - started
         noise = float(p["noise_pa"]) or None
         self.classifier = TouchClassifier(
             self.grid.x, self.grid.y, config, noise, contact_spread_m=spread
         )
         self.pressure_layer = layer.name
-        self.has_stretch = any(ly.name == "stretch" for ly in self.patch.layers)
+        self.has_stretch = stretch is not None
         self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
         self._pending: dict[int, tuple[Image, float]] = {}
         self._stretch: dict[int, np.ndarray] = {}
         self.counts = {"images": 0, "rejected": 0, "events": 0, "unpaired": 0}
         self._busy_s = 0.0
 
+        topics = patch_topics(self.patch)
         self.create_subscription(
-            Image, f"{layer.name}/image", self._on_pressure, qos_profile_sensor_data
+            Image, topics.layers[layer.name].image, self._on_pressure, qos_profile_sensor_data
         )
         if self.has_stretch:
             self.create_subscription(
-                Image, "stretch/image", self._on_stretch, qos_profile_sensor_data
+                Image, topics.layers[stretch.name].image, self._on_stretch, qos_profile_sensor_data
             )
             self.create_timer(0.02, self._flush_unpaired)
         from eit_skin_msgs.msg import ContactArray, TouchEvent
 
         self._msgs = (TouchEvent, ContactArray)
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        self.events_pub = self.create_publisher(TouchEvent, "touch_events", reliable)
-        self.contacts_pub = self.create_publisher(ContactArray, "contacts", 10)
-        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.events_pub = self.create_publisher(TouchEvent, topics.touch_events, reliable)
+        self.contacts_pub = self.create_publisher(ContactArray, topics.contacts, 10)
+        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
-            f"patch {self.patch.name!r} ({path}): image {self.grid.shape[0]}x"
-            f"{self.grid.shape[1]}, stretch layer: {self.has_stretch}"
+            f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
+            f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
+            f"{stretch.name if stretch else None!r}; single-finger spread from "
+            f"{geometry.source} in {geometry_s:.2f} s"
         )
 
     # ------------------------------------------------------------------ input

@@ -1,7 +1,8 @@
 """``eit_driver``: raw EIT frames of one skin patch from a board, the simulator or a recording.
 
 Publishes ``eit_skin_msgs/EitFrame`` on ``<namespace>/<layer>/frames`` (sensor-data QoS),
-one topic per layer, stamped with the acquisition time, and ``/diagnostics``.
+one topic per layer, stamped with the acquisition time, and ``/diagnostics`` (names:
+:mod:`eit_skin.ros.topics`).
 
 Sources, chosen by parameters:
 
@@ -43,6 +44,7 @@ from eit_skin.ros.node_runner import (
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.topics import patch_topics
 
 _PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
@@ -83,11 +85,16 @@ class DriverNode(Node):
         self.factories = {
             layer.name: LayerFrameFactory(self.patch, layer, frame_id) for layer in layers
         }
+        topics = patch_topics(self.patch)
         self.frame_publishers = {
-            name: self.create_publisher(_msg_type(), f"{name}/frames", qos_profile_sensor_data)
+            name: self.create_publisher(
+                _msg_type(), topics.layers[name].frames, qos_profile_sensor_data
+            )
             for name in self.factories
         }
-        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        #: recordings hold absolute topic names (the node's namespace resolved)
+        self.record_topics = patch_topics(self.patch, self.get_namespace())
+        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
         self._record_lock = threading.Lock()
         self.hardware_id = port or ("replay" if replay else "simulator")
@@ -107,7 +114,7 @@ class DriverNode(Node):
             self.joint_name = str(p["sim_joint_name"])
             self.joint_states = None
             if self.source.simulator.scenario.posture is not None:
-                self.joint_states = self.create_publisher(JointState, "/joint_states", 10)
+                self.joint_states = self.create_publisher(JointState, topics.joint_states, 10)
             self.create_timer(
                 1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
             )
@@ -160,9 +167,7 @@ class DriverNode(Node):
         if self.recorder is not None:
             with self._record_lock:
                 self.recorder.write(
-                    f"{self.get_namespace().rstrip('/')}/{record.layer}/frames",
-                    record,
-                    self._now_ns(),
+                    self.record_topics.layers[record.layer].frames, record, self._now_ns()
                 )
 
     def _publish_diagnostics(self) -> None:

@@ -73,23 +73,6 @@ def patch_nodes(
     ]
 
 
-def image_topics(patch) -> dict[str, str]:
-    """Layer name -> image topic prefix: ``pressure``/``stretch``, or the layer name.
-
-    The layer name is used when two layers of a patch measure the same quantity; the
-    images are published on ``<prefix>/image`` and ``<prefix>/image_color``.
-    """
-    quantities = [layer.material.quantity for layer in patch.layers]
-    return {
-        layer.name: (
-            layer.material.quantity
-            if quantities.count(layer.material.quantity) == 1
-            else layer.name
-        )
-        for layer in patch.layers
-    }
-
-
 def robot_nodes(
     sim: bool = True, rate_hz: float = 50.0, scenario: str = "", loop: bool = True
 ) -> list[NodeSpec]:

@@ -46,13 +46,13 @@ from eit_skin.pipeline.processor import (
 )
 from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences
 from eit_skin.resources import config_path
-from eit_skin.ros.node_graph import image_topics
 from eit_skin.ros.node_runner import (
     ParameterTable,
     declare_read_only,
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.topics import patch_topics
 
 #: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
 FRAME_QOS = QoSProfile(
@@ -128,7 +128,7 @@ class ReconstructionNode(Node):
         joint = str(p["joint_name"])
         self.joint = joint
         self.layers: dict[str, LayerState] = {}
-        topics = image_topics(self.patch)
+        topics = patch_topics(self.patch)
         for layer in self.patch.layers:
             started = time.perf_counter()
             imager = LayerImager.build(layer, cache_dir=cache)
@@ -143,7 +143,7 @@ class ReconstructionNode(Node):
                 posture = PostureReferences.load(str(p["posture_references"]), layer.name)
                 joint = joint or posture.joint
             quantity = layer.material.quantity
-            topic = topics[layer.name]
+            topic = topics.layers[layer.name]
             top = p["pressure_range_pa"] if quantity == "pressure" else p["stretch_range"]
             self.layers[layer.name] = LayerState(
                 layer=layer,
@@ -157,29 +157,27 @@ class ReconstructionNode(Node):
                     float(p["fault_check_period_s"]),
                 ),
                 quantity=quantity,
-                image_pub=self.create_publisher(Image, f"{topic}/image", qos_profile_sensor_data),
-                colour_pub=self.create_publisher(
-                    Image, f"{topic}/image_color", qos_profile_sensor_data
-                ),
+                image_pub=self.create_publisher(Image, topic.image, qos_profile_sensor_data),
+                colour_pub=self.create_publisher(Image, topic.image_color, qos_profile_sensor_data),
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
             )
             self.create_subscription(
                 _frame_type(),
-                f"{layer.name}/frames",
+                topic.frames,
                 lambda msg, name=layer.name: self._on_frame(name, msg),
                 FRAME_QOS,
             )
         self.joint = joint
         self.joint_history = JointAngleHistory()
         if joint:
-            self.create_subscription(JointState, "/joint_states", self._on_joint_state, 10)
-        self.create_service(Trigger, "~/rezero", self._on_rezero)
-        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
+        self.create_service(Trigger, topics.rezero, self._on_rezero)
+        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.marker_pub = None
         if float(p["marker_period_s"]) > 0:
-            self.marker_pub = self.create_publisher(Marker, "skin_marker", 1)
+            self.marker_pub = self.create_publisher(Marker, topics.skin_marker, 1)
             self._marker_geometry = {
                 name: self._marker_mesh(state) for name, state in self.layers.items()
             }

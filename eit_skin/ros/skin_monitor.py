@@ -25,7 +25,8 @@ from std_srvs.srv import Trigger
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.ros.bringup import RunningNode, last_lines, start, stop
-from eit_skin.ros.node_graph import NodeSpec, image_topics
+from eit_skin.ros.node_graph import NodeSpec
+from eit_skin.ros.topics import PatchTopics, patch_topics
 
 LABELS = ("push", "rub", "pinch", "grab")
 STATES = ("START", "UPDATE", "END")
@@ -39,7 +40,7 @@ class PatchView:
 
     namespace: str
     name: str
-    layers: dict[str, str]  # layer -> image topic prefix
+    topics: PatchTopics  # absolute names in the patch's namespace
     quantities: dict[str, str]  # layer -> pressure | stretch
     extent: tuple[float, float, float, float]
     latest: dict[str, np.ndarray] = field(default_factory=dict)
@@ -49,6 +50,11 @@ class PatchView:
     touch_peak: float = -np.inf
     touch_best: dict[str, np.ndarray] | None = None
     gif_frames: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def layers(self) -> list[str]:
+        """Layer names, in the patch's order."""
+        return list(self.topics.layers)
 
 
 class SkinMonitor(Node):
@@ -67,21 +73,21 @@ class SkinMonitor(Node):
         for view in views:
             self.create_subscription(
                 TouchEvent,
-                f"{view.namespace}/touch_events",
+                view.topics.touch_events,
                 lambda msg, v=view: self._on_event(v, msg),
                 50,
             )
             first_layer = next(iter(view.layers))
             self.create_subscription(
                 EitFrame,
-                f"{view.namespace}/{first_layer}/frames",
+                view.topics.layers[first_layer].frames,
                 lambda msg, v=view: setattr(v, "frames", max(v.frames, msg.sequence + 1)),
                 qos_profile_sensor_data,
             )
-            for layer, prefix in view.layers.items():
+            for layer, topics in view.topics.layers.items():
                 self.create_subscription(
                     Image,
-                    f"{view.namespace}/{prefix}/image",
+                    topics.image,
                     lambda msg, v=view, name=layer: self._on_image(v, name, msg),
                     qos_profile_sensor_data,
                 )
@@ -194,7 +200,7 @@ def _views(specs: list[NodeSpec]) -> list[PatchView]:
             PatchView(
                 namespace=spec.namespace,
                 name=spec.namespace.strip("/"),
-                layers=image_topics(patch),
+                topics=patch_topics(patch, spec.namespace),
                 quantities={layer.name: layer.material.quantity for layer in patch.layers},
                 extent=(lo[0], hi[0], lo[1], hi[1]),
             )
@@ -250,7 +256,7 @@ def run_skin(
     try:
         print(f"eit-skin run: {len(specs)} nodes, output in {out}/", flush=True)
         nodes += [start(spec, logs) for spec in specs if spec.executable != "eit_driver"]
-        code = _wait_ready(monitor, specs, nodes)
+        code = _wait_ready(monitor, nodes)
         if code:
             return code
         nodes += [start(spec, logs) for spec in specs if spec.executable == "eit_driver"]
@@ -335,13 +341,9 @@ def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:
     return False
 
 
-def _wait_ready(monitor: SkinMonitor, specs: list[NodeSpec], nodes: list[RunningNode]) -> int:
-    """Wait for every reconstruction node's ~/rezero service (its matrices are built)."""
-    clients = [
-        monitor.create_client(Trigger, f"{spec.namespace}/{spec.name}/rezero")
-        for spec in specs
-        if spec.executable == "eit_reconstruction"
-    ]
+def _wait_ready(monitor: SkinMonitor, nodes: list[RunningNode]) -> int:
+    """Wait for every reconstruction node's rezero service (its matrices are built)."""
+    clients = [monitor.create_client(Trigger, view.topics.rezero) for view in monitor.views]
     started = time.monotonic()
     while not all(client.service_is_ready() for client in clients):
         rclpy.spin_once(monitor, timeout_sec=0.1)

@@ -14,26 +14,44 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "ClassifierConfig": "classifier",
+    "ContactGeometry": "shapes",
     "ContactSegmenter": "contacts",
     "SegmentationConfig": "contacts",
     "TouchClassifier": "classifier",
     "TouchEvent": "classifier",
+    "classifier_layers": "classifier",
+    "contact_geometry": "shapes",
+    "layer_image_grid": "shapes",
     "single_contact_spread": "shapes",
 }
 
 __all__ = [
     "ClassifierConfig",
+    "ContactGeometry",
     "ContactSegmenter",
     "SegmentationConfig",
     "TouchClassifier",
     "TouchEvent",
+    "classifier_layers",
+    "contact_geometry",
+    "layer_image_grid",
     "single_contact_spread",
 ]
 
 if TYPE_CHECKING:
-    from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, TouchEvent
+    from eit_skin.touch.classifier import (
+        ClassifierConfig,
+        TouchClassifier,
+        TouchEvent,
+        classifier_layers,
+    )
     from eit_skin.touch.contacts import ContactSegmenter, SegmentationConfig
-    from eit_skin.touch.shapes import single_contact_spread
+    from eit_skin.touch.shapes import (
+        ContactGeometry,
+        contact_geometry,
+        layer_image_grid,
+        single_contact_spread,
+    )
 
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

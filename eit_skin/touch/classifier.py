@@ -33,11 +33,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from eit_skin.patch.model import Layer, Patch, PatchError
 from eit_skin.touch.contacts import (
+    LEARN_FRACTION,
     Contact,
     ContactSegmenter,
     ContactTracker,
@@ -46,12 +48,39 @@ from eit_skin.touch.contacts import (
     estimate_noise,
     estimate_noise_map,
 )
-from eit_skin.touch.shapes import blob_moments
+from eit_skin.touch.shapes import BLOB_FRACTION, FINGER_RADIUS_M, blob_moments
+
+_MAX_CALIBRATION_FRAMES = 10_000
+"""Calibration ends after this many frames even if ``calibration_s`` has not passed (a
+memory bound against stamps that do not advance)."""
 
 LABELS = ("push", "rub", "pinch", "grab")
 """Touch labels, in the order of ``eit_skin_msgs/TouchEvent`` (PUSH=0 ... GRAB=3)."""
 STATES = ("start", "update", "end")
 """Event states, in the order of ``eit_skin_msgs/TouchEvent`` (START=0, UPDATE=1, END=2)."""
+
+
+def classifier_layers(patch: Patch) -> tuple[Layer, Layer | None]:
+    """The layers the classifier reads: ``(pressure layer, stretch layer or None)``.
+
+    Chosen by material quantity, whatever the layers are called: the first layer (in the
+    patch file's order) that measures pressure, and the first that measures stretch, if any.
+    Further layers of the same quantity are not classified.
+
+    Raises:
+        PatchError: no layer measures pressure (naming the file and every layer's quantity).
+    """
+    first = {}
+    for layer in patch.layers:
+        first.setdefault(layer.material.quantity, layer)
+    if "pressure" not in first:
+        quantities = ", ".join(f"{ly.name}: {ly.material.quantity}" for ly in patch.layers)
+        raise PatchError(
+            patch.source,
+            "layers",
+            f"no layer measures pressure ({quantities}); the touch classifier needs one",
+        )
+    return first["pressure"], first.get("stretch")
 
 
 @dataclass(frozen=True)
@@ -94,6 +123,27 @@ class ClassifierConfig:
             (estimated like the image noise from the calibration frames, then learnt).
         confirm_s: a touch started by the pooled detector with no segmented contact after
             this time ends (then the detector waits for a silent pooled image), s.
+        learn_fraction: pooled images with a z-score above ``learn_fraction * k_detect``
+            anywhere (a touch building up) teach neither noise map (0..1].
+        noise_window: side, in pixels, of the neighbourhood mean in the calibration noise
+            map; each pixel takes the larger of that mean and its own estimate.
+        noise_floor_fraction: the learnt per-pixel noise never drops below this fraction of
+            the calibration frames' overall noise.
+        track_missed_frames: frames a contact track may go unseen before it is dropped.
+        lookback_frames: frame times and blob shapes kept while no touch goes on: a START
+            is dated, and its shape evidence collected, at most this many frames back.
+        blob_fraction: pixels weigh in the blob moments by how far they exceed this fraction
+            of the frame's peak (:func:`~eit_skin.touch.shapes.blob_moments`); the
+            single-finger spread map must be computed with the same value.
+        finger_radius_m: radius of the fingertip-sized disc whose reconstructed image defines
+            the single-finger spread (:func:`~eit_skin.touch.shapes.single_contact_spread`;
+            used where that map is computed), m.
+        anchor_frames: the place a touch settled (origin of ``travel``) is the median
+            centroid of its first this many strong frames.
+        closing_window: frames of the rolling median over the blob's major axis before its
+            narrowing (``closing``) is measured (against single noisy frames).
+        confidence_gain: slope of the confidence ``0.5 + 0.5 tanh(gain |f - t| / t)`` of a
+            feature ``f`` deciding against its threshold ``t``.
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -115,6 +165,16 @@ class ClassifierConfig:
     detect_kernel: float = 2.5
     k_detect: float = 5.5
     confirm_s: float = 0.5
+    learn_fraction: float = LEARN_FRACTION
+    noise_window: int = 3
+    noise_floor_fraction: float = 0.5
+    track_missed_frames: int = 2
+    lookback_frames: int = 50
+    blob_fraction: float = BLOB_FRACTION
+    finger_radius_m: float = FINGER_RADIUS_M
+    anchor_frames: int = 3
+    closing_window: int = 5
+    confidence_gain: float = 2.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -126,6 +186,8 @@ class ClassifierConfig:
             "contact_spread_m",
             "k_detect",
             "confirm_s",
+            "finger_radius_m",
+            "confidence_gain",
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -135,15 +197,30 @@ class ClassifierConfig:
             "stretch_ratio_rub",
             "noise_tau_s",
             "detect_kernel",
+            "noise_floor_fraction",
+            "track_missed_frames",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if self.start_frames < 1 or self.count_frames < 1 or self.average_frames < 1:
-            raise ValueError("start_frames, count_frames and average_frames must be >= 1")
+        for name in (
+            "start_frames",
+            "count_frames",
+            "average_frames",
+            "noise_window",
+            "lookback_frames",
+            "anchor_frames",
+            "closing_window",
+        ):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if not 0 < self.pinch_closing < 1:
             raise ValueError(f"pinch_closing must be in (0, 1), got {self.pinch_closing}")
         if not 0 <= self.strong_fraction < 1:
             raise ValueError(f"strong_fraction must be in [0, 1), got {self.strong_fraction}")
+        if not 0 <= self.blob_fraction < 1:
+            raise ValueError(f"blob_fraction must be in [0, 1), got {self.blob_fraction}")
+        if not 0 < self.learn_fraction <= 1:
+            raise ValueError(f"learn_fraction must be in (0, 1], got {self.learn_fraction}")
 
 
 @dataclass(frozen=True)
@@ -224,7 +301,7 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
     """
 
     def margin(value: float, threshold: float) -> float:
-        return 0.5 + 0.5 * math.tanh(2.0 * abs(value - threshold) / threshold)
+        return 0.5 + 0.5 * math.tanh(config.confidence_gain * abs(value - threshold) / threshold)
 
     f, c = features, config
     if f.closing >= c.pinch_closing:
@@ -244,7 +321,49 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
     return "push", conf
 
 
-_SHAPE_COLUMNS = 7  # t, peak, cx, cy, major, minor, finger spread at the centroid
+SHAPE_DTYPE = np.dtype(
+    [
+        ("t_s", np.float64),
+        ("peak", np.float64),
+        ("x_m", np.float64),
+        ("y_m", np.float64),
+        ("major_m", np.float64),
+        ("minor_m", np.float64),
+        ("finger_m", np.float64),
+    ]
+)
+"""One frame's blob shape (a record of :class:`ShapeHistory`): frame time ``t_s`` (s), image
+``peak`` (Pa), blob centroid ``x_m``, ``y_m`` (m), principal spreads ``major_m >= minor_m``
+(m) and one finger's spread at the centroid ``finger_m`` (m); NaN where undefined."""
+
+
+class ShapeHistory:
+    """Blob shapes of a touch's frames: a growing ``[T]`` record array of :data:`SHAPE_DTYPE`.
+
+    Appending copies one record into spare capacity (doubled when full: amortised O(1));
+    :attr:`rows` is a view of the records so far, not a copy.
+    """
+
+    def __init__(self, rows: np.ndarray | None = None) -> None:
+        rows = np.zeros(0, SHAPE_DTYPE) if rows is None else np.asarray(rows, SHAPE_DTYPE)
+        self._data = np.empty(max(64, 2 * rows.size), SHAPE_DTYPE)
+        self._data[: rows.size] = rows
+        self._n = rows.size
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, shape: np.ndarray) -> None:
+        """Add one record (a 0-d :data:`SHAPE_DTYPE` array)."""
+        if self._n == self._data.size:
+            self._data = np.concatenate([self._data, np.empty_like(self._data)])
+        self._data[self._n] = shape
+        self._n += 1
+
+    @property
+    def rows(self) -> np.ndarray:
+        """``[T]`` records, oldest first (a view)."""
+        return self._data[: self._n]
 
 
 class _Touch:
@@ -256,7 +375,7 @@ class _Touch:
         self.t_last_s = t_s
         self.t_last_update_s = t_s
         self.counts: list[int] = []
-        self.shapes: list[np.ndarray] = []
+        self.shapes = ShapeHistory()
         self.max_pressure = 0.0
         self.max_stretch: float | None = None
         self.last_contacts: list[Contact] = []
@@ -273,28 +392,32 @@ class _Touch:
 
 
 def shape_features(
-    shapes: np.ndarray, strong_fraction: float
+    shapes: np.ndarray, config: ClassifierConfig
 ) -> tuple[float, float, float, float, int]:
     """``(travel, closing, spread, elongation, frames)`` of a touch's per-frame blob shapes.
 
     Args:
-        shapes: ``[T, 7]`` per frame: time (s), peak, centroid x, y (m), major, minor spread
-            (m), one finger's spread at the centroid (m).
-        strong_fraction: frames with a peak below this fraction of the largest are ignored.
+        shapes: ``[T]`` records of :data:`SHAPE_DTYPE`; records with a NaN field are ignored.
+        config: ``strong_fraction`` (frames with a peak below this fraction of the largest
+            are ignored), ``anchor_frames``, ``closing_window``.
     """
-    s = shapes[np.all(np.isfinite(shapes), axis=1)]
-    if s.shape[0] == 0:
+    finite = np.ones(shapes.size, dtype=bool)
+    for name in SHAPE_DTYPE.names:
+        finite &= np.isfinite(shapes[name])
+    s = shapes[finite]
+    if s.size == 0:
         return 0.0, 0.0, 1.0, 1.0, 0
-    s = s[s[:, 1] >= strong_fraction * s[:, 1].max()]
-    finger = np.maximum(s[:, 6], 1e-6)
+    s = s[s["peak"] >= config.strong_fraction * s["peak"].max()]
+    finger = np.maximum(s["finger_m"], 1e-6)
     unit = float(np.median(finger))
-    major = s[:, 4] / finger
-    spread = float(np.median(np.sqrt(s[:, 4] * s[:, 5]) / finger))
-    elongation = float(np.median(s[:, 4] / np.maximum(s[:, 5], 1e-9)))
-    n = s.shape[0]
-    anchor = np.median(s[: min(3, n), 2:4], axis=0)
-    travel = float(np.max(np.linalg.norm(s[:, 2:4] - anchor, axis=1))) / unit
-    w = min(5, n)  # rolling median of 5 frames against noisy frames
+    major = s["major_m"] / finger
+    spread = float(np.median(np.sqrt(s["major_m"] * s["minor_m"]) / finger))
+    elongation = float(np.median(s["major_m"] / np.maximum(s["minor_m"], 1e-9)))
+    n = s.size
+    xy = np.column_stack([s["x_m"], s["y_m"]])
+    anchor = np.median(xy[: min(config.anchor_frames, n)], axis=0)
+    travel = float(np.max(np.linalg.norm(xy - anchor, axis=1))) / unit
+    w = min(config.closing_window, n)  # rolling median against noisy frames
     smooth = np.median(np.lib.stride_tricks.sliding_window_view(major, w), axis=1)
     closing = float(np.max(1.0 - smooth / np.maximum.accumulate(smooth)))
     return travel, closing, spread, elongation, n
@@ -337,7 +460,9 @@ class TouchClassifier:
                 f"contact_spread_m: a finite, positive scalar or [H, W] = {self._xx.shape} map"
             )
         self.contact_spread_m = spread
-        self.tracker = ContactTracker(self.config.gate_pixels * self.pixel_m, max_missed=2)
+        self.tracker = ContactTracker(
+            self.config.gate_pixels * self.pixel_m, max_missed=self.config.track_missed_frames
+        )
         self._calibration: list[np.ndarray] = []
         self._calibration_stretch: list[np.ndarray] = []
         self._t0: float | None = None
@@ -345,8 +470,7 @@ class TouchClassifier:
         self.baseline: np.ndarray | None = None
         self.stretch_baseline: np.ndarray | None = None
         self._run = 0
-        self._run_start_s = 0.0
-        self._run_shapes: list[np.ndarray] = []
+        self._run_shapes: list[np.ndarray] = []  # 0-d SHAPE_DTYPE records before a START
         self._recent: list[np.ndarray] = []
         self._noise_var: np.ndarray | None = None
         self._noise_floor = 0.0
@@ -375,7 +499,10 @@ class TouchClassifier:
         self._calibration.append(pressure)
         if stretch is not None:
             self._calibration_stretch.append(stretch)
-        if t_s - self._t0 + 1e-9 < self.config.calibration_s and len(self._calibration) < 10_000:
+        if (
+            t_s - self._t0 + 1e-9 < self.config.calibration_s
+            and len(self._calibration) < _MAX_CALIBRATION_FRAMES
+        ):
             return
         stack = np.stack(self._calibration)
         with warnings.catch_warnings():
@@ -393,10 +520,11 @@ class TouchClassifier:
                 # conservative start (few frames): the larger of the smoothed map and each
                 # pixel's own spread; then the noise keeps being learnt (_follow_noise)
                 sigma = np.maximum(
-                    estimate_noise_map(averaged, window=3), estimate_noise_map(averaged, window=1)
+                    estimate_noise_map(averaged, window=self.config.noise_window),
+                    estimate_noise_map(averaged, window=1),
                 )
                 self._noise_var = sigma**2
-                self._noise_floor = 0.5 * estimate_noise(averaged)
+                self._noise_floor = self.config.noise_floor_fraction * estimate_noise(averaged)
             else:
                 sigma = estimate_noise(averaged)
         if self._calibration_stretch:
@@ -412,7 +540,9 @@ class TouchClassifier:
         if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():
             finger_m = float(np.median(self.contact_spread_m[inside]))
             kernel_px = self.config.detect_kernel * finger_m / self.pixel_m
-            self.detector = PooledDetector(inside, kernel_px, self.config.k_detect, n_avg)
+            self.detector = PooledDetector(
+                inside, kernel_px, self.config.k_detect, n_avg, self.config.learn_fraction
+            )
             self.detector.calibrate(averaged - self.baseline)
         self._calibration = []
         self._calibration_stretch = []
@@ -439,7 +569,7 @@ class TouchClassifier:
         if self.config.average_frames == 1:
             self._recent = [pressure]
         signal = np.mean(self._recent, axis=0) - self.baseline
-        self._times = [*self._times[-50:], t_s]
+        self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = None  # time of the first frame of a pooled detection, if there is one
         if self.detector is not None:
             run = self.detector.update(signal)
@@ -463,16 +593,16 @@ class TouchClassifier:
         return self._advance(t_s, contacts, stretch_peak, shape, detected)
 
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """``[7]`` time, peak, centroid, major, minor spread, finger spread at the centroid."""
-        m = blob_moments(signal, self._xx, self._yy, mask=mask)
-        row = np.full(_SHAPE_COLUMNS, np.nan)
-        row[0] = t_s
-        row[1:6] = m[:5]
-        if np.isfinite(m[1]) and np.isfinite(m[2]):
-            j = int(np.clip(np.searchsorted(self.x, m[1]), 0, self.x.size - 1))
-            i = int(np.clip(np.searchsorted(self.y, m[2]), 0, self.y.size - 1))
-            row[6] = self.contact_spread_m[i, j]
-        return row
+        """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
+        peak, x, y, major, minor, _ = blob_moments(
+            signal, self._xx, self._yy, self.config.blob_fraction, mask
+        )
+        finger = np.nan
+        if np.isfinite(x) and np.isfinite(y):
+            j = int(np.clip(np.searchsorted(self.x, x), 0, self.x.size - 1))
+            i = int(np.clip(np.searchsorted(self.y, y), 0, self.y.size - 1))
+            finger = self.contact_spread_m[i, j]
+        return np.array((t_s, peak, x, y, major, minor, finger), dtype=SHAPE_DTYPE)
 
     def _follow_noise(self, dt: float, signal: np.ndarray) -> None:
         """Per-pixel noise variance: exponential average of no-touch deviations squared.
@@ -510,10 +640,9 @@ class TouchClassifier:
             starts = [] if detected is None else [detected]
             if contacts:
                 if self._run == 0:
-                    self._run_start_s = t_s
                     self.tracker.reset()
                 self._run += 1
-                self._run_shapes = [*self._run_shapes[-50:], shape]
+                self._run_shapes = [*self._run_shapes[-cfg.lookback_frames :], shape]
                 self._observe_contacts(None, t_s, contacts, stretch_peak)
                 # a contact must stay in place (one track) for start_frames frames: noise
                 # crossing the threshold at random places in consecutive frames is no touch
@@ -530,7 +659,8 @@ class TouchClassifier:
             touch = self._touch = _Touch(self._next_id, t_first)
             self._next_id += 1
             self._run = 0
-            touch.shapes = [row for row in self._run_shapes[:-1] if row[0] >= t_first - 1e-9]
+            before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
+            touch.shapes = ShapeHistory(before[before["t_s"] >= t_first - 1e-9])
             self._run_shapes = []
             if contacts:
                 self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
@@ -599,8 +729,7 @@ class TouchClassifier:
 
     def features(self, touch: _Touch) -> TouchFeatures:
         """Features of a touch on the evidence so far."""
-        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
-        travel, closing, spread, elongation, n = shape_features(shapes, self.config.strong_fraction)
+        travel, closing, spread, elongation, n = shape_features(touch.shapes.rows, self.config)
         ratio = None
         if touch.max_stretch is not None and touch.max_pressure > 0:
             ratio = touch.max_stretch / touch.max_pressure
@@ -618,11 +747,12 @@ class TouchClassifier:
             centroid = np.mean([c.centroid_m for c in contacts], axis=0)
         else:
             centroid = np.asarray(touch.detect_centroid_m)
-        shapes = np.asarray(touch.shapes).reshape(-1, _SHAPE_COLUMNS)
-        shapes = shapes[np.isfinite(shapes[:, 2]) & np.isfinite(shapes[:, 3])]
-        if shapes.shape[0]:  # the blob centroid of the latest frame pressed at full strength
-            strong = shapes[:, 1] >= self.config.strong_fraction * shapes[:, 1].max()
-            centroid = shapes[np.flatnonzero(strong)[-1], 2:4]
+        shapes = touch.shapes.rows
+        shapes = shapes[np.isfinite(shapes["x_m"]) & np.isfinite(shapes["y_m"])]
+        if shapes.size:  # the blob centroid of the latest frame pressed at full strength
+            strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()
+            latest = shapes[np.flatnonzero(strong)[-1]]
+            centroid = (latest["x_m"], latest["y_m"])
         return TouchEvent(
             touch_id=touch.id,
             state=state,
@@ -667,11 +797,3 @@ def classify_stream(
         )
     events += classifier.finish()
     return events
-
-
-def with_config(config: ClassifierConfig, **changes) -> ClassifierConfig:
-    """A copy of ``config`` with top-level or ``segmentation`` fields changed by name."""
-    seg_fields = set(SegmentationConfig.__dataclass_fields__)
-    seg = {k: v for k, v in changes.items() if k in seg_fields}
-    top = {k: v for k, v in changes.items() if k not in seg_fields}
-    return replace(config, segmentation=replace(config.segmentation, **seg), **top)

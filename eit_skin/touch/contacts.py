@@ -339,9 +339,10 @@ class ContactTracker:
 
 
 LEARN_FRACTION = 0.6
-"""The pooled noise is learnt only from images whose z-scores all stay below this fraction of
-the detector threshold (pure noise nearly always does: its largest pooled z-score over a
-sheet is about 2, rarely above 3.5)."""
+"""Default ``learn_fraction`` of :class:`PooledDetector` (``ClassifierConfig.learn_fraction``):
+the pooled noise is learnt only from images whose z-scores all stay below this fraction of the
+detector threshold (pure noise nearly always does: its largest pooled z-score over a sheet is
+about 2, rarely above 3.5)."""
 
 
 class PooledDetector:
@@ -368,20 +369,30 @@ class PooledDetector:
         frames_per_sample: consecutive images that share noise (the classifier's running
             mean of ``average_frames`` frames): the noise estimate counts ``1 /
             frames_per_sample`` independent samples per image.
+        learn_fraction: only images whose z-scores all stay below ``learn_fraction * k``
+            teach the noise (:attr:`quiet`), in (0, 1].
     """
 
     def __init__(
-        self, inside: np.ndarray, kernel_px: float, k: float, frames_per_sample: int = 1
+        self,
+        inside: np.ndarray,
+        kernel_px: float,
+        k: float,
+        frames_per_sample: int = 1,
+        learn_fraction: float = LEARN_FRACTION,
     ) -> None:
         inside = np.asarray(inside, dtype=bool)
         if inside.ndim != 2 or not inside.any():
             raise ValueError("PooledDetector: inside must be an [H, W] mask with a True pixel")
         if not kernel_px > 0 or not k > 0:
             raise ValueError(f"kernel_px and k must be > 0, got {kernel_px} and {k}")
+        if not 0 < learn_fraction <= 1:
+            raise ValueError(f"learn_fraction must be in (0, 1], got {learn_fraction}")
         self.inside = inside
         self.kernel_px = float(kernel_px)
         self.k = float(k)
         self.frames_per_sample = max(int(frames_per_sample), 1)
+        self.learn_fraction = float(learn_fraction)
         self._weight = ndimage.gaussian_filter(
             inside.astype(np.float64), self.kernel_px, mode="constant"
         )
@@ -443,11 +454,11 @@ class PooledDetector:
 
     @property
     def quiet(self) -> bool:
-        """No pooled z-score of the latest image above ``LEARN_FRACTION * k``.
+        """No pooled z-score of the latest image above ``learn_fraction * k``.
 
         Only such frames teach the noise: a touch building up below ``k`` is no noise.
         """
-        return bool(np.max(self.z) <= LEARN_FRACTION * self.k)
+        return bool(np.max(self.z) <= self.learn_fraction * self.k)
 
     @property
     def hit(self) -> bool:

@@ -12,22 +12,31 @@ lowest in the middle of the sheet), so spreads are compared with :func:`single_c
 the spread of the reconstructed image of one fingertip-sized conductivity change at every
 pixel, computed from the layer's own Jacobian and reconstruction matrix (noise-free; the
 moments do not depend on the amplitude, the reconstruction being linear).
+:func:`contact_geometry` keeps that map in the reconstruction's cache, so the classifier gets
+it and its pixel grid (:func:`layer_image_grid`) without building the reconstruction.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-if TYPE_CHECKING:
-    from eit_skin.pipeline.builder import LayerImager
+from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.fem.mesh import Mesh, build_mesh
+from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.io.recording import write_npz_atomic
+from eit_skin.patch.model import Layer
+from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir
 
 BLOB_FRACTION = 0.3
-"""Pixels count towards the moments by how far they exceed this fraction of the maximum."""
+"""Pixels count towards the moments by how far they exceed this fraction of the maximum
+(default of ``ClassifierConfig.blob_fraction``)."""
 FINGER_RADIUS_M = 0.006
-"""Radius of the fingertip-sized disc of :func:`single_contact_spread`, m."""
+"""Radius of the fingertip-sized disc of :func:`single_contact_spread`, m (default of
+``ClassifierConfig.finger_radius_m``)."""
 
 
 def blob_moments(
@@ -84,7 +93,9 @@ def blob_moments(
 
 
 def single_contact_spread(
-    imager: LayerImager,
+    grid: ImageGrid,
+    mesh: Mesh,
+    matrix: ReconstructionMatrix,
     radius_m: float = FINGER_RADIUS_M,
     stride: int = 2,
     fraction: float = BLOB_FRACTION,
@@ -95,8 +106,15 @@ def single_contact_spread(
     ``stride``-th pixel inside the sheet; its image (Jacobian, then the reconstruction matrix,
     then the pixel grid) gives the moments of :func:`blob_moments`. Pixels between the samples
     (and outside the sheet) take the nearest sample's value.
+
+    Args:
+        grid: the layer's pixel grid ``[H, W]`` (over ``mesh``).
+        mesh: the inverse mesh the matrix reconstructs on (N elements).
+        matrix: the layer's reconstruction matrix (Jacobian ``[M, N]`` and its solve).
+        radius_m: disc radius, m.
+        stride: pixel step between discs.
+        fraction: moment weighting, see :func:`blob_moments`.
     """
-    grid, mesh, matrix = imager.grid, imager.mesh, imager.matrix
     xx, yy = np.meshgrid(grid.x, grid.y)
     inside = np.asarray(grid.inside, dtype=bool)
     sample = np.zeros_like(inside)
@@ -118,3 +136,78 @@ def single_contact_spread(
     known = np.isfinite(values)
     _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
     return values[iy, ix]
+
+
+def layer_image_grid(layer: Layer) -> ImageGrid:
+    """The pixel grid ``layer`` is imaged on, without any reconstruction matrix.
+
+    The grid of :class:`~eit_skin.pipeline.builder.LayerImager`: the layer's inverse mesh
+    (``mesh.inverse_max_edge``, else its forward mesh) at ``solver.image_pixels``.
+    """
+    return ImageGrid.build(
+        build_mesh(layer, layer.mesh.inverse_max_edge_m), layer.solver.image_pixels
+    )
+
+
+@dataclass(frozen=True)
+class ContactGeometry:
+    """What touch classification needs of a pressure layer, and where it came from.
+
+    Attributes:
+        grid: the layer's pixel grid (``[H, W]`` images).
+        spread_m: ``[H, W]`` one fingertip's spread at every pixel, m
+            (:func:`single_contact_spread`).
+        source: ``"spread cache"`` (no matrix touched), ``"matrix cache"`` (matrix rebuilt
+            from the Jacobian the reconstruction cached) or ``"built"`` (forward model
+            solved; its Jacobian is cached for the reconstruction too).
+    """
+
+    grid: ImageGrid
+    spread_m: np.ndarray
+    source: str
+
+
+def contact_geometry(
+    layer: Layer,
+    cache_dir: Path | str | None = "default",
+    radius_m: float = FINGER_RADIUS_M,
+    stride: int = 2,
+    fraction: float = BLOB_FRACTION,
+) -> ContactGeometry:
+    """The pixel grid and single-finger spread map of ``layer``, reusing the cache.
+
+    The spread needs the layer's Jacobian and reconstruction matrix (the image of a disc is
+    ``R J disc``). It is computed once and stored in ``cache_dir`` next to the matrices the
+    reconstruction caches, as ``<cache_key(layer)>-spread.npz`` (keyed by the layer's content
+    hash, so an edited layer never reads a stale map; the disc parameters are checked on
+    load). A hit builds only the grid (the inverse mesh, no forward model, no matrix). A miss
+    takes the matrix from the reconstruction's cache (:meth:`LayerImager.build`), or builds
+    and caches it there, then stores the spread. ``cache_dir=None``: no cache at all.
+    """
+    directory = default_cache_dir() if cache_dir == "default" else cache_dir
+    path = None if directory is None else Path(directory) / f"{cache_key(layer)}-spread.npz"
+    params = np.array([radius_m, stride, fraction], dtype=np.float64)
+    if path is not None and path.is_file():
+        grid = layer_image_grid(layer)
+        try:
+            with np.load(path) as cached:
+                spread, stored = cached["spread_m"], cached["parameters"]
+            if (
+                spread.shape == grid.shape
+                and np.array_equal(stored, params)
+                and np.all(np.isfinite(spread) & (spread > 0))
+            ):
+                return ContactGeometry(grid, spread, "spread cache")
+        except (OSError, KeyError, ValueError):
+            pass  # unreadable or stale: recompute and overwrite below
+    imager = LayerImager.build(layer, cache_dir=directory)
+    spread = single_contact_spread(
+        imager.grid, imager.mesh, imager.matrix, radius_m, stride, fraction
+    )
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_npz_atomic(path, spread_m=spread, parameters=params)
+        except OSError:
+            pass  # a read-only cache only costs the computation next time
+    return ContactGeometry(imager.grid, spread, "matrix cache" if imager.from_cache else "built")
