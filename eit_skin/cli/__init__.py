@@ -1,1 +1,9 @@
-"""The ``eit-skin`` command line: ``main`` builds the parser, one module per sub-command."""
+"""The ``eit-skin`` command line: ``main`` builds the parser from one module per sub-command.
+
+Each command module has ``add_arguments(parser)`` and ``run(args) -> int`` and imports what is
+heavy inside ``run``: ``patch`` (validate and draw a patch), ``simulate`` (frames and ground truth
+from a touch scenario), ``reconstruct`` and ``classify`` (offline, through the node's per-frame
+pipeline), ``frames`` (MCAP <-> npz), ``fake_device`` (a board on a pseudo-terminal),
+``calibrate_posture`` (references across a joint sweep), ``tune`` (choose the regularisation),
+``run`` (the whole skin end to end).
+"""

@@ -17,8 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-PLACEMENT_TYPES = ("plane", "cylinder", "heightmap")
-
 
 def rotation_from_rpy(rpy: np.ndarray) -> np.ndarray:
     """``[3, 3]`` rotation matrix from roll, pitch, yaw (rad), ROS convention ``Rz @ Ry @ Rx``."""
