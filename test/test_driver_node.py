@@ -8,7 +8,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
 
 from eit_skin.hardware.fake_device import FakeDevice
-from eit_skin.io.recording import read_mcap_frames
+from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node

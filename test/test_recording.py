@@ -9,18 +9,15 @@ from mcap_ros2._dynamic import serialize_dynamic
 from mcap_ros2.decoder import DecoderFactory
 
 from eit_skin.frames import FrameRecord
-from eit_skin.io.recording import (
+from eit_skin.io.cdr import (
     EIT_FRAME_SCHEMA,
-    McapFrameWriter,
     decode_eit_frame_cdr,
     eit_frame_msgdef,
     encode_eit_frame_cdr,
-    load_frames_npz,
-    mcap_to_npz,
-    npz_to_mcap,
-    read_mcap_frames,
-    save_frames_npz,
 )
+from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
+from eit_skin.io.npz import load_frames_npz, save_frames_npz
 
 TOPIC = "/arm/pressure/frames"
 

@@ -11,7 +11,7 @@ import pytest
 from eit_skin.cli.main import main
 from eit_skin.fem.forward_update import LocalForwardUpdate
 from eit_skin.frames import FLAG_SATURATED
-from eit_skin.io.recording import load_frames_npz
+from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig, AdcModel

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
 def classify_file(args: argparse.Namespace):
     """Finished touch events (END) of the files named in ``args``."""
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.io.npz import load_frames_npz
     from eit_skin.patch.model import load_patch
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path

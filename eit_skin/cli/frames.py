@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.io.recording import mcap_to_npz, npz_to_mcap
+    from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
 
     try:
         if args.direction == "export":

@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         images, x, y, faulty = _reconstruct(args)
-        from eit_skin.io.recording import write_npz_atomic
+        from eit_skin.io.npz import write_npz_atomic
 
         write_npz_atomic(args.out, images=images, x=x, y=y)
     except (ValueError, KeyError, OSError) as exc:
@@ -52,7 +52,7 @@ def _reconstruct(args: argparse.Namespace):
     from eit_skin.fem.forward import ForwardModel
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.inverse.gauss_newton import GaussNewtonSolver
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.io.npz import load_frames_npz
     from eit_skin.patch.model import load_patch
     from eit_skin.patch.protocol import build_protocol
     from eit_skin.pipeline.builder import LayerImager

@@ -1,6 +1,6 @@
 """Where raw frames come from: a serial board, the physics simulator, or a recording.
 
-Every source turns its input into :class:`~eit_skin.io.recording.FrameRecord` objects (the
+Every source turns its input into :class:`~eit_skin.frames.FrameRecord` objects (the
 ROS-free fields of an ``EitFrame``) stamped with the acquisition time in host nanoseconds,
 and keeps counters for diagnostics. The driver node only publishes what they return.
 """
@@ -20,7 +20,7 @@ from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
 from eit_skin.hardware.wire import PatternId
-from eit_skin.io.recording import read_mcap_frames
+from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
 

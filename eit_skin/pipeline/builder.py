@@ -23,7 +23,7 @@ from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import excluded_channels
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.one_step import ReconstructionMatrix
-from eit_skin.io.recording import write_npz_atomic
+from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
 

@@ -34,7 +34,7 @@ from eit_skin.hardware.sources import (
     SimulatedSource,
     SourceStatus,
 )
-from eit_skin.io.recording import McapFrameWriter
+from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (

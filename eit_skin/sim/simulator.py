@@ -158,7 +158,7 @@ class SimulatedRecording:
 
     def save(self, out_dir: str | Path) -> list[Path]:
         """Write ``<layer>.npz`` (reference, frames, t, flags) and ``truth.json``; returns paths."""
-        from eit_skin.io.recording import save_frames_npz
+        from eit_skin.io.npz import save_frames_npz
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,97 @@
+"""Conversion between MCAP recordings and the offline npz frames format (``eit-skin frames``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from eit_skin.frames import FLAG_INVALID, FrameRecord
+from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
+from eit_skin.io.npz import load_frames_npz, save_frames_npz
+
+
+def mcap_to_npz(
+    mcap_path: str | Path,
+    npz_path: str | Path,
+    topic: str | None = None,
+    reference_frames: int = 1,
+) -> int:
+    """Export one topic's frames to the npz format; returns T.
+
+    ``frames`` are the voltages (float32 -> float64, NaN where FLAG_INVALID), ``t`` the header
+    stamps in seconds since the epoch, ``reference`` the NaN-ignoring mean of the first
+    ``reference_frames`` frames. With ``topic=None`` the file must hold exactly one EitFrame
+    topic.
+    """
+    rows, stamps, seen = [], [], set()
+    for name, _, record in read_mcap_frames(mcap_path, [topic] if topic else None):
+        seen.add(name)
+        if len(seen) > 1:
+            raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
+        volts = record.voltages.astype(np.float64)
+        if record.channel_flags.size:
+            volts[(record.channel_flags & FLAG_INVALID) != 0] = np.nan
+        if rows and volts.size != rows[0].size:
+            raise ValueError(f"{mcap_path}: topic {name} changes M from {rows[0].size}")
+        rows.append(volts)
+        stamps.append(record.stamp_ns)
+    if not rows:
+        raise ValueError(f"{mcap_path}: no EitFrame messages" + (f" on {topic}" if topic else ""))
+    frames = np.stack(rows)
+    head = frames[: max(1, reference_frames)]
+    missing = np.isnan(head).all(axis=0)
+    if missing.any():
+        raise ValueError(
+            f"{mcap_path}: channel {int(np.flatnonzero(missing)[0])} is invalid in all of the "
+            f"first {len(head)} frames, so there is no reference; raise reference_frames"
+        )
+    reference = np.nanmean(head, axis=0)
+    save_frames_npz(npz_path, reference, frames, np.asarray(stamps, dtype=np.int64) / 1e9)
+    return len(rows)
+
+
+def npz_to_mcap(
+    npz_path: str | Path,
+    mcap_path: str | Path,
+    topic: str,
+    *,
+    patch: str,
+    layer: str,
+    n_electrodes: int,
+    drive_pattern: str = "adjacent",
+    current_a: float = 1e-3,
+    frame_id: str = "",
+    rate_hz: float = 50.0,
+    start_ns: int = 0,
+) -> int:
+    """Write an npz file's frames as EitFrame messages; returns T.
+
+    Stamps come from ``t`` (seconds since the epoch) or, without it, ``start_ns`` + i /
+    ``rate_hz``. NaN values are written as NaN with FLAG_INVALID. The reference is not stored
+    (MCAP holds raw frames only).
+    """
+    _, frames, t = load_frames_npz(npz_path)
+    if t is not None:
+        stamps = np.round(t * 1e9).astype(np.int64)
+    else:
+        stamps = start_ns + np.round(np.arange(frames.shape[0]) * (1e9 / rate_hz)).astype(np.int64)
+    flags = np.where(np.isnan(frames), FLAG_INVALID, 0).astype(np.uint8)
+    with McapFrameWriter(mcap_path) as writer:
+        for i in range(frames.shape[0]):
+            writer.write(
+                topic,
+                FrameRecord(
+                    stamp_ns=int(stamps[i]),
+                    frame_id=frame_id,
+                    patch=patch,
+                    layer=layer,
+                    n_electrodes=n_electrodes,
+                    drive_pattern=drive_pattern,
+                    current_a=current_a,
+                    sequence=i % 2**32,
+                    voltages=frames[i],
+                    channel_flags=flags[i],
+                ),
+            )
+    return int(frames.shape[0])
