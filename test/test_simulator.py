@@ -15,8 +15,10 @@ from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig, AdcModel
+from eit_skin.sim.drift import NO_DRIFT, DriftModel
+from eit_skin.sim.faults import Fault
 from eit_skin.sim.scenario import builtin_scenario
-from eit_skin.sim.simulator import NO_DRIFT, DriftModel, Fault, SkinSimulator
+from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
 
 RATE = 10.0

@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eit_skin.patch.model import load_patch
     from eit_skin.resources import config_path
-    from eit_skin.sim.simulator import NO_DRIFT, SkinSimulator
+    from eit_skin.sim.drift import NO_DRIFT
+    from eit_skin.sim.simulator import SkinSimulator
 
     try:
         if args.rate <= 0:
