@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
+from rclpy.parameter_client import AsyncParameterClient
 
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
+from eit_skin.sim.faults import FAULT_KINDS, Fault, parse_faults
 
 pytestmark = pytest.mark.ros
 
@@ -182,6 +186,30 @@ def test_mismatched_frames_are_counted_not_published(probe: Probe, tmp_path) -> 
         device.stop()
         device.close()
         assert stop_node(node) == 0
+
+
+def test_every_fault_in_the_faults_help_parses(probe: Probe, tmp_path) -> None:
+    """The description the running driver gives for ``faults`` names every kind, parseably."""
+    node = start_node(
+        "eit_driver",
+        "/arm",
+        {"patch_config": "arm", "port": str(tmp_path / "absent")},
+        tmp_path / "driver.log",
+    )
+    try:
+        client = AsyncParameterClient(probe.node, "/arm/eit_driver")
+        assert client.wait_for_services(20), (tmp_path / "driver.log").read_text()
+        future = client.describe_parameters(["faults"])
+        assert probe.spin_until(future.done, 20)
+        (descriptor,) = future.result().descriptors
+    finally:
+        assert stop_node(node) == 0
+    examples = re.findall(r"([a-z][a-z-]*):(\d+)", descriptor.description)
+    assert {kind for kind, _ in examples} == set(FAULT_KINDS), descriptor.description
+    for kind, index in examples:
+        assert parse_faults(f"{kind}:{index}") == (Fault(kind, int(index)),)
+    listed = descriptor.description.rsplit(" ", 1)[-1]  # the comma-separated example itself
+    assert {f.kind for f in parse_faults(listed)} == set(FAULT_KINDS)
 
 
 def test_bad_patch_config_refuses_to_start(tmp_path) -> None:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from eit_skin.sim.faults import fault_help
+
     parser.add_argument("--patch", default="arm", help="arm|face|elbow or a patch YAML path")
     parser.add_argument(
         "--scenario",
@@ -35,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KIND:INDEX[@LAYER]",
-        help="dead-electrode:N or saturated-channel:M (repeatable)",
+        help=f"a hardware fault, repeatable: {fault_help(' --fault ')}",
     )
     parser.add_argument("--no-drift", action="store_true", help="switch the baseline drift off")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR")

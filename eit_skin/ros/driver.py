@@ -43,6 +43,7 @@ from eit_skin.ros.node_runner import (
     diagnostic_status,
     run_node,
 )
+from eit_skin.sim.faults import fault_help, parse_faults
 
 _PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
@@ -59,7 +60,7 @@ _PARAMETERS: ParameterTable = [
     ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
     ("seed", 0, "simulator random seed"),
     ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
-    ("faults", "", "simulator faults, comma separated, e.g. dead-electrode:5,saturated:17"),
+    ("faults", "", f"simulator faults, comma separated {fault_help(',')}"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
 
@@ -120,13 +121,12 @@ class DriverNode(Node):
     def _simulated_source(self, p: dict) -> SimulatedSource:
         from eit_skin.sim.simulator import SkinSimulator
 
-        faults = [f.strip() for f in str(p["faults"]).split(",") if f.strip()]
         simulator = SkinSimulator(
             self.patch,
             str(p["scenario"]) or "demo",
             rate_hz=float(p["rate_hz"]),
             seed=int(p["seed"]),
-            faults=faults,
+            faults=parse_faults(str(p["faults"])),
         )
         return SimulatedSource(self.factories, simulator, simulator.n_frames, bool(p["loop"]))
 

@@ -1,7 +1,8 @@
 """Simulated hardware faults: the kinds, their text form, and what they do to a frame.
 
-``FAULT_KINDS`` is the one table of fault kinds; :class:`Fault` parses and validates against
-it.
+``FAULT_KINDS`` is the one table of fault kinds: :class:`Fault` parses and validates against
+it, and the help texts of ``eit-skin simulate --fault`` and of the driver's ``faults``
+parameter are built from it (:func:`fault_help`), so a documented name always parses.
 """
 
 from __future__ import annotations
@@ -36,6 +37,16 @@ FAULT_KINDS: dict[str, FaultKind] = {
 
 FLOATING_NOISE_FRACTION = 0.3
 """A floating (disconnected) measurement input reads noise of this fraction of full scale."""
+
+
+def fault_help(separator: str = ",") -> str:
+    """One line for help texts: the syntax, every kind, and an example list joined by ``separator``.
+
+    Every ``KIND:INDEX`` in the returned text parses with :meth:`Fault.parse`.
+    """
+    kinds = ", ".join(f"{k} ({v.index} INDEX {v.effect})" for k, v in FAULT_KINDS.items())
+    example = separator.join(f"{k}:{v.example}" for k, v in FAULT_KINDS.items())
+    return f"KIND:INDEX[@LAYER], KIND one of {kinds}; e.g. {example}"
 
 
 @dataclass(frozen=True)
@@ -84,6 +95,11 @@ class Fault:
         limit = counts[FAULT_KINDS[self.kind].index]
         if self.index >= limit:
             raise ValueError(f"fault {self}: layer {layer!r} has only {limit}")
+
+
+def parse_faults(text: str) -> tuple[Fault, ...]:
+    """Comma-separated ``KIND:INDEX[@LAYER]`` items (empty items ignored)."""
+    return tuple(Fault.parse(item.strip()) for item in text.split(",") if item.strip())
 
 
 def apply_faults(
