@@ -36,10 +36,35 @@ def probe():
     probe.close()
 
 
+STARTUP_S = 60.0
+"""Safety net of every wait below, which returns as soon as its event happens: a node process
+starting on a loaded machine (imports, discovery) can take tens of seconds."""
+
+
 def _driver_status(probe: Probe) -> list:
     return [
         s for _, m in probe.messages["/diagnostics"] for s in m.status if "eit_driver" in s.name
     ]
+
+
+def _values(status) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def _first_status(probe: Probe, since: int, condition, timeout: float = STARTUP_S):
+    """The first driver status after the first ``since`` ones that meets ``condition``, or None.
+
+    Waits for the event itself: whatever other statuses arrive meanwhile (a WARN for a
+    diagnostics period without frames on a loaded machine) are passed over.
+    """
+    found = []
+
+    def check() -> bool:
+        found[:] = [s for s in _driver_status(probe)[since:] if condition(s)][:1]
+        return bool(found)
+
+    probe.spin_until(check, timeout)
+    return found[0] if found else None
 
 
 def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) -> None:
@@ -63,7 +88,7 @@ def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) 
         tmp_path / "driver.log",
     )
     try:
-        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 20, 20), (
+        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 20, STARTUP_S), (
             tmp_path / "driver.log"
         ).read_text()
         for _, msg in probe.messages[TOPIC][:20]:
@@ -83,32 +108,33 @@ def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) 
         ]
         assert np.all(np.diff(np.array(stamps, dtype=np.int64)) > 0)
 
-        # Unplug: the node keeps running and reports ERROR; replug: frames resume.
+        # Unplug: the node keeps running and reports ERROR; replug: frames resume and the
+        # node reports OK for frames received over the new connection.
         device.stop()
         device.unplug()
-        probe.spin_until(
-            lambda: any(s.level == DiagnosticStatus_ERROR for s in _driver_status(probe)[-1:]), 10
-        )
-        assert _driver_status(probe)[-1].level == DiagnosticStatus_ERROR
+        unplugged = len(_driver_status(probe))
+        error = _first_status(probe, unplugged, lambda s: s.level == DiagnosticStatus_ERROR)
+        assert error is not None, [s.message for s in _driver_status(probe)[unplugged:]]
+        assert str(link) in error.message and _values(error)["state"] == "disconnected"
         assert node.poll() is None
+        published = int(_values(error)["frames_published"])
         count = len(probe.messages[TOPIC])
+        replugged = len(_driver_status(probe))
         device.open()
         device.link(link)
         device.start()
-        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= count + 10, 20)
-        probe.spin_until(
-            lambda: any(
-                kv.key == "reconnects" and int(kv.value) >= 1
-                for s in _driver_status(probe)[-1:]
-                for kv in s.values
+        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= count + 10, STARTUP_S)
+        ok = _first_status(
+            probe,
+            replugged,
+            lambda s: (
+                s.level == DiagnosticStatus_OK
+                and int(_values(s)["reconnects"]) >= 1
+                and int(_values(s)["frames_published"]) > published
             ),
-            5,
         )
-        last = _driver_status(probe)[-1]
-        assert last.level == DiagnosticStatus_OK, last.message
-        values = {kv.key: kv.value for kv in last.values}
-        assert int(values["reconnects"]) >= 1
-        assert values["port"] == str(link)
+        assert ok is not None, [s.message for s in _driver_status(probe)[replugged:]]
+        assert _values(ok)["port"] == str(link) and _values(ok)["state"] == "connected"
     finally:
         device.stop()
         device.close()
@@ -137,7 +163,7 @@ def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
         tmp_path / "driver.log",
     )
     try:
-        assert probe.spin_until(lambda: len(_driver_status(probe)) >= 2, 15)
+        assert probe.spin_until(lambda: len(_driver_status(probe)) >= 2, STARTUP_S)
         status = _driver_status(probe)[-1]
         assert status.level == DiagnosticStatus_ERROR
         assert str(link) in status.message
@@ -147,7 +173,7 @@ def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
         device.link(link)
         device.start()
         try:
-            assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 5, 20)
+            assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 5, STARTUP_S)
         finally:
             device.stop()
             device.close()
