@@ -20,7 +20,7 @@ from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
 from eit_skin.hardware.wire import PatternId
-from eit_skin.io.mcap import read_mcap_frames
+from eit_skin.io.mcap import McapDamage, read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
 
@@ -290,7 +290,9 @@ class ReplaySource:
     """Frames of an MCAP recording, with their original spacing or as fast as possible.
 
     Only topics of the replayed patch's layers are used (``/<ns>/<layer>/frames`` or any
-    topic ending in ``/<layer>/frames``); the original header stamps are kept.
+    topic ending in ``/<layer>/frames``); the original header stamps are kept. An unfinished
+    recording (its recorder was killed) is replayed up to its last complete chunk and the
+    status then reports what was skipped.
     """
 
     def __init__(self, path: str | Path, layers: list[str], realtime: bool = True) -> None:
@@ -304,10 +306,14 @@ class ReplaySource:
         self.published = 0
         self.finished = False
         self.rate = RateMeter()
+        self.damage: McapDamage | None = None
         self._iter: Iterator[tuple[int, FrameRecord]] = self._records()
 
     def _records(self) -> Iterator[tuple[int, FrameRecord]]:
-        for topic, log_ns, record in read_mcap_frames(self.path):
+        def note(damage: McapDamage) -> None:
+            self.damage = damage
+
+        for topic, log_ns, record in read_mcap_frames(self.path, on_damage=note):
             if record.layer in self.layers and topic.endswith(f"{record.layer}/frames"):
                 yield log_ns, record
 
@@ -338,6 +344,9 @@ class ReplaySource:
             "finished": str(self.finished).lower(),
             "frame_rate_hz": f"{self.rate.rate_hz():.1f}",
         }
+        if self.damage is not None:
+            values["skipped"] = "; ".join(self.damage.skipped)
+            return SourceStatus(1, f"replay of an unfinished recording: {self.damage}", values)
         if self.finished:
             return SourceStatus(0, f"replay of {self.path.name} finished", values)
         return SourceStatus(0, f"replaying {self.path.name}", values)

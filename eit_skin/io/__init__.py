@@ -1,8 +1,8 @@
 """Recordings on disk: MCAP (ROS 2 bags) and the offline npz frames format.
 
-Modules: ``cdr`` (EitFrame CDR codec and message definition), ``mcap`` (MCAP writer and
-reader), ``npz`` (the offline frames format, atomic npz writes), ``conversion`` (MCAP <-> npz,
-``eit-skin frames``).
+Modules: ``cdr`` (EitFrame CDR codec and message definition), ``mcap`` (crash-safe MCAP
+writer, reader that recovers unfinished files), ``npz`` (the offline frames format, atomic npz
+writes), ``conversion`` (MCAP <-> npz, ``eit-skin frames``).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "EIT_FRAME_SCHEMA": "cdr",
+    "McapDamage": "mcap",
     "McapFrameWriter": "mcap",
     "decode_eit_frame_cdr": "cdr",
     "eit_frame_msgdef": "cdr",
@@ -29,6 +30,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "EIT_FRAME_SCHEMA",
+    "McapDamage",
     "McapFrameWriter",
     "decode_eit_frame_cdr",
     "eit_frame_msgdef",
@@ -49,7 +51,7 @@ if TYPE_CHECKING:
         encode_eit_frame_cdr,
     )
     from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
-    from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
+    from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
     from eit_skin.io.npz import load_frames_npz, save_frames_npz, write_npz_atomic
 
 

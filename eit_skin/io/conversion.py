@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from eit_skin.frames import FLAG_INVALID, FrameRecord
-from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
+from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
 from eit_skin.io.npz import load_frames_npz, save_frames_npz
 
 
@@ -16,16 +17,28 @@ def mcap_to_npz(
     npz_path: str | Path,
     topic: str | None = None,
     reference_frames: int = 1,
+    on_damage: Callable[[McapDamage], None] | None = None,
 ) -> int:
     """Export one topic's frames to the npz format; returns T.
 
     ``frames`` are the voltages (float32 -> float64, NaN where FLAG_INVALID), ``t`` the header
     stamps in seconds since the epoch, ``reference`` the NaN-ignoring mean of the first
     ``reference_frames`` frames. With ``topic=None`` the file must hold exactly one EitFrame
-    topic.
+    topic. An unfinished MCAP file (its recorder was killed) raises ValueError unless
+    ``on_damage`` is given: then its complete records are exported and ``on_damage`` receives
+    what was skipped (see :func:`~eit_skin.io.mcap.read_mcap_frames`).
     """
+    damage: list[McapDamage] = []
+
+    def note(found: McapDamage) -> None:
+        damage.append(found)
+        if on_damage is not None:
+            on_damage(found)
+
     rows, stamps, seen = [], [], set()
-    for name, _, record in read_mcap_frames(mcap_path, [topic] if topic else None):
+    topics = [topic] if topic else None
+    messages = read_mcap_frames(mcap_path, topics, None if on_damage is None else note)
+    for name, _, record in messages:
         seen.add(name)
         if len(seen) > 1:
             raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
@@ -37,7 +50,11 @@ def mcap_to_npz(
         rows.append(volts)
         stamps.append(record.stamp_ns)
     if not rows:
-        raise ValueError(f"{mcap_path}: no EitFrame messages" + (f" on {topic}" if topic else ""))
+        raise ValueError(
+            f"{mcap_path}: no EitFrame messages"
+            + (f" on {topic}" if topic else "")
+            + "".join(f" ({found})" for found in damage)
+        )
     frames = np.stack(rows)
     head = frames[: max(1, reference_frames)]
     missing = np.isnan(head).all(axis=0)
