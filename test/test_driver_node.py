@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ from eit_skin_msgs.msg import EitFrame
 from rclpy.parameter_client import AsyncParameterClient
 
 from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.hardware.sources import REJECT_REASONS
+from eit_skin.hardware.wire import DeviceFrame, PatternId
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.patch.model import load_patch
 from eit_skin.resources import config_path
@@ -181,9 +184,27 @@ def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
         assert stop_node(node) == 0
 
 
-def test_mismatched_frames_are_counted_not_published(probe: Probe, tmp_path) -> None:
-    frames = pattern_frames(8, m=192)  # opposite-drive sized frames on an adjacent layer
-    device = FakeDevice(lambda i: frames[i % 8], rate_hz=100.0)
+class MisbehavingDevice(FakeDevice):
+    """Frame ``i`` carries the header fault ``i % 7`` (0 and 1 are the layer's own frames)."""
+
+    def frame(self, index: int, device_time_us: int | None = None) -> DeviceFrame:
+        good = super().frame(index, device_time_us)
+        return [
+            good,
+            replace(good, pattern_id=PatternId.SKIP, pattern_param=0),  # adjacent, other name
+            replace(good, pattern_id=PatternId.OPPOSITE),
+            replace(good, n_electrodes=12),
+            replace(good, current_a=0.0),
+            replace(good, current_a=-1e-3),
+            replace(good, voltages_v=good.voltages_v[:192], flags=good.flags[:192]),
+        ][index % 7]
+
+
+def test_frames_not_of_the_layer_are_counted_per_reason_never_published(
+    probe: Probe, tmp_path
+) -> None:
+    frames = pattern_frames(7)
+    device = MisbehavingDevice(lambda i: frames[i % 7], rate_hz=100.0)
     device.open()
     link = tmp_path / "eit_skin_arm"
     device.link(link)
@@ -194,24 +215,29 @@ def test_mismatched_frames_are_counted_not_published(probe: Probe, tmp_path) -> 
         {"patch_config": "arm", "port": str(link), "diagnostics_period_s": 0.2},
         tmp_path / "driver.log",
     )
+    expected = {"values": 3, "electrodes": 3, "pattern": 3, "current": 6, "published": 6}
+
+    def counts(status) -> dict[str, int]:
+        values = _values(status)
+        rejected = {k: int(values[f"rejected_{k}"]) for k in REJECT_REASONS}
+        return rejected | {"published": int(values["frames_published"])}
+
     try:
-        assert probe.spin_until(
-            lambda: any(
-                kv.key == "frames_mismatched" and int(kv.value) >= 5
-                for s in _driver_status(probe)[-1:]
-                for kv in s.values
-            ),
-            20,
+        status = _first_status(
+            probe, 0, lambda s: all(counts(s)[k] >= n for k, n in expected.items())
         )
-        assert probe.messages[TOPIC] == []
-        status = _driver_status(probe)[-1]
-        assert (
-            status.level == b"\x01" and "192 values" in status.message and "208" in status.message
-        )
+        assert status is not None, (tmp_path / "driver.log").read_text()
+        statuses = _driver_status(probe)
     finally:
         device.stop()
         device.close()
         assert stop_node(node) == 0
+    rejected = counts(status)
+    assert int(_values(status)["frames_rejected"]) == sum(rejected[k] for k in REJECT_REASONS)
+    published = probe.messages[TOPIC]
+    assert published and all(m.sequence % 7 in (0, 1) for _, m in published)
+    warned = [s.message for s in statuses if s.message.startswith("frames rejected")]
+    assert warned and all(re.match(r"frames rejected: frame \d+: ", m) for m in warned), warned
 
 
 def test_every_fault_in_the_faults_help_parses(probe: Probe, tmp_path) -> None:

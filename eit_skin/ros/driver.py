@@ -166,7 +166,8 @@ class DriverNode(Node):
     def _publish_diagnostics(self) -> None:
         status: SourceStatus = self.source.status()
         if status.level > 0:
-            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+            log = self.get_logger().error if status.level > 1 else self.get_logger().warning
+            log(status.message, throttle_duration_sec=10.0)
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
