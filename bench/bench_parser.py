@@ -15,7 +15,7 @@ import numpy as np
 from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.wire import DeviceFrame, FrameParser, PatternId, ValueEncoding, encode_frame
-from eit_skin.io.recording import encode_eit_frame_cdr
+from eit_skin.io.cdr import encode_eit_frame_cdr
 
 N_FRAMES = 20_000
 M = 208

@@ -15,7 +15,7 @@ import pytest
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.hardware.serial_link import SerialLink
 from eit_skin.hardware.wire import ValueEncoding
-from eit_skin.io.recording import save_frames_npz
+from eit_skin.io.npz import save_frames_npz
 
 
 def source(i: int) -> np.ndarray:

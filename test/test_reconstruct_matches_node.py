@@ -22,7 +22,7 @@ from sensor_msgs.msg import Image
 from eit_skin.cli.main import main
 from eit_skin.frames import FLAG_INVALID, FrameRecord
 from eit_skin.hardware.sources import pattern_name
-from eit_skin.io.recording import McapFrameWriter
+from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path

@@ -1,6 +1,11 @@
-"""MCAP (ROS 2 encoding) and npz recordings: round trips, schema, validation errors."""
+"""MCAP (ROS 2 encoding) and npz recordings: round trips, schema, validation errors, crashes."""
 
 from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -8,19 +13,18 @@ from mcap.reader import make_reader
 from mcap_ros2._dynamic import serialize_dynamic
 from mcap_ros2.decoder import DecoderFactory
 
+from eit_skin.cli.main import main
 from eit_skin.frames import FrameRecord
-from eit_skin.io.recording import (
+from eit_skin.hardware.sources import ReplaySource
+from eit_skin.io.cdr import (
     EIT_FRAME_SCHEMA,
-    McapFrameWriter,
     decode_eit_frame_cdr,
     eit_frame_msgdef,
     encode_eit_frame_cdr,
-    load_frames_npz,
-    mcap_to_npz,
-    npz_to_mcap,
-    read_mcap_frames,
-    save_frames_npz,
 )
+from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
+from eit_skin.io.npz import load_frames_npz, save_frames_npz
 
 TOPIC = "/arm/pressure/frames"
 
@@ -236,3 +240,179 @@ def test_export_makes_flagged_values_missing_even_when_stuck(tmp_path):
     assert np.isnan(back[:, [7, 9]]).all() and np.isnan(back[1, 11]) and back[0, 11] == 0.5
     assert np.isnan(back).sum() == 5
     np.testing.assert_array_equal(ref[[7, 9, 11, 12]], [1.0, 1.0, 0.5, 1.0])
+
+
+# --- crash safety: killed recorders and cut files ---------------------------------------------
+
+RECORDER = """
+import sys, time
+import numpy as np
+from eit_skin.cli.main import main
+from eit_skin.frames import FrameRecord
+from eit_skin.hardware.sources import ReplaySource
+from eit_skin.io.mcap import McapFrameWriter
+
+writer = McapFrameWriter(sys.argv[1])  # default bounds: what the driver records with
+flushed, i = 0, 0
+while True:
+    now = time.time_ns()
+    volts = np.random.default_rng(i).normal(0.0, 0.1, 208)
+    frame = FrameRecord(now, "arm_skin_link", "arm", "pressure", 16, "adjacent", 1e-3, i, volts, [])
+    writer.write("/arm/pressure/frames", frame, log_time_ns=now)
+    print("wrote", i, now, flush=True)
+    if writer.flushed_messages != flushed:
+        flushed = writer.flushed_messages
+        print("flushed", flushed, flush=True)
+    i += 1
+    time.sleep(0.01)  # a 100 Hz source
+"""
+
+
+def test_sigkill_loses_at_most_the_last_second(tmp_path, capsys):
+    path = tmp_path / "killed.mcap"
+    child = subprocess.Popen(
+        [sys.executable, "-c", RECORDER, str(path)], stdout=subprocess.PIPE, text=True
+    )
+    lines = []
+    try:
+        # The events, printed by the child: >= 150 frames (1.5 s) on disk, then 120 more
+        # frames written (>= 1.2 s at 100 Hz), so the kill falls anywhere between flushes.
+        flushed, last = 0, -1
+        while flushed < 150 or last < flushed + 120:
+            lines.append(child.stdout.readline())
+            assert lines[-1], f"recorder exited with {child.wait()}"
+            word, number = lines[-1].split()[:2]
+            if word == "flushed" and flushed < 150:
+                flushed = int(number)
+            last = int(number) if word == "wrote" else last
+            assert last < 3000, f"only {flushed} of {last + 1} frames flushed"
+        killed_ns = time.time_ns()
+        child.kill()
+    finally:
+        child.kill()
+        lines += child.communicate()[0].splitlines()
+    assert child.returncode == -signal.SIGKILL
+    written = {}
+    for line in lines:
+        if line.startswith("wrote"):
+            _, i, t = line.split()
+            written[int(i)] = int(t)
+    damage = []
+    recovered = list(read_mcap_frames(path, on_damage=damage.append))
+    assert len(damage) == 1 and str(path) in str(damage[0])
+    sequences = [r.sequence for _, _, r in recovered]
+    assert sequences == list(range(len(recovered))) and len(recovered) >= flushed
+    older = [i for i, t in written.items() if t < killed_ns - 1_000_000_000]
+    assert older and max(older) < len(recovered), (max(older), len(recovered))
+    for _, log_ns, r in recovered[::37]:
+        assert log_ns == r.stamp_ns
+        expected = np.random.default_rng(r.sequence).normal(0.0, 0.1, 208).astype(np.float32)
+        assert r.voltages.tobytes() == expected.tobytes()
+
+    assert main(["frames", "export", str(path), str(tmp_path / "out.npz")]) == 0
+    out, err = capsys.readouterr()
+    assert f"{len(recovered)} frames (recovered)" in out
+    assert "skipped" in err and str(path) in err and "Traceback" not in err
+    assert load_frames_npz(tmp_path / "out.npz")[1].shape == (len(recovered), 208)
+
+
+def _chunked(path, n_frames: int = 12, per_chunk: int = 3) -> list[tuple[int, int]]:
+    """A finished file of chunks of ``per_chunk`` frames; returns (bytes, frames) per flush."""
+    on_disk = []
+    with McapFrameWriter(path, flush_period_s=None) as writer:
+        for i in range(n_frames):
+            writer.write(TOPIC, record(i, m=13))
+            if i % per_chunk == per_chunk - 1:
+                writer.flush()
+                on_disk.append((path.stat().st_size, writer.flushed_messages))
+    return on_disk
+
+
+def test_a_cut_file_yields_every_complete_chunk_and_never_raises(tmp_path):
+    full = tmp_path / "full.mcap"
+    on_disk = _chunked(full)
+    data = full.read_bytes()
+    written = [r for _, _, r in read_mcap_frames(full)]
+    assert len(written) == 12
+    cut = tmp_path / "cut.mcap"
+    (first_chunk_end, _), (second_chunk_end, _) = on_disk[:2]
+    sizes = {  # every offset of the header and of one whole chunk with its index, and a comb
+        *range(0, 40),
+        *range(first_chunk_end, second_chunk_end + 1),
+        *range(0, len(data), 13),
+        *range(len(data) - 12, len(data)),
+    }
+    for size in sorted(sizes):
+        cut.write_bytes(data[:size])
+        damage = []
+        got = [r for _, _, r in read_mcap_frames(cut, on_damage=damage.append)]
+        complete = max([n for end, n in on_disk if end <= size], default=0)
+        assert complete <= len(got) and got == written[: len(got)], size
+        assert len(damage) == 1 and damage[0].size == size and damage[0].end <= size
+        if size < len(data) - 8:  # before the footer, something was skipped at a byte offset
+            assert "bytes" in str(damage[0]) or "no summary" in str(damage[0]), damage[0]
+        if size % 10 == 0:
+            with pytest.raises(ValueError, match="unfinished MCAP"):  # strict: no on_damage
+                list(read_mcap_frames(cut))
+
+
+def test_a_corrupt_chunk_is_skipped_and_the_next_ones_are_read(tmp_path):
+    path = tmp_path / "rotten.mcap"
+    on_disk = _chunked(path)
+    data = bytearray(path.read_bytes()[: on_disk[-1][0]])  # unfinished: no summary
+    middle = (on_disk[0][0] + on_disk[1][0]) // 2  # inside the second chunk's data
+    data[middle] ^= 0xFF
+    path.write_bytes(bytes(data))
+    damage = []
+    got = [r for _, _, r in read_mcap_frames(path, on_damage=damage.append)]
+    assert got == [record(i, m=13) for i in (0, 1, 2, 6, 7, 8, 9, 10, 11)]
+    (found,) = damage
+    assert f"bytes {on_disk[0][0]}.." in str(found) and "unreadable Chunk record" in str(found)
+
+
+def test_a_written_but_idle_recording_is_flushed_by_time(tmp_path):
+    path = tmp_path / "idle.mcap"
+    writer = McapFrameWriter(path, flush_period_s=0.2)
+    try:
+        for i in range(3):
+            writer.write(TOPIC, record(i))
+        deadline = time.monotonic() + 30.0  # safety net; the flusher runs every 0.2 s
+        while writer.flushed_messages < 3:  # no further write: only the flusher thread can
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        damage = []
+        got = [r for _, _, r in read_mcap_frames(path, on_damage=damage.append)]
+        assert got == [record(i) for i in range(3)] and damage
+    finally:
+        writer.close()
+    assert [r for _, _, r in read_mcap_frames(path)] == [record(i) for i in range(3)]
+
+
+def test_export_of_an_empty_or_foreign_file_is_one_clear_line(tmp_path, capsys):
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert main(["frames", "export", str(empty), str(tmp_path / "x.npz")]) == 1
+    err = capsys.readouterr().err
+    assert f"{empty}: no EitFrame messages" in err and "empty file" in err
+    assert len(err.strip().splitlines()) == 1
+    foreign = tmp_path / "foreign.mcap"
+    save_frames_npz(foreign, np.zeros(4), np.zeros((1, 4)))
+    assert main(["frames", "export", str(foreign), str(tmp_path / "x.npz")]) == 1
+    err = capsys.readouterr().err
+    assert f"{foreign}: not an MCAP file" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_replay_of_a_cut_recording_publishes_what_was_complete(tmp_path):
+    full = tmp_path / "full.mcap"
+    on_disk = _chunked(full)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full.read_bytes()[: on_disk[1][0] + 40])  # 2 chunks and a piece
+    source = ReplaySource(cut, ["pressure"], realtime=False)
+    published = []
+    while not source.finished:
+        source.tick(0, published.append)
+    assert published == [record(i, m=13) for i in range(on_disk[1][1])]
+    status = source.status()
+    assert status.level == 1 and "cut short" in status.values["skipped"]
+    assert str(cut) in status.message

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from eit_skin_msgs.msg import EitFrame
 
-from eit_skin.io.recording import load_frames_npz, read_mcap_frames, save_frames_npz
+from eit_skin.io.mcap import read_mcap_frames
+from eit_skin.io.npz import load_frames_npz, save_frames_npz
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable

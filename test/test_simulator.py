@@ -11,12 +11,14 @@ import pytest
 from eit_skin.cli.main import main
 from eit_skin.fem.forward_update import LocalForwardUpdate
 from eit_skin.frames import FLAG_SATURATED
-from eit_skin.io.recording import load_frames_npz
+from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig, AdcModel
+from eit_skin.sim.drift import NO_DRIFT, DriftModel
+from eit_skin.sim.faults import FAULT_KINDS, Fault, fault_help, parse_faults
 from eit_skin.sim.scenario import builtin_scenario
-from eit_skin.sim.simulator import NO_DRIFT, DriftModel, Fault, SkinSimulator
+from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
 
 RATE = 10.0
@@ -160,6 +162,17 @@ def test_saturated_channel_fault_pins_one_channel(arm) -> None:
         Fault.parse("dead-electrode")
     with pytest.raises(ValueError, match="only 16"):
         SkinSimulator(arm, "idle", faults=["dead-electrode:16"])
+
+
+def test_fault_help_names_every_kind_and_its_examples_run(arm) -> None:
+    text = fault_help(",")
+    listed = parse_faults(text.rsplit(" ", 1)[-1])
+    assert [f.kind for f in listed] == list(FAULT_KINDS)
+    assert [str(f) for f in listed] == text.rsplit(" ", 1)[-1].split(",")
+    sim = SkinSimulator(arm, "idle", rate_hz=RATE, faults=listed)
+    assert sim.frame(0)["pressure"].flags.any()
+    with pytest.raises(ValueError, match="saturated-channel"):
+        parse_faults("saturated:17")  # the old help's spelling names the valid kinds
 
 
 def test_drift_is_slow_smooth_and_follows_the_model(arm) -> None:

@@ -107,7 +107,7 @@ def classify_file(args: argparse.Namespace):
 def _images(imager, path: Path, args: argparse.Namespace):
     """Frame times ``[T]`` s and per-frame results of one layer's frames file."""
     from eit_skin.cli.reconstruct import frame_times, make_processor, process_file
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.io.npz import load_frames_npz
 
     if not Path(path).is_file():
         raise ValueError(f"{path}: no such file")

@@ -1,7 +1,9 @@
 """``eit-skin frames``: convert recordings between MCAP (ROS 2 bags) and the offline npz format.
 
 ``export REC.mcap OUT.npz``: one EitFrame topic -> ``reference`` (mean of the first
-``--reference-frames``), ``frames`` [T, M] volts, ``t`` [T] header stamps in seconds.
+``--reference-frames``), ``frames`` [T, M] volts, ``t`` [T] header stamps in seconds. A
+recording whose recorder was killed (no footer) or that was cut is recovered: every complete
+record is exported and what was skipped is reported on stderr with byte offsets.
 ``import IN.npz OUT.mcap --patch P``: frames -> EitFrame messages on ``/<patch>/<layer>/frames``
 with the layer's electrode count, pattern, current and frame_id, as the driver records them.
 """
@@ -29,12 +31,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.io.recording import mcap_to_npz, npz_to_mcap
+    from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+    from eit_skin.io.mcap import McapDamage
 
     try:
         if args.direction == "export":
-            n = mcap_to_npz(args.mcap, args.npz, args.topic, args.reference_frames)
-            print(f"wrote {args.npz}: {n} frames")
+            damage: list[McapDamage] = []
+            n = mcap_to_npz(
+                args.mcap, args.npz, args.topic, args.reference_frames, on_damage=damage.append
+            )
+            print(f"wrote {args.npz}: {n} frames" + (" (recovered)" if damage else ""))
+            for found in damage:
+                print(f"eit-skin frames export: skipped: {found}", file=sys.stderr)
             return 0
         from eit_skin.hardware.sources import pattern_name
         from eit_skin.patch.loading import load_patch

@@ -126,7 +126,7 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         result = _reconstruct(args)
-        from eit_skin.io.recording import write_npz_atomic
+        from eit_skin.io.npz import write_npz_atomic
 
         write_npz_atomic(
             args.out,
@@ -162,7 +162,7 @@ class OfflineImages:
 
 
 def _reconstruct(args: argparse.Namespace) -> OfflineImages:
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.io.npz import load_frames_npz
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, with_method
     from eit_skin.resources import config_path

@@ -14,6 +14,8 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from eit_skin.sim.faults import fault_help
+
     parser.add_argument("--patch", default="arm", help="arm|face|elbow or a patch YAML path")
     parser.add_argument(
         "--scenario",
@@ -35,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KIND:INDEX[@LAYER]",
-        help="dead-electrode:N or saturated-channel:M (repeatable)",
+        help=f"a hardware fault, repeatable: {fault_help(' --fault ')}",
     )
     parser.add_argument("--no-drift", action="store_true", help="switch the baseline drift off")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR")
@@ -44,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eit_skin.patch.loading import load_patch
     from eit_skin.resources import config_path
-    from eit_skin.sim.simulator import NO_DRIFT, SkinSimulator
+    from eit_skin.sim.drift import NO_DRIFT
+    from eit_skin.sim.simulator import SkinSimulator
 
     try:
         if args.rate <= 0:

@@ -30,7 +30,7 @@ DEFAULT_VOLTS_PER_COUNT = 3.3 / 4096 / 1000
 
 def npz_frame_source(path: str | Path) -> tuple[FrameSource, int]:
     """Loop the ``frames`` [T, M] volts of an offline npz file; returns (source, M)."""
-    from eit_skin.io.recording import load_frames_npz
+    from eit_skin.io.npz import load_frames_npz
 
     _, frames, _ = load_frames_npz(path)
     return (lambda i: frames[i % frames.shape[0]]), int(frames.shape[1])

@@ -1,6 +1,6 @@
 """Where raw frames come from: a serial board, the physics simulator, or a recording.
 
-Every source turns its input into :class:`~eit_skin.io.recording.FrameRecord` objects (the
+Every source turns its input into :class:`~eit_skin.frames.FrameRecord` objects (the
 ROS-free fields of an ``EitFrame``) stamped with the acquisition time in host nanoseconds,
 and keeps counters for diagnostics. The driver node only publishes what they return.
 """
@@ -19,8 +19,8 @@ import numpy as np
 from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
-from eit_skin.hardware.wire import PatternId
-from eit_skin.io.recording import read_mcap_frames
+from eit_skin.hardware.wire import DeviceFrame, PatternId
+from eit_skin.io.mcap import McapDamage, read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
 from eit_skin.ros.topics import frames_topic
@@ -45,6 +45,23 @@ _PATTERN_IDS = {
 def pattern_id(layer: Layer) -> PatternId:
     """The wire protocol's pattern id of a layer's drive pattern."""
     return _PATTERN_IDS[layer.protocol.drive]
+
+
+def drive_offset(pattern: PatternId, param: int, n_electrodes: int) -> int | None:
+    """Electrodes from source to sink of a drive pattern (``None``: explicit pairs).
+
+    Adjacent is 1, opposite ``n // 2``, skip-k ``k + 1``: two patterns with the same offset
+    drive the same pairs (skip-0 is adjacent).
+    """
+    if pattern is PatternId.EXPLICIT:
+        return None
+    return {PatternId.ADJACENT: 1, PatternId.OPPOSITE: n_electrodes // 2}.get(pattern, param + 1)
+
+
+REJECT_REASONS = ("values", "electrodes", "pattern", "current")
+"""Why a serial frame is not published (checked in this order, the first one counts):
+value count != the layer's M, electrode count != the layer's, a drive pattern other than the
+layer's, current <= 0."""
 
 
 class RateMeter:
@@ -101,10 +118,39 @@ class LayerFrameFactory:
         self.frame_id = frame_id
         self.protocol: Protocol = build_protocol(layer.protocol, layer.n_electrodes)
         self.pattern = pattern_name(layer)
+        self.drive_offset = drive_offset(
+            pattern_id(layer), layer.protocol.drive_skip, layer.n_electrodes
+        )
 
     @property
     def n_measurements(self) -> int:
         return self.protocol.n_measurements
+
+    def reject(self, frame: DeviceFrame) -> tuple[str, str] | None:
+        """Why ``frame`` does not belong to this layer: (a REJECT_REASONS entry, one line).
+
+        ``None`` for a frame to publish. The wire protocol carries the drive pattern so the
+        host can check it (docs/wire-protocol.md); the measurement order is the layer's.
+        """
+        layer, n = self.layer, self.layer.n_electrodes
+        where = f"frame {frame.sequence}"
+        if frame.n_values != self.n_measurements:
+            return "values", (
+                f"{where}: {frame.n_values} values, layer {layer.name!r} expects "
+                f"{self.n_measurements}"
+            )
+        if frame.n_electrodes != n:
+            return "electrodes", (
+                f"{where}: {frame.n_electrodes} electrodes, layer {layer.name!r} has {n}"
+            )
+        if drive_offset(frame.pattern_id, frame.pattern_param, n) != self.drive_offset:
+            return "pattern", (
+                f"{where}: drive pattern {frame.pattern_id.name.lower()} (param "
+                f"{frame.pattern_param}), layer {layer.name!r} drives {self.pattern}"
+            )
+        if not frame.current_a > 0.0:
+            return "current", f"{where}: current {frame.current_a:g} A, must be > 0"
+        return None
 
     def record(
         self,
@@ -132,8 +178,9 @@ class SerialSource:
     """One board on a serial port, serving one layer.
 
     Frames are delivered from the link's reader thread to ``sink`` as soon as their last
-    byte is parsed (lowest latency); frames whose value count or electrode count does not
-    match the layer are counted and dropped, never published.
+    byte is parsed (lowest latency); frames that do not belong to the layer (value count,
+    electrode count, drive pattern, or a current <= 0: :meth:`LayerFrameFactory.reject`) are
+    counted per reason and dropped, never published.
     """
 
     def __init__(
@@ -151,9 +198,9 @@ class SerialSource:
         self.link = SerialLink(port, baud, backoff_initial_s=0.05, backoff_max_s=backoff_max_s)
         self.rate = RateMeter()
         self.published = 0
-        self.mismatched = 0
-        self.last_mismatch = ""
-        self._reported = (0, 0)  # (published, mismatched) at the last status()
+        self.rejected = dict.fromkeys(REJECT_REASONS, 0)
+        self.last_rejection = ""
+        self._reported = (0, 0)  # (published, rejected) at the last status()
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -163,23 +210,15 @@ class SerialSource:
         self.link.stop()
 
     def _on_frames(self, received: list[ReceivedFrame]) -> None:
-        expected_m = self.factory.n_measurements
         good = []
         for item in received:
-            frame = item.frame
-            if (
-                frame.n_values != expected_m
-                or frame.n_electrodes != self.factory.layer.n_electrodes
-            ):
-                with self._lock:
-                    self.mismatched += 1
-                    self.last_mismatch = (
-                        f"frame {frame.sequence}: {frame.n_values} values / "
-                        f"{frame.n_electrodes} electrodes, layer {self.factory.layer.name!r} "
-                        f"expects {expected_m} / {self.factory.layer.n_electrodes}"
-                    )
+            rejection = self.factory.reject(item.frame)
+            if rejection is None:
+                good.append(item)
                 continue
-            good.append(item)
+            with self._lock:
+                self.rejected[rejection[0]] += 1
+                self.last_rejection = rejection[1]
         stamps = self.clock.update_batch(
             [item.frame.device_time_us for item in good], [item.host_time_ns for item in good]
         )
@@ -197,16 +236,18 @@ class SerialSource:
         link = self.link.status()
         with self._lock:
             rate = self.rate.rate_hz()
+            rejected = sum(self.rejected.values())
             new_frames = self.published - self._reported[0]
-            new_mismatches = self.mismatched - self._reported[1]
-            self._reported = (self.published, self.mismatched)
+            new_rejections = rejected - self._reported[1]
+            self._reported = (self.published, rejected)
             values = {
                 "source": "serial",
                 "port": link.port,
                 "state": link.state.value,
                 "frame_rate_hz": f"{rate:.1f}",
                 "frames_published": str(self.published),
-                "frames_mismatched": str(self.mismatched),
+                "frames_rejected": str(rejected),
+                **{f"rejected_{reason}": str(n) for reason, n in self.rejected.items()},
                 "crc_errors": str(link.parser.crc_errors),
                 "truncated": str(link.parser.truncated),
                 "resyncs": str(link.parser.resyncs),
@@ -216,13 +257,13 @@ class SerialSource:
                 "clock_drift_ppm": f"{self.clock.drift_ppm:.1f}",
                 "last_error": link.last_error,
             }
-            mismatch = self.last_mismatch
+            rejection = self.last_rejection
         if link.state is LinkState.DISCONNECTED:
             return SourceStatus(
                 2, f"device {link.port} not connected: {link.last_error or 'opening'}", values
             )
-        if new_mismatches and mismatch:
-            return SourceStatus(1, f"frames rejected: {mismatch}", values)
+        if new_rejections:
+            return SourceStatus(1, f"frames rejected: {rejection}", values)
         if not new_frames:
             return SourceStatus(1, f"connected to {link.port}, no frames since last report", values)
         return SourceStatus(0, f"{rate:.1f} frames/s from {link.port}", values)
@@ -291,7 +332,9 @@ class ReplaySource:
     """Frames of an MCAP recording, with their original spacing or as fast as possible.
 
     Only topics of the replayed patch's layers are used (``/<ns>/<layer>/frames`` or any
-    topic ending in ``/<layer>/frames``); the original header stamps are kept.
+    topic ending in ``/<layer>/frames``); the original header stamps are kept. An unfinished
+    recording (its recorder was killed) is replayed up to its last complete chunk and the
+    status then reports what was skipped.
     """
 
     def __init__(self, path: str | Path, layers: list[str], realtime: bool = True) -> None:
@@ -305,10 +348,14 @@ class ReplaySource:
         self.published = 0
         self.finished = False
         self.rate = RateMeter()
+        self.damage: McapDamage | None = None
         self._iter: Iterator[tuple[int, FrameRecord]] = self._records()
 
     def _records(self) -> Iterator[tuple[int, FrameRecord]]:
-        for topic, log_ns, record in read_mcap_frames(self.path):
+        def note(damage: McapDamage) -> None:
+            self.damage = damage
+
+        for topic, log_ns, record in read_mcap_frames(self.path, on_damage=note):
             if record.layer in self.layers and topic.endswith(frames_topic(record.layer, "/")):
                 yield log_ns, record
 
@@ -339,6 +386,9 @@ class ReplaySource:
             "finished": str(self.finished).lower(),
             "frame_rate_hz": f"{self.rate.rate_hz():.1f}",
         }
+        if self.damage is not None:
+            values["skipped"] = "; ".join(self.damage.skipped)
+            return SourceStatus(1, f"replay of an unfinished recording: {self.damage}", values)
         if self.finished:
             return SourceStatus(0, f"replay of {self.path.name} finished", values)
         return SourceStatus(0, f"replaying {self.path.name}", values)

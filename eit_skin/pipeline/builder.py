@@ -34,7 +34,7 @@ from eit_skin.inverse.methods import (
     build_method,
 )
 from eit_skin.inverse.one_step import ReconstructionMatrix
-from eit_skin.io.recording import write_npz_atomic
+from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
 

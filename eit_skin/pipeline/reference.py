@@ -77,7 +77,7 @@ class PostureReferences:
 
     def save(self, path: str | Path, layer: str) -> None:
         """Write ``<layer>/angles_rad``, ``<layer>/references_v`` and the joint into an npz."""
-        from eit_skin.io.recording import write_npz_atomic
+        from eit_skin.io.npz import write_npz_atomic
 
         path = Path(path)
         arrays = {}

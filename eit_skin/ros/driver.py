@@ -18,7 +18,6 @@ Sources, chosen by parameters:
 from __future__ import annotations
 
 import sys
-import threading
 
 import rclpy
 import rclpy.time
@@ -35,7 +34,7 @@ from eit_skin.hardware.sources import (
     SimulatedSource,
     SourceStatus,
 )
-from eit_skin.io.recording import McapFrameWriter
+from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
@@ -45,6 +44,7 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.topics import patch_topics
+from eit_skin.sim.faults import fault_help, parse_faults
 
 _PARAMETERS: ParameterTable = [
     ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
@@ -61,7 +61,7 @@ _PARAMETERS: ParameterTable = [
     ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
     ("seed", 0, "simulator random seed"),
     ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
-    ("faults", "", "simulator faults, comma separated, e.g. dead-electrode:5,saturated:17"),
+    ("faults", "", f"simulator faults, comma separated {fault_help(',')}"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
 
@@ -95,8 +95,8 @@ class DriverNode(Node):
         #: recordings hold absolute topic names (the node's namespace resolved)
         self.record_topics = patch_topics(self.patch, self.get_namespace())
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        # thread-safe, and flushed at least every 0.5 s: a killed driver leaves a readable file
         self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
-        self._record_lock = threading.Lock()
         self.hardware_id = port or ("replay" if replay else "simulator")
         self.waits_for = int(p["wait_for_subscribers"])
 
@@ -127,13 +127,12 @@ class DriverNode(Node):
     def _simulated_source(self, p: dict) -> SimulatedSource:
         from eit_skin.sim.simulator import SkinSimulator
 
-        faults = [f.strip() for f in str(p["faults"]).split(",") if f.strip()]
         simulator = SkinSimulator(
             self.patch,
             str(p["scenario"]) or "demo",
             rate_hz=float(p["rate_hz"]),
             seed=int(p["seed"]),
-            faults=faults,
+            faults=parse_faults(str(p["faults"])),
         )
         return SimulatedSource(self.factories, simulator, simulator.n_frames, bool(p["loop"]))
 
@@ -165,15 +164,15 @@ class DriverNode(Node):
         """Publish one frame (callable from the serial reader thread)."""
         self.frame_publishers[record.layer].publish(record.to_msg())
         if self.recorder is not None:
-            with self._record_lock:
-                self.recorder.write(
-                    self.record_topics.layers[record.layer].frames, record, self._now_ns()
-                )
+            self.recorder.write(
+                self.record_topics.layers[record.layer].frames, record, self._now_ns()
+            )
 
     def _publish_diagnostics(self) -> None:
         status: SourceStatus = self.source.status()
         if status.level > 0:
-            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+            log = self.get_logger().error if status.level > 1 else self.get_logger().warning
+            log(status.message, throttle_duration_sec=10.0)
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
@@ -191,8 +190,7 @@ class DriverNode(Node):
         if isinstance(self.source, SerialSource):
             self.source.stop()
         if self.recorder is not None:
-            with self._record_lock:
-                self.recorder.close()
+            self.recorder.close()
         super().destroy_node()
 
 

@@ -1,7 +1,9 @@
 """The physics simulator: scripted touches -> forward model -> board ADC -> frames.
 
 Modules: ``stimuli`` (touch primitives), ``scenario`` (touch scripts: built-in, random, YAML),
-``adc`` (the board's gain, 12-bit ADC and averaging), ``simulator`` (:class:`SkinSimulator`).
+``adc`` (the board's gain, 12-bit ADC and averaging), ``faults`` (hardware faults), ``drift``
+(background drift), ``recording`` (simulated frames and recordings), ``simulator``
+(:class:`SkinSimulator`).
 """
 
 from __future__ import annotations
@@ -15,24 +17,38 @@ from eit_skin import lazy_exports
 _EXPORTS: dict[str, str] = {
     "AdcConfig": "adc",
     "AdcModel": "adc",
+    "DriftModel": "drift",
+    "FAULT_KINDS": "faults",
+    "Fault": "faults",
     "Grab": "stimuli",
+    "LayerRecording": "recording",
+    "NO_DRIFT": "drift",
     "Pinch": "stimuli",
     "Push": "stimuli",
     "Rub": "stimuli",
     "Scenario": "scenario",
+    "SimFrame": "recording",
+    "SimulatedRecording": "recording",
     "SkinSimulator": "simulator",
     "load_scenario": "scenario",
     "resolve_scenario": "scenario",
 }
 
 __all__ = [
+    "FAULT_KINDS",
+    "NO_DRIFT",
     "AdcConfig",
     "AdcModel",
+    "DriftModel",
+    "Fault",
     "Grab",
+    "LayerRecording",
     "Pinch",
     "Push",
     "Rub",
     "Scenario",
+    "SimFrame",
+    "SimulatedRecording",
     "SkinSimulator",
     "load_scenario",
     "resolve_scenario",
@@ -40,6 +56,9 @@ __all__ = [
 
 if TYPE_CHECKING:
     from eit_skin.sim.adc import AdcConfig, AdcModel
+    from eit_skin.sim.drift import NO_DRIFT, DriftModel
+    from eit_skin.sim.faults import FAULT_KINDS, Fault
+    from eit_skin.sim.recording import LayerRecording, SimFrame, SimulatedRecording
     from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
     from eit_skin.sim.simulator import SkinSimulator
     from eit_skin.sim.stimuli import Grab, Pinch, Push, Rub

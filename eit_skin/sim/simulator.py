@@ -25,11 +25,8 @@ from __future__ import annotations
 
 import hashlib
 import itertools
-import json
 import math
 from collections import OrderedDict
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,149 +39,10 @@ from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol
 from eit_skin.pipeline.builder import forward_model
 from eit_skin.sim.adc import AdcConfig, AdcModel
+from eit_skin.sim.drift import DriftModel
+from eit_skin.sim.faults import Fault, apply_faults
+from eit_skin.sim.recording import LayerRecording, SimFrame, SimulatedRecording
 from eit_skin.sim.scenario import Scenario, TouchTruth, resolve_scenario
-
-FAULT_KINDS = ("dead-electrode", "saturated-channel")
-FLOATING_NOISE_FRACTION = 0.3
-"""A floating (disconnected) measurement input reads noise of this fraction of full scale."""
-
-
-@dataclass(frozen=True)
-class SimFrame:
-    """One simulated drive cycle of one layer.
-
-    Attributes:
-        voltages_v: ``[M]`` float64 reported voltages, V, protocol order.
-        flags: ``[M]`` uint8 ``FLAG_*`` bits (1 = saturated).
-        t_s: acquisition time from the start of the scenario, s.
-    """
-
-    voltages_v: np.ndarray
-    flags: np.ndarray
-    t_s: float
-
-
-@dataclass(frozen=True)
-class Fault:
-    """A hardware fault.
-
-    Attributes:
-        kind: ``"dead-electrode"`` (disconnected: drive pairs with it hit the rail, measurements
-            with it read noise) or ``"saturated-channel"`` (measurement stuck at the rail).
-        index: electrode (dead-electrode) or measurement index (saturated-channel).
-        layer: layer name, or ``None`` for every layer.
-    """
-
-    kind: str
-    index: int
-    layer: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS:
-            raise ValueError(f"fault: unknown kind {self.kind!r}; expected one of {FAULT_KINDS}")
-        if self.index < 0:
-            raise ValueError(f"fault: index must be >= 0, got {self.index}")
-
-    @classmethod
-    def parse(cls, text: str) -> Fault:
-        """``"dead-electrode:5"``, ``"saturated-channel:17@stretch"``."""
-        spec, _, layer = text.partition("@")
-        kind, sep, index = spec.partition(":")
-        if not sep or not index.strip().isdigit():
-            raise ValueError(
-                f"fault {text!r}: expected KIND:INDEX[@LAYER] with KIND one of {FAULT_KINDS}"
-            )
-        return cls(kind.strip(), int(index), layer.strip() or None)
-
-
-@dataclass(frozen=True)
-class DriftModel:
-    """Slow, smooth drift of the background conductance (temperature).
-
-    ``d(t) = rate_per_min * t / 60 + wobble * sin(2 pi t / period_s + phase)``; sigma0 becomes
-    ``sigma0 (1 + d)``, applied as the voltage gain ``1 / (1 + d)`` (exact for the sheet,
-    ignoring the contact impedance's share of the voltages).
-    """
-
-    rate_per_min: float = 0.003
-    wobble: float = 0.0005
-    period_s: float = 120.0
-    phase: float = 0.0
-
-    @classmethod
-    def random(cls, seed: int) -> DriftModel:
-        """Rate 0.1-0.5 %/min of random sign, 0.05 % wobble of random phase (seeded)."""
-        rng = np.random.default_rng([int(seed), 0xD21F7])
-        rate = float(rng.uniform(0.001, 0.005)) * (1 if rng.random() < 0.5 else -1)
-        return cls(rate, 0.0005, 120.0, float(rng.uniform(0, 2 * math.pi)))
-
-    def offset(self, t: float) -> float:
-        """Relative change of sigma0 at ``t`` s."""
-        wobble = self.wobble * (math.sin(2 * math.pi * t / self.period_s + self.phase))
-        return self.rate_per_min * t / 60.0 + wobble - self.wobble * math.sin(self.phase)
-
-
-NO_DRIFT = DriftModel(0.0, 0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class LayerRecording:
-    """All frames of one layer.
-
-    Attributes:
-        frames: ``[T, M]`` float64 V.
-        flags: ``[T, M]`` uint8.
-        reference: ``[M]`` V, mean of the frames before the first touch (or posture change), or
-            the noise-free quantised no-load frame when there is none (``reference_kind``).
-        reference_kind: ``"pre-touch mean of N frames"`` or ``"noise-free"``.
-        noise_free_reference: ``[M]`` V, exact no-load forward voltages.
-    """
-
-    frames: np.ndarray
-    flags: np.ndarray
-    reference: np.ndarray
-    reference_kind: str
-    noise_free_reference: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class SimulatedRecording:
-    """Frames of every layer plus the ground truth."""
-
-    t: np.ndarray
-    layers: dict[str, LayerRecording]
-    truth: tuple[TouchTruth, ...]
-    posture: tuple[tuple[float, float], ...]
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def save(self, out_dir: str | Path) -> list[Path]:
-        """Write ``<layer>.npz`` (reference, frames, t, flags) and ``truth.json``; returns paths."""
-        from eit_skin.io.recording import save_frames_npz
-
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        written = []
-        for name, rec in self.layers.items():
-            path = out / f"{name}.npz"
-            save_frames_npz(path, rec.reference, rec.frames, self.t)
-            written.append(path)
-        doc = {
-            **self.meta,
-            "n_frames": len(self.t),
-            "layers": {
-                name: {**self.meta.get("layers", {}).get(name, {}), "reference": rec.reference_kind}
-                for name, rec in self.layers.items()
-            },
-            "saturated_values": {
-                name: int(rec.flags.astype(bool).sum()) for name, rec in self.layers.items()
-            },
-            "touches": [tr.to_dict() for tr in self.truth],
-            "posture": [list(p) for p in self.posture],
-        }
-        path = out / "truth.json"
-        path.write_text(json.dumps(doc, indent=1) + "\n")
-        written.append(path)
-        return written
 
 
 class _LayerSim:
@@ -303,15 +161,7 @@ class SkinSimulator:
                     f"fault {fault}: patch {patch.name!r} has no layer {fault.layer!r}"
                 )
             for name in self._layers_of(fault):
-                limit = (
-                    self._layers[name].protocol.n_electrodes
-                    if fault.kind == "dead-electrode"
-                    else self._layers[name].protocol.n_measurements
-                )
-                if fault.index >= limit:
-                    raise ValueError(
-                        f"fault {fault.kind}:{fault.index}: layer {name!r} has only {limit}"
-                    )
+                fault.check(self._layers[name].protocol, name)
         self._frames: OrderedDict[int, dict[str, SimFrame]] = OrderedDict()
 
     # ------------------------------------------------------------------ properties
@@ -407,26 +257,16 @@ class SkinSimulator:
 
     def _acquire(self, name: str, i: int, k: int, t: float, volts: np.ndarray) -> SimFrame:
         adc = self._adc[name]
-        protocol = self._layers[name].protocol
         faults = [f for f in self.faults if name in self._layers_of(f)]
-        volts = np.array(volts, dtype=np.float64)
-        rails = np.zeros(volts.shape, dtype=bool)
+        rails = None
         if faults:
             fault_rng = np.random.default_rng([self.seed, i, k, 1])
-            floating = np.zeros(volts.shape, dtype=bool)
-            inj = protocol.injections[protocol.measurements[:, 0]]
-            for f in faults:
-                if f.kind == "dead-electrode":
-                    driven = (inj == f.index).any(axis=1)
-                    rails |= driven
-                    floating |= protocol.touching([f.index]) & ~driven
-                else:
-                    rails[f.index] = True
-            noise = fault_rng.standard_normal(volts.shape)
-            volts[floating] = FLOATING_NOISE_FRACTION * adc.full_scale_v * noise[floating]
+            protocol = self._layers[name].protocol
+            volts, rails = apply_faults(volts, protocol, faults, adc.full_scale_v, fault_rng)
         values, flags = adc.convert(volts, np.random.default_rng([self.seed, i, k]))
-        values[rails] = adc.rail_v(positive=True)
-        flags[rails] |= FLAG_SATURATED
+        if rails is not None:
+            values[rails] = adc.rail_v(positive=True)
+            flags[rails] |= FLAG_SATURATED
         return SimFrame(values, flags, t)
 
     def run(self, n_frames: int | None = None, duration_s: float | None = None):
@@ -507,8 +347,6 @@ class SkinSimulator:
             "seed": self.seed,
             "duration_s": self.scenario.duration_s,
             "drift_per_min": self.drift.rate_per_min,
-            "faults": [
-                f"{f.kind}:{f.index}" + (f"@{f.layer}" if f.layer else "") for f in self.faults
-            ],
+            "faults": [str(f) for f in self.faults],
             "layers": layers,
         }

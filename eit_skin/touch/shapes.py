@@ -27,7 +27,7 @@ from scipy import ndimage
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.inverse.one_step import ReconstructionMatrix
-from eit_skin.io.recording import write_npz_atomic
+from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir
 

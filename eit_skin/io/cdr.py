@@ -1,0 +1,163 @@
+"""``eit_skin_msgs/msg/EitFrame`` as ROS 2 serialises it: CDR bytes and the message definition.
+
+The codec is plain XCDR1 little endian (what rmw_fastrtps writes and rosbag2 stores), done with
+numpy so recordings can be read and written without rclpy. ``eit_frame_msgdef`` is the
+rosbag2-style concatenated ``.msg`` definition that MCAP files carry as the schema.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eit_skin.frames import FrameRecord
+
+EIT_FRAME_SCHEMA = "eit_skin_msgs/msg/EitFrame"
+_SEPARATOR = "=" * 80
+
+_FALLBACK_DEFINITIONS = {
+    "std_msgs/Header": (
+        "# Standard metadata for higher-level stamped data types.\n"
+        "# This is generally used to communicate timestamped data\n"
+        "# in a particular coordinate frame.\n\n"
+        "# Two-integer timestamp that is expressed as seconds and nanoseconds.\n"
+        "builtin_interfaces/Time stamp\n\n"
+        "# Transform frame with which this data is associated.\n"
+        "string frame_id\n"
+    ),
+    "builtin_interfaces/Time": (
+        "# This message communicates ROS Time defined here:\n"
+        "# https://design.ros2.org/articles/clock_and_time.html\n\n"
+        "# The seconds component, valid over all int32 values.\n"
+        "int32 sec\n\n"
+        "# The nanoseconds component, valid in the range [0, 1e9).\n"
+        "uint32 nanosec\n"
+    ),
+}
+
+
+def _find_msg_file(type_name: str) -> Path | None:
+    """``pkg/Name`` -> its .msg file in this repository or an installed share directory."""
+    package, name = type_name.split("/")
+    candidates = []
+    if package == "eit_skin_msgs":
+        candidates.append(Path(__file__).resolve().parents[2] / "msg" / f"{name}.msg")
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    candidates += [Path(p) / "share" / package / "msg" / f"{name}.msg" for p in prefixes]
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def eit_frame_msgdef() -> str:
+    """The EitFrame definition followed by its dependencies, as rosbag2 stores it in MCAP."""
+    parts = []
+    for type_name in (EIT_FRAME_SCHEMA.replace("/msg/", "/"), *_FALLBACK_DEFINITIONS):
+        path = _find_msg_file(type_name)
+        if path is not None:
+            text = path.read_text()
+        elif type_name in _FALLBACK_DEFINITIONS:
+            text = _FALLBACK_DEFINITIONS[type_name]
+        else:
+            raise FileNotFoundError(f"{type_name}.msg not found in the repository or share dirs")
+        parts.append(text if not parts else f"{_SEPARATOR}\nMSG: {type_name}\n{text}")
+    return "\n".join(p.rstrip("\n") for p in parts) + "\n"
+
+
+_CDR_HEADER = b"\x00\x01\x00\x00"
+
+
+class _CdrWriter:
+    def __init__(self) -> None:
+        self.buf = bytearray()
+
+    def align(self, n: int) -> None:
+        self.buf += b"\x00" * (-len(self.buf) % n)
+
+    def pack(self, fmt: str, value: Any) -> None:
+        size = struct.calcsize(fmt)
+        self.align(size)
+        self.buf += struct.pack("<" + fmt, value)
+
+    def string(self, text: str) -> None:
+        data = text.encode()
+        self.pack("I", len(data) + 1)
+        self.buf += data + b"\x00"
+
+    def array(self, values: np.ndarray) -> None:
+        self.pack("I", values.size)
+        self.align(values.dtype.itemsize)
+        self.buf += values.tobytes()
+
+
+class _CdrReader:
+    def __init__(self, data: bytes) -> None:
+        if data[:2] != b"\x00\x01":
+            raise ValueError(f"not little-endian plain CDR (encapsulation {data[:4].hex()})")
+        self.data = memoryview(data)[4:]
+        self.pos = 0
+
+    def align(self, n: int) -> None:
+        self.pos += -self.pos % n
+
+    def unpack(self, fmt: str) -> Any:
+        size = struct.calcsize(fmt)
+        self.align(size)
+        (value,) = struct.unpack_from("<" + fmt, self.data, self.pos)
+        self.pos += size
+        return value
+
+    def string(self) -> str:
+        n = self.unpack("I")
+        text = bytes(self.data[self.pos : self.pos + n]).rstrip(b"\x00").decode()
+        self.pos += n
+        return text
+
+    def array(self, dtype: str) -> np.ndarray:
+        n = self.unpack("I")
+        dt = np.dtype(dtype)
+        self.align(dt.itemsize)
+        values = np.frombuffer(self.data, dt, n, self.pos).copy()
+        self.pos += n * dt.itemsize
+        return values
+
+
+def encode_eit_frame_cdr(record: FrameRecord) -> bytes:
+    """Serialise an EitFrame to CDR bytes (with the 4-byte encapsulation header)."""
+    w = _CdrWriter()
+    sec, nanosec = divmod(record.stamp_ns, 1_000_000_000)
+    w.pack("i", sec)
+    w.pack("I", nanosec)
+    w.string(record.frame_id)
+    w.string(record.patch)
+    w.string(record.layer)
+    w.pack("H", record.n_electrodes)
+    w.string(record.drive_pattern)
+    w.pack("d", record.current_a)
+    w.pack("I", record.sequence)
+    w.array(record.voltages.astype("<f4"))
+    w.array(record.channel_flags)
+    return _CDR_HEADER + bytes(w.buf)
+
+
+def decode_eit_frame_cdr(data: bytes) -> FrameRecord:
+    """Parse CDR bytes of an EitFrame (inverse of ``encode_eit_frame_cdr``)."""
+    r = _CdrReader(data)
+    sec = r.unpack("i")
+    nanosec = r.unpack("I")
+    return FrameRecord(
+        stamp_ns=sec * 1_000_000_000 + nanosec,
+        frame_id=r.string(),
+        patch=r.string(),
+        layer=r.string(),
+        n_electrodes=r.unpack("H"),
+        drive_pattern=r.string(),
+        current_a=r.unpack("d"),
+        sequence=r.unpack("I"),
+        voltages=r.array("<f4"),
+        channel_flags=r.array("u1"),
+    )

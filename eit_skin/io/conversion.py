@@ -1,0 +1,123 @@
+"""Conversion between MCAP recordings and the offline npz frames format (``eit-skin frames``)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from eit_skin.frames import FLAG_INVALID, FrameRecord, excluded_channels
+from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
+from eit_skin.io.npz import load_frames_npz, save_frames_npz
+
+
+def mcap_to_npz(
+    mcap_path: str | Path,
+    npz_path: str | Path,
+    topic: str | None = None,
+    reference_frames: int = 1,
+    on_damage: Callable[[McapDamage], None] | None = None,
+) -> int:
+    """Export one topic's frames to the npz format; returns T.
+
+    ``frames`` are the voltages (float32 -> float64, NaN where a flag keeps the channel out of
+    imaging: saturated or invalid, as the reconstruction pipeline treats it), ``t`` the header
+    stamps in seconds since the epoch, ``reference`` the NaN-ignoring mean of the first
+    ``reference_frames`` frames (a channel flagged in all of them - e.g. stuck at the rail -
+    gets the mean of its flagged values there: a finite placeholder, never imaged since the
+    channel is NaN in those frames). With ``topic=None`` the file must hold exactly one
+    EitFrame topic. An unfinished MCAP file (its recorder was killed) raises ValueError unless
+    ``on_damage`` is given: then its complete records are exported and ``on_damage`` receives
+    what was skipped (see :func:`~eit_skin.io.mcap.read_mcap_frames`).
+    """
+    damage: list[McapDamage] = []
+
+    def note(found: McapDamage) -> None:
+        damage.append(found)
+        if on_damage is not None:
+            on_damage(found)
+
+    head_size = max(1, reference_frames)
+    rows, raw_head, stamps, seen = [], [], [], set()
+    topics = [topic] if topic else None
+    messages = read_mcap_frames(mcap_path, topics, None if on_damage is None else note)
+    for name, _, record in messages:
+        seen.add(name)
+        if len(seen) > 1:
+            raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
+        volts = record.voltages.astype(np.float64)
+        if len(raw_head) < head_size:
+            raw_head.append(volts.copy())
+        if record.channel_flags.size:
+            volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
+        if rows and volts.size != rows[0].size:
+            raise ValueError(f"{mcap_path}: topic {name} changes M from {rows[0].size}")
+        rows.append(volts)
+        stamps.append(record.stamp_ns)
+    if not rows:
+        raise ValueError(
+            f"{mcap_path}: no EitFrame messages"
+            + (f" on {topic}" if topic else "")
+            + "".join(f" ({found})" for found in damage)
+        )
+    frames = np.stack(rows)
+    head = frames[:head_size]
+    reference = np.full(frames.shape[1], np.nan)
+    for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
+        missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
+        reference[missing] = np.nanmean(values[:, missing], axis=0)
+    if not np.isfinite(reference).all():
+        raise ValueError(
+            f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is invalid "
+            f"in all of the first {len(head)} frames, so there is no reference; raise "
+            "reference_frames"
+        )
+    save_frames_npz(npz_path, reference, frames, np.asarray(stamps, dtype=np.int64) / 1e9)
+    return len(rows)
+
+
+def npz_to_mcap(
+    npz_path: str | Path,
+    mcap_path: str | Path,
+    topic: str,
+    *,
+    patch: str,
+    layer: str,
+    n_electrodes: int,
+    drive_pattern: str = "adjacent",
+    current_a: float = 1e-3,
+    frame_id: str = "",
+    rate_hz: float = 50.0,
+    start_ns: int = 0,
+) -> int:
+    """Write an npz file's frames as EitFrame messages; returns T.
+
+    Stamps come from ``t`` (seconds since the epoch) or, without it, ``start_ns`` + i /
+    ``rate_hz``. NaN values are written as NaN with FLAG_INVALID. The reference is not stored
+    (MCAP holds raw frames only).
+    """
+    _, frames, t = load_frames_npz(npz_path)
+    if t is not None:
+        stamps = np.round(t * 1e9).astype(np.int64)
+    else:
+        stamps = start_ns + np.round(np.arange(frames.shape[0]) * (1e9 / rate_hz)).astype(np.int64)
+    flags = np.where(np.isnan(frames), FLAG_INVALID, 0).astype(np.uint8)
+    with McapFrameWriter(mcap_path) as writer:
+        for i in range(frames.shape[0]):
+            writer.write(
+                topic,
+                FrameRecord(
+                    stamp_ns=int(stamps[i]),
+                    frame_id=frame_id,
+                    patch=patch,
+                    layer=layer,
+                    n_electrodes=n_electrodes,
+                    drive_pattern=drive_pattern,
+                    current_a=current_a,
+                    sequence=i % 2**32,
+                    voltages=frames[i],
+                    channel_flags=flags[i],
+                ),
+            )
+    return int(frames.shape[0])
