@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from eit_skin.fem.disk import disk_mesh
+from eit_skin.inverse.build import build_method
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver
 from eit_skin.inverse.hyperparameter import noise_figure
-from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS, build_method
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.inverse.priors import make_prior
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup

@@ -1,12 +1,13 @@
 """Reconstruction: relative voltage changes -> relative conductivity change per element.
 
-Modules: ``methods`` (the list of methods, their :class:`Reconstructor` interface and
-:func:`build_method`), ``one_step`` (:class:`ReconstructionMatrix`, the precomputed
-difference-imaging matrix of methods one_step and greit), ``priors`` (Tikhonov, Laplace,
-NOSER), ``greit`` (training the GREIT-style matrix), ``gauss_newton`` (iterative regularised
-Gauss-Newton for large contrasts), ``dual_form`` (``lambda^2`` and ``(K + lambda^2 I)^-1``,
-shared), ``hyperparameter`` (noise figure, GCV), ``figures_of_merit`` (GREIT figures),
-``electrode_faults`` (detect faulty electrodes, image without them).
+Modules: ``methods`` (the list of methods, their defaults and their :class:`Reconstructor`
+interface), ``build`` (:func:`build_method`: set up a method by name), ``one_step``
+(:class:`ReconstructionMatrix`, the precomputed difference-imaging matrix of methods one_step
+and greit), ``priors`` (Tikhonov, Laplace, NOSER), ``greit`` (training the GREIT-style matrix),
+``gauss_newton`` (iterative regularised Gauss-Newton for large contrasts), ``dual_form``
+(``lambda^2`` and ``(K + lambda^2 I)^-1``, shared), ``hyperparameter`` (noise figure, GCV),
+``figures_of_merit`` (GREIT figures), ``electrode_faults`` (detect faulty electrodes, image
+without them).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ _EXPORTS: dict[str, str] = {
     "GaussNewtonSolver": "gauss_newton",
     "ReconstructionMatrix": "one_step",
     "Reconstructor": "methods",
-    "build_method": "methods",
+    "build_method": "build",
     "choose_by_noise_figure": "hyperparameter",
     "faulty_electrodes": "electrode_faults",
     "figures_of_merit": "figures_of_merit",
@@ -54,12 +55,13 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from eit_skin.inverse.build import build_method
     from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
     from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor, faulty_electrodes
     from eit_skin.inverse.figures_of_merit import figures_of_merit
     from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver
     from eit_skin.inverse.hyperparameter import choose_by_noise_figure, noise_figure
-    from eit_skin.inverse.methods import Reconstructor, build_method
+    from eit_skin.inverse.methods import Reconstructor
     from eit_skin.inverse.one_step import (
         ReconstructionMatrix,
         imaging_jacobian,

@@ -1,0 +1,156 @@
+"""The layout keeps its promises: no import cycles, no private names across modules, no dead
+code, benchmarks that import only the package, and every subpackage says what it holds.
+
+These read the source with ``ast`` (nothing is imported), so they are fast and exact.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "eit_skin"
+#: Modules that sit directly in eit_skin/ (everything else lives in a subpackage).
+TOP_LEVEL = {"__init__", "frames", "resources"}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def eit_imports(path: Path) -> list[tuple[str, str | None, int]]:
+    """``(module, imported name or None, line)`` of every eit_skin import outside TYPE_CHECKING."""
+    found: list[tuple[str, str | None, int]] = []
+
+    class Visitor(ast.NodeVisitor):
+        def visit_If(self, node: ast.If) -> None:
+            test = node.test
+            name = getattr(test, "id", None) or getattr(test, "attr", None)
+            if name == "TYPE_CHECKING":
+                for child in node.orelse:
+                    self.visit(child)
+                return
+            self.generic_visit(node)
+
+        def visit_ImportFrom(self, node: ast.ImportFrom) -> None:
+            if node.module and node.module.split(".")[0] == "eit_skin":
+                for alias in node.names:
+                    sub = f"{node.module}.{alias.name}"
+                    found.append((sub if sub in MODULES else node.module, alias.name, node.lineno))
+
+        def visit_Import(self, node: ast.Import) -> None:
+            for alias in node.names:
+                if alias.name.split(".")[0] == "eit_skin":
+                    found.append((alias.name, None, node.lineno))
+
+    Visitor().visit(ast.parse(path.read_text(), str(path)))
+    return found
+
+
+def test_no_import_cycles_between_modules():
+    graph = {
+        name: {target for target, _, _ in eit_imports(path) if target in MODULES and target != name}
+        for name, path in MODULES.items()
+    }
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    cycles: list[list[str]] = []
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = 1
+        for target in sorted(graph[node]):
+            if state.get(target) == 1:
+                cycles.append([*trail[trail.index(target) :], target])
+            elif target not in state:
+                visit(target, [*trail, target])
+        state[node] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [name])
+    assert not cycles, "import cycles (function-local imports count too):\n" + "\n".join(
+        " -> ".join(c) for c in cycles
+    )
+
+
+def python_files() -> list[Path]:
+    return [*PACKAGE.rglob("*.py"), *(ROOT / "test").glob("*.py"), *(ROOT / "bench").glob("*.py")]
+
+
+def test_no_private_name_is_imported_from_another_module():
+    offenders = [
+        f"{path.relative_to(ROOT)}:{line} imports {name} from {target}"
+        for path in python_files()
+        for target, name, line in eit_imports(path)
+        if name and name.startswith("_") and not name.startswith("__")
+    ]
+    assert not offenders, "\n".join(offenders)
+
+
+def test_benchmarks_import_only_the_package():
+    offenders = []
+    for path in sorted((ROOT / "bench").glob("*.py")):
+        text = path.read_text()
+        tree = ast.parse(text)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "test":
+                offenders.append(f"{path.name}:{node.lineno} imports {node.module}")
+            if isinstance(node, ast.Import) and any(
+                a.name.split(".")[0] == "test" for a in node.names
+            ):
+                offenders.append(f"{path.name}:{node.lineno} imports test")
+        if "sys.path" in text:
+            offenders.append(f"{path.name} changes sys.path")
+    assert not offenders, "\n".join(offenders)
+
+
+def top_level_names(path: Path) -> list[tuple[str, int]]:
+    names = []
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.append((node.name, node.lineno))
+        elif isinstance(node, ast.Assign):
+            names += [(t.id, node.lineno) for t in node.targets if isinstance(t, ast.Name)]
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.append((node.target.id, node.lineno))
+    return [(n, line) for n, line in names if not (n.startswith("__") and n.endswith("__"))]
+
+
+def test_no_dead_code():
+    """Every name defined at the top of a package module is used by some other Python code."""
+    sources = {p: p.read_text() for p in [*python_files(), *(ROOT / "launch").glob("*.py")]}
+    sources[ROOT / "setup.py"] = (ROOT / "setup.py").read_text()
+    unused = []
+    for path in MODULES.values():
+        for name, line in top_level_names(path):
+            pattern = re.compile(rf"\b{re.escape(name)}\b")
+            uses = sum(len(pattern.findall(text)) for text in sources.values()) - 1
+            if uses <= 0:
+                unused.append(f"{path.relative_to(ROOT)}:{line} {name}")
+    assert not unused, "defined but never used:\n" + "\n".join(unused)
+
+
+def test_modules_live_in_subpackages_that_describe_themselves():
+    stray = [p.name for p in PACKAGE.glob("*.py") if p.stem not in TOP_LEVEL]
+    assert not stray, f"modules outside a subpackage: {stray}"
+    for init in sorted(PACKAGE.glob("*/__init__.py")):
+        doc = ast.get_docstring(ast.parse(init.read_text()))
+        assert doc and len(doc) > 60, f"{init.relative_to(ROOT)} does not say what it holds"
+        modules = {p.stem for p in init.parent.glob("*.py")} - {"__init__"}
+        mentioned = set(re.findall(r"``(\w+)``", doc))
+        assert modules <= mentioned, f"{init.relative_to(ROOT)} does not name {modules - mentioned}"
+
+
+@pytest.mark.parametrize("init", sorted(PACKAGE.glob("*/__init__.py")), ids=lambda p: p.parent.name)
+def test_re_exported_names_resolve(init):
+    package = importlib.import_module(module_name(init))
+    for name in getattr(package, "__all__", []):
+        assert getattr(package, name) is not None, f"{package.__name__}.{name}"
