@@ -37,3 +37,17 @@ def test_greit_as_the_prior_of_gauss_newton_is_refused_naming_the_key(tmp_path):
 def test_unknown_method_is_refused_with_the_choices(tmp_path):
     with pytest.raises(PatchError, match=r"solver\.method.*one_step.*greit.*gauss_newton"):
         load_patch(arm_with_solver(tmp_path, "method: newton"))
+
+
+def test_a_solver_without_noise_figure_gets_its_method_default(tmp_path):
+    from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
+    from eit_skin.pipeline.builder import LayerImager
+
+    layer = load_patch(arm_with_solver(tmp_path, "method: greit")).layers[0]
+    assert layer.solver.noise_figure is None
+    imager = LayerImager.build(layer, cache_dir=None)
+    nf = DEFAULT_NOISE_FIGURE["greit"]
+    explicit = load_patch(arm_with_solver(tmp_path, f"method: greit, noise_figure: {nf}"))
+    assert imager.matrix.hyperparameter == pytest.approx(
+        LayerImager.build(explicit.layers[0], cache_dir=None).matrix.hyperparameter
+    )

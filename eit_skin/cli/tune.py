@@ -155,6 +155,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.inverse.figures_of_merit import figures_of_merit
     from eit_skin.inverse.greit import equivalent_radius, target_centres
     from eit_skin.inverse.hyperparameter import noise_figure as nf_of
+    from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
     from eit_skin.inverse.one_step import relative_difference
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, forward_model
@@ -162,7 +163,9 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     patch = load_patch(path)
     layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
     solver = layer.solver
-    target_nf = solver.noise_figure if noise_figure is None else float(noise_figure)
+    if noise_figure is None:
+        noise_figure = solver.noise_figure or DEFAULT_NOISE_FIGURE[solver.method]
+    target_nf = float(noise_figure)
     if not (np.isfinite(target_nf) and target_nf > 0):
         raise ValueError(f"--noise-figure must be > 0, got {noise_figure}")
     sigma0 = layer.material.sheet_conductance_s

@@ -250,7 +250,7 @@ def _solver_spec(r: Reader, data: Any, path: str) -> SolverSpec:
             d, "hyperparameter", path, default=None, positive=True, allow_none=True
         ),
         "noise_figure": r.number(
-            d, "noise_figure", path, default=defaults.noise_figure, positive=True
+            d, "noise_figure", path, default=None, positive=True, allow_none=True
         ),
         "max_iterations": r.integer(
             d, "max_iterations", path, default=defaults.max_iterations, minimum=1

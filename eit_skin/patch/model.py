@@ -114,7 +114,8 @@ class SolverSpec:
             ``prior``); :data:`eit_skin.inverse.methods.METHODS`.
         prior: regularisation ``"laplace"``, ``"tikhonov"`` or ``"noser"``.
         hyperparameter: regularisation weight, or ``None`` to choose it from ``noise_figure``.
-        noise_figure: target noise figure for the automatic hyperparameter (> 0).
+        noise_figure: target noise figure for the automatic hyperparameter (> 0), or ``None``
+            for the method's default (:data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`).
         max_iterations: Gauss-Newton iterations (>= 1).
         image_pixels: pixels along the long side of the ``H x W`` image grid (>= 8).
         reference_frames: frames averaged into the reference (no-touch) measurement (>= 1).
@@ -123,7 +124,7 @@ class SolverSpec:
     method: str = "one_step"
     prior: str = "laplace"
     hyperparameter: float | None = None
-    noise_figure: float = 1.0
+    noise_figure: float | None = None
     max_iterations: int = 5
     image_pixels: int = 64
     reference_frames: int = 20
@@ -137,7 +138,7 @@ class SolverSpec:
             raise ValueError(f"prior: unknown {self.prior!r}; expected one of {PRIOR_KINDS}")
         if self.hyperparameter is not None and not self.hyperparameter > 0:
             raise ValueError(f"hyperparameter: must be > 0 or null, got {self.hyperparameter}")
-        if not self.noise_figure > 0:
+        if self.noise_figure is not None and not self.noise_figure > 0:
             raise ValueError(f"noise_figure: must be > 0, got {self.noise_figure}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations: must be >= 1, got {self.max_iterations}")
