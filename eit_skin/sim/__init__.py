@@ -23,6 +23,7 @@ _EXPORTS: dict[str, str] = {
     "SkinSimulator": "simulator",
     "load_scenario": "scenario",
     "resolve_scenario": "scenario",
+    "simulate_press_session": "press_session",
 }
 
 __all__ = [
@@ -36,10 +37,12 @@ __all__ = [
     "SkinSimulator",
     "load_scenario",
     "resolve_scenario",
+    "simulate_press_session",
 ]
 
 if TYPE_CHECKING:
     from eit_skin.sim.adc import AdcConfig, AdcModel
+    from eit_skin.sim.press_session import simulate_press_session
     from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
     from eit_skin.sim.simulator import SkinSimulator
     from eit_skin.sim.stimuli import Grab, Pinch, Push, Rub
