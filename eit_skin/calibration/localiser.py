@@ -17,10 +17,12 @@ relative to the kernel's unit diagonal, and the pair with the least closed-form 
 error wins (grids :data:`LENGTH_SCALE_FACTORS` x :data:`RIDGE_GRID`). Nothing is tuned to one
 data set.
 
-Confidence of a located press = ``k*^T (K + lambda I)^-1 k*`` in [0, 1]: the share of the GP's
-prior variance explained by the training presses (1 - posterior variance / prior variance).
-Near 1 for a frame like the calibration presses, towards 0 for one unlike any of them (no
-press, several presses, an electrode fault, a sheet that changed).
+Confidence of a located press, in [0, 1]: the share of calibration presses whose nearest
+other calibration press (in pattern space) is at least as far as this frame's nearest
+calibration press. A new press like the calibration presses scores uniformly in [0, 1]
+(median ~0.5; 1 on a calibration press itself); a frame unlike any of them (no press, several
+presses, an electrode fault, a sheet that changed) scores near 0. Scale-free: it compares
+distances only with the calibration set's own spacing.
 """
 
 from __future__ import annotations
@@ -66,7 +68,7 @@ class KernelRidge:
         ridge: ridge relative to the unit kernel diagonal.
         weights: ``[N, K]`` dual weights.
         offset: ``[K]`` mean of the training targets (the prediction far from all data).
-        inverse: ``[N, N]`` ``(K + ridge I)^-1`` for the confidence.
+        spacing: ``[N]`` sorted distances of each training input to its nearest other one.
         loo_error: mean Euclidean leave-one-out error of the chosen pair, target units.
     """
 
@@ -75,7 +77,7 @@ class KernelRidge:
     ridge: float
     weights: np.ndarray
     offset: np.ndarray
-    inverse: np.ndarray
+    spacing: np.ndarray
     loo_error: float
 
     @classmethod
@@ -113,18 +115,17 @@ class KernelRidge:
                 if error < best[0]:
                     best = (error, gamma, ridge)
         error, gamma, ridge = best
-        inverse = np.linalg.inv(np.exp(-gamma * d2) + ridge * np.eye(len(x)))
-        return cls(x, gamma, ridge, inverse @ yc, offset, inverse, error)
-
-    def kernel(self, queries: np.ndarray) -> np.ndarray:
-        """``[T, N]`` kernel between ``queries`` [T, D] and the training inputs."""
-        return np.exp(-self.gamma * squared_distances(queries, self.inputs))
+        weights = np.linalg.solve(np.exp(-gamma * d2) + ridge * np.eye(len(x)), yc)
+        np.fill_diagonal(d2, np.inf)
+        spacing = np.sort(np.sqrt(d2.min(axis=1)))
+        return cls(x, gamma, ridge, weights, offset, spacing, error)
 
     def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``[T, K]`` prediction, ``[T]`` confidence in [0, 1]) for ``queries`` [T, D]."""
-        k = self.kernel(queries)
-        explained = np.einsum("tn,nm,tm->t", k, self.inverse, k)
-        return k @ self.weights + self.offset, np.clip(explained, 0.0, 1.0)
+        d2 = squared_distances(queries, self.inputs)
+        nearest = np.sqrt(d2.min(axis=1))
+        farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
+        return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         return {
@@ -133,7 +134,7 @@ class KernelRidge:
             f"{prefix}_ridge": np.float64(self.ridge),
             f"{prefix}_weights": self.weights,
             f"{prefix}_offset": self.offset,
-            f"{prefix}_inverse": self.inverse,
+            f"{prefix}_spacing": self.spacing,
             f"{prefix}_loo_error": np.float64(self.loo_error),
         }
 
@@ -145,7 +146,7 @@ class KernelRidge:
             float(arrays[f"{prefix}_ridge"]),
             arrays[f"{prefix}_weights"],
             arrays[f"{prefix}_offset"],
-            arrays[f"{prefix}_inverse"],
+            arrays[f"{prefix}_spacing"],
             float(arrays[f"{prefix}_loo_error"]),
         )
 

@@ -2,8 +2,9 @@
 
 Input ``--frames``: ``reference`` [M] + ``frames`` [T, M] (+ optional ``references`` [T, M],
 each frame's own unloaded baseline). Output ``--out`` (npz): ``xy`` [T, 2] m in the sheet
-frame, ``confidence`` [T] in [0, 1] (share of the GP prior variance explained by the
-calibration presses: low = unlike any calibration press), ``depth`` [T] m when calibrated.
+frame, ``confidence`` [T] in [0, 1] (share of calibration presses spaced at least as far
+from their neighbours as this frame is from the nearest one: near 0 = unlike any calibration
+press), ``depth`` [T] m when calibrated.
 """
 
 from __future__ import annotations
