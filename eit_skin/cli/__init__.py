@@ -5,5 +5,6 @@ heavy inside ``run``: ``patch`` (validate and draw a patch), ``simulate`` (frame
 from a touch scenario), ``reconstruct`` and ``classify`` (offline, through the node's per-frame
 pipeline), ``frames`` (MCAP <-> npz), ``fake_device`` (a board on a pseudo-terminal),
 ``calibrate_posture`` (references across a joint sweep), ``tune`` (choose the regularisation),
-``run`` (the whole skin end to end).
+``run`` (the whole skin end to end), ``presses`` (record or simulate a labelled press
+session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact positions).
 """

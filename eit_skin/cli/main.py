@@ -14,11 +14,14 @@ import sys
 # name -> (module under eit_skin.cli, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     # "name": ("module", "help"),  one line per command, kept alphabetical
+    "calibrate": ("calibrate", "Fit a press localiser from labelled presses; k-fold figures."),
     "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
+    "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),
     "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
+    "presses": ("presses", "Make a press session: robot probe CSV + frames, or simulated."),
     "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
     "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),
     "simulate": (

@@ -3,7 +3,7 @@
 Modules: ``stimuli`` (touch primitives), ``scenario`` (touch scripts: built-in, random, YAML),
 ``adc`` (the board's gain, 12-bit ADC and averaging), ``faults`` (hardware faults), ``drift``
 (background drift), ``recording`` (simulated frames and recordings), ``simulator``
-(:class:`SkinSimulator`).
+(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ _EXPORTS: dict[str, str] = {
     "SkinSimulator": "simulator",
     "load_scenario": "scenario",
     "resolve_scenario": "scenario",
+    "simulate_press_session": "press_session",
 }
 
 __all__ = [
@@ -52,12 +53,14 @@ __all__ = [
     "SkinSimulator",
     "load_scenario",
     "resolve_scenario",
+    "simulate_press_session",
 ]
 
 if TYPE_CHECKING:
     from eit_skin.sim.adc import AdcConfig, AdcModel
     from eit_skin.sim.drift import NO_DRIFT, DriftModel
     from eit_skin.sim.faults import FAULT_KINDS, Fault
+    from eit_skin.sim.press_session import simulate_press_session
     from eit_skin.sim.recording import LayerRecording, SimFrame, SimulatedRecording
     from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
     from eit_skin.sim.simulator import SkinSimulator

@@ -1,0 +1,46 @@
+"""Calibration of a real skin from labelled presses: a model-free, data-driven press localiser.
+
+Modules: ``session`` (press session files: frames of presses at known positions, pairing a
+robot's probe log with a recording), ``localiser`` (:class:`PressLocaliser`: fit, k-fold
+cross-validation, locate, calibration files).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from eit_skin import lazy_exports
+
+#: Public name -> the module of this subpackage that defines it (imported on first use,
+#: so importing one module never imports the whole subpackage).
+_EXPORTS: dict[str, str] = {
+    "CalibrationError": "localiser",
+    "PressLocaliser": "localiser",
+    "PressSession": "session",
+    "PressSessionError": "session",
+    "cross_validate": "localiser",
+    "load_press_session": "session",
+    "pair_probe_csv": "session",
+}
+
+__all__ = [
+    "CalibrationError",
+    "PressLocaliser",
+    "PressSession",
+    "PressSessionError",
+    "cross_validate",
+    "load_press_session",
+    "pair_probe_csv",
+]
+
+if TYPE_CHECKING:
+    from eit_skin.calibration.localiser import CalibrationError, PressLocaliser, cross_validate
+    from eit_skin.calibration.session import (
+        PressSession,
+        PressSessionError,
+        load_press_session,
+        pair_probe_csv,
+    )
+
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,73 @@
+"""``eit-skin calibrate``: fit a press localiser from a press session; print k-fold figures.
+
+The session (``--presses``, see ``eit_skin.calibration.session``) is checked against the layer
+(channel count, every press on the sheet); the k-fold cross-validation shows what to expect
+on new presses (median and 90th-percentile position error, per depth band when depths are
+given); then the model is fitted on all presses and written to ``--out`` (npz, no pickles).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import sys
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", required=True, help="patch name or YAML path")
+    parser.add_argument("--layer", default="", help="layer (default: the first)")
+    parser.add_argument("--presses", type=Path, required=True, help="press session npz")
+    parser.add_argument("--out", type=Path, required=True, help="calibration npz to write")
+    parser.add_argument("--folds", type=int, default=5, help="folds of the cross-validation")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the fold shuffle")
+
+
+def depth_bands(depth_m, n_bands: int = 3):
+    """Band edges, m: the distinct depths if there are few, else equal-count quantiles."""
+    import numpy as np
+
+    values = np.unique(depth_m)
+    if values.size <= n_bands:
+        return [(float(v), float(v)) for v in values]
+    edges = np.quantile(depth_m, np.linspace(0, 1, n_bands + 1))
+    return [(float(a), float(b)) for a, b in itertools.pairwise(edges)]
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from eit_skin.calibration.localiser import PressLocaliser, cross_validate
+    from eit_skin.calibration.session import load_press_session
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import PatchError
+    from eit_skin.resources import config_path
+
+    try:
+        patch = load_patch(config_path(args.patch))
+        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        session = load_press_session(args.presses)
+        session.check_layer(layer)
+        cv = cross_validate(session, layer, folds=args.folds, seed=args.seed)
+        model = PressLocaliser.fit(session, layer)
+        model.save(args.out)
+    except (PatchError, OSError, KeyError, ValueError) as error:
+        print(f"eit-skin calibrate: {error}", file=sys.stderr)
+        return 2
+    e = cv.xy_error * 1e3
+    print(
+        f"{session.n_presses} presses, {args.folds}-fold: position error median "
+        f"{np.median(e):.1f} mm, p90 {np.percentile(e, 90):.1f} mm"
+    )
+    if cv.depth_error is not None:
+        print(f"  depth error median {np.median(cv.depth_error) * 1e3:.2f} mm")
+        for lo, hi in depth_bands(session.depth):
+            rows = (session.depth >= lo) & (session.depth <= hi)
+            band = f"{lo * 1e3:.1f} mm" if lo == hi else f"{lo * 1e3:.1f}-{hi * 1e3:.1f} mm"
+            print(
+                f"  depth {band} ({int(rows.sum())} presses): position median "
+                f"{np.median(e[rows]):.1f} mm, p90 {np.percentile(e[rows], 90):.1f} mm; "
+                f"depth median {np.median(cv.depth_error[rows]) * 1e3:.2f} mm"
+            )
+    print(f"wrote {args.out} (layer {layer.name!r}, M = {model.n_measurements})")
+    return 0

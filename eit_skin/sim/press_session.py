@@ -1,0 +1,107 @@
+"""Simulated press sessions: a robot pressing a probe at random places of any patch.
+
+Press ``k`` is a :class:`~eit_skin.sim.stimuli.Push` from ``k + 0.2`` s to ``k + 0.8`` s
+(ramps 0.1 s); the simulator runs at 2 Hz, so frame ``2k`` (t = k s) is the unloaded sheet just
+before the press (its own baseline) and frame ``2k + 1`` (t = k + 0.5 s) the full press. Every
+frame goes through the simulator's physics, sigma0 drift and ADC noise.
+
+Positions are uniform over the sheet with the contact disc at least ``EDGE_MARGIN_M`` inside
+every outline and outside the layer's holes. Depths are uniform in ``depth_range_m``; the probe
+force follows Hertz's law ``F ~ depth^1.5``, scaled so the depth range spans ``force_range_n``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eit_skin.calibration.session import PressSession
+from eit_skin.patch.geometry import points_in_polygon
+from eit_skin.patch.model import Patch
+from eit_skin.sim.drift import NO_DRIFT
+from eit_skin.sim.scenario import EDGE_MARGIN_M, Scenario, SheetFrame
+from eit_skin.sim.simulator import SkinSimulator
+from eit_skin.sim.stimuli import Push
+
+PRESS_PERIOD_S = 1.0
+"""Time per press (baseline frame, then the press), s."""
+
+
+def random_press_positions(
+    patch: Patch, layer: str, n: int, radius_m: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """``[n, 2]`` uniform points whose disc of ``radius_m`` [n] fits the sheet, m."""
+    frame = SheetFrame.of(patch)
+    holes = patch.layer(layer).holes
+    out = np.empty((0, 2))
+    for _ in range(100):
+        candidates = frame.center + rng.uniform(-1.0, 1.0, size=(4 * n, 2)) * frame.half_extent
+        r = radius_m[len(out) : len(out) + len(candidates)]
+        r = np.pad(r, (0, len(candidates) - len(r)), constant_values=float(radius_m.max()))
+        ok = frame.clearance(candidates) >= r + EDGE_MARGIN_M
+        for hole in holes:
+            ok &= ~points_in_polygon(candidates, hole)
+        out = np.vstack([out, candidates[ok][: n - len(out)]])
+        if len(out) == n:
+            return out
+    raise ValueError(f"patch {patch.name!r} layer {layer!r}: no room for a press of the probe")
+
+
+def simulate_press_session(
+    patch: Patch,
+    n_presses: int,
+    layer: str | None = None,
+    seed: int = 0,
+    depth_range_m: tuple[float, float] = (0.002, 0.006),
+    force_range_n: tuple[float, float] = (2.0, 8.0),
+    radius_range_m: tuple[float, float] = (0.005, 0.0075),
+    drift: bool = True,
+) -> PressSession:
+    """A press session of ``n_presses`` random presses on ``layer`` (default: the first).
+
+    Args:
+        patch: the skin patch.
+        n_presses: presses.
+        layer: layer whose frames are recorded.
+        seed: seed of positions, depths, probe radii, noise and drift.
+        depth_range_m: press depths, m (uniform).
+        force_range_n: probe force at the shallowest and deepest press, N.
+        radius_range_m: probe contact radius, m (uniform per press).
+        drift: slow random sigma0 drift (temperature); per-press baselines follow it.
+
+    Returns:
+        The session with ``reference`` (unloaded, t = 0), ``frames``, ``press_xy``, ``depth``
+        and per-press ``references``.
+    """
+    name = layer or patch.layers[0].name
+    rng = np.random.default_rng([int(seed), 0x9E55])
+    depth = rng.uniform(*depth_range_m, size=n_presses)
+    d0, d1 = depth_range_m
+    f0, f1 = force_range_n
+    share = (depth**1.5 - d0**1.5) / max(d1**1.5 - d0**1.5, np.finfo(float).tiny)
+    force = f0 + (f1 - f0) * share
+    radius = rng.uniform(*radius_range_m, size=n_presses)
+    xy = random_press_positions(patch, name, n_presses, radius, rng)
+    touches = tuple(
+        Push(
+            k * PRESS_PERIOD_S + 0.2,
+            0.6,
+            (float(xy[k, 0]), float(xy[k, 1])),
+            float(force[k]),
+            float(radius[k]),
+            0.1,
+        )
+        for k in range(n_presses)
+    )
+    scenario = Scenario(f"presses-{seed}", touches, n_presses * PRESS_PERIOD_S)
+    sim = SkinSimulator(
+        patch,
+        scenario,
+        rate_hz=2.0 / PRESS_PERIOD_S,
+        seed=seed,
+        drift=None if drift else NO_DRIFT,
+    )
+    frames = np.array([sim.frame(2 * k + 1)[name].voltages_v for k in range(n_presses)])
+    baselines = np.array([sim.frame(2 * k)[name].voltages_v for k in range(n_presses)])
+    return PressSession(
+        baselines[0], frames, xy, depth, baselines, f"simulated:{patch.name}/{name}/seed={seed}"
+    )
