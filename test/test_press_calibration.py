@@ -12,6 +12,7 @@ from eit_skin.calibration.localiser import (
     PressLocaliser,
     cross_validate,
 )
+from eit_skin.calibration.online import OnlineLocaliser
 from eit_skin.calibration.session import (
     PressSession,
     PressSessionError,
@@ -21,6 +22,7 @@ from eit_skin.calibration.session import (
 from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.sim.press_session import simulate_press_session
+from test.patch_copies import shipped_patch_data, write_patch
 
 REPO = Path(__file__).resolve().parents[1]
 HYDROGEL = REPO / "data" / "real" / "hydrogel_ohmc16.npz"
@@ -93,6 +95,37 @@ def test_calibration_file_refusals(tmp_path, fitted):
         PressLocaliser.load(tmp_path / "frames.npz")
     with pytest.raises(CalibrationError, match=r"f.npz: key 'frames': 207 measurements"):
         fitted.check_frames(207, "f.npz")
+
+
+def test_online_localiser_binds_to_its_layer_and_ignores_missing_channels(
+    tmp_path, fitted, session, elbow
+):
+    """Refused for a patch without the layer or with another one of that name; a frame with
+    flagged / non-finite channels is still located (those channels count as unchanged)."""
+    arm = load_patch(REPO / "config" / "arm.yaml")
+    with pytest.raises(CalibrationError, match=r"src: key 'layer_hash'"):
+        OnlineLocaliser(fitted, arm, "src")
+    data = shipped_patch_data("elbow")
+    data["layers"][0]["name"] = "front"
+    with pytest.raises(CalibrationError, match=r"src: key 'layer_name'.*\['front'\]"):
+        OnlineLocaliser(fitted, load_patch(write_patch(tmp_path, data)), "src")
+    online = OnlineLocaliser(fitted, elbow, "src")
+    online.check_measurements(fitted.n_measurements)
+    with pytest.raises(CalibrationError, match=r"src: key 'n_measurements'"):
+        online.check_measurements(fitted.n_measurements - 1)
+    k = 110
+    whole = online.locate(session.frames[k], session.references[k])
+    np.testing.assert_allclose(
+        whole.xy_m, fitted.locate(session.frames[k], session.references[k]).xy[0]
+    )
+    assert np.linalg.norm(whole.xy_m - session.press_xy[k]) < 0.005
+    frame = session.frames[k].copy()
+    frame[3] = np.nan
+    excluded = np.zeros(frame.size, dtype=bool)
+    excluded[40:44] = True
+    holed = online.locate(frame, session.references[k], excluded)
+    assert np.isfinite(holed.xy_m).all() and np.isfinite(holed.depth_m)
+    assert 0.0 <= holed.confidence <= 1.0
 
 
 def session_arrays(session: PressSession) -> dict[str, np.ndarray]:

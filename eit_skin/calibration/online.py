@@ -1,0 +1,118 @@
+"""Calibrated contacts of a running skin: the press localiser applied frame by frame (no ROS).
+
+The reconstruction node holds one :class:`OnlineLocaliser` when its ``calibration`` parameter
+names a file of ``eit-skin calibrate``, and calls :meth:`OnlineLocaliser.contact` once per
+imaged frame of the calibrated layer. It reuses what the layer's
+:class:`~eit_skin.pipeline.processor.LayerProcessor` already decided:
+
+* **touch rule**: a contact only when the processor's contact decision says the frame is
+  touched (a change above ``contact_k`` times the element noise, the rule that freezes drift
+  tracking); an untouched frame has no calibrated contact;
+* **reference**: the processor's current reference (captured, re-zeroed, drift-tracked,
+  posture-compensated); drift tracking is frozen while touched, so it is the reference the
+  frame was imaged against;
+* **missing channels**: flagged channels of the frame, non-finite values and the channels of
+  electrodes the processor found faulty count as "no change" (the localiser has no notion of
+  a missing channel); a press the localiser cannot recognise then shows as a low confidence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from eit_skin.calibration.localiser import CalibrationError, PressLocaliser
+from eit_skin.frames import excluded_channels
+from eit_skin.patch.model import Patch
+from eit_skin.pipeline.processor import LayerImages, LayerProcessor
+
+
+@dataclass(frozen=True)
+class CalibratedContact:
+    """One calibrated press.
+
+    Attributes:
+        xy_m: ``[2]`` press centre in the patch frame, m.
+        depth_m: press depth, m; NaN when the calibration had no depths.
+        confidence: localiser confidence in [0, 1].
+    """
+
+    xy_m: np.ndarray
+    depth_m: float
+    confidence: float
+
+
+class OnlineLocaliser:
+    """A press calibration bound to one layer of a patch, located one frame at a time.
+
+    Args:
+        localiser: the fitted localiser.
+        patch: the patch the node runs; the localiser's layer must be in it, unchanged.
+        source: where the localiser came from (error messages).
+
+    Raises:
+        CalibrationError: no layer of that name, or its content hash differs.
+    """
+
+    def __init__(self, localiser: PressLocaliser, patch: Patch, source: str) -> None:
+        if localiser.layer_name not in patch.layer_names:
+            raise CalibrationError(
+                f"{source}: key 'layer_name': calibrated on layer {localiser.layer_name!r}, "
+                f"patch {patch.name!r} has layers {list(patch.layer_names)} (another patch?)"
+            )
+        localiser.check_layer(patch.layer(localiser.layer_name), source)
+        self.localiser = localiser
+        self.layer_name = localiser.layer_name
+        self.source = source
+
+    @classmethod
+    def load(cls, path: str | Path, patch: Patch) -> OnlineLocaliser:
+        """Read a calibration file made on a layer of ``patch`` (CalibrationError otherwise)."""
+        return cls(PressLocaliser.load(path), patch, str(path))
+
+    def check_measurements(self, m: int) -> None:
+        """Raise :class:`CalibrationError` unless the layer's frames have ``m`` channels."""
+        self.localiser.check_frames(m, self.source, "n_measurements")
+
+    def locate(
+        self, frame_v: np.ndarray, reference_v: np.ndarray, excluded: np.ndarray | None = None
+    ) -> CalibratedContact:
+        """The press of one frame ``[M]`` V against ``reference_v`` ``[M]`` V.
+
+        ``excluded`` (bool ``[M]``) and non-finite channels count as unchanged.
+        """
+        frame = np.asarray(frame_v, dtype=np.float64)
+        reference = np.asarray(reference_v, dtype=np.float64)
+        usable = np.isfinite(frame) & np.isfinite(reference) & (reference != 0)
+        if excluded is not None:
+            usable &= ~excluded
+        frame = np.where(usable, frame, 1.0)
+        reference = np.where(usable, reference, 1.0)
+        located = self.localiser.locate(frame[None, :], reference)
+        depth = np.nan if located.depth is None else float(located.depth[0])
+        return CalibratedContact(located.xy[0].copy(), depth, float(located.confidence[0]))
+
+    def contact(
+        self,
+        frame_v: np.ndarray,
+        flags: np.ndarray | None,
+        images: LayerImages,
+        processor: LayerProcessor,
+    ) -> CalibratedContact | None:
+        """The calibrated contact of a frame the processor just imaged, or None if untouched.
+
+        Args:
+            frame_v: ``[M]`` volts as received (flags not applied).
+            flags: optional uint8 ``[M]`` channel flags (empty / None: all OK).
+            images: what ``processor.step`` returned for this frame.
+            processor: the layer's processor (reference, faulty electrodes).
+        """
+        if not images.touching:
+            return None
+        m = processor.n_measurements
+        excluded = processor.imager.protocol.touching(processor.faulty_electrodes)
+        if flags is not None and np.size(flags):
+            excluded = excluded | excluded_channels(flags, m)
+        return self.locate(frame_v, processor.reference(), excluded)
