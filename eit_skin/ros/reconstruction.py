@@ -11,6 +11,10 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
   acquisition time, row i / column j at ``(x[j], y[i])`` of the layer's image grid;
 * ``Q/image_color``: the same as rgb8 with a fixed colour scale (parameters), for rviz;
 * ``skin_marker``: a coloured TRIANGLE_LIST of the mesh on the patch's 3-D surface;
+* ``calibrated_contacts`` (only with the ``calibration`` parameter): per imaged frame of the
+  calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
+  located by the press calibration when the processor calls the frame touched, else empty
+  (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
 * ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults.
 """
 
@@ -31,6 +35,7 @@ from std_msgs.msg import ColorRGBA
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
+from eit_skin.calibration.online import OnlineLocaliser
 from eit_skin.hardware.sources import RateMeter, pattern_name
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Layer
@@ -90,6 +95,12 @@ _PARAMETERS: ParameterTable = [
         "electrodes, s; 0: never",
     ),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
+    (
+        "calibration",
+        "",
+        "press calibration npz from `eit-skin calibrate` (its layer gets calibrated_contacts); "
+        "empty: off",
+    ),
 ]
 
 
@@ -124,6 +135,10 @@ class ReconstructionNode(Node):
         p = declare_read_only(self, _PARAMETERS)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)
+        # refused (CalibrationError, a ValueError) before any matrix is built
+        self.calibration = (
+            OnlineLocaliser.load(str(p["calibration"]), self.patch) if p["calibration"] else None
+        )
         cache = str(p["cache_dir"]) or default_cache_dir()
         joint = str(p["joint_name"])
         self.joint = joint
@@ -169,6 +184,17 @@ class ReconstructionNode(Node):
                 FRAME_QOS,
             )
         self.joint = joint
+        self.calibrated_pub = None
+        if self.calibration is not None:
+            name = self.calibration.layer_name
+            self.calibration.check_measurements(self.layers[name].imager.n_measurements)
+            self.calibrated_pub = self.create_publisher(
+                _contact_types()[1], topics.calibrated_contacts, 10
+            )
+            self.get_logger().info(
+                f"layer {name}: calibrated contacts on {topics.calibrated_contacts} "
+                f"from {self.calibration.source}"
+            )
         self.joint_history = JointAngleHistory()
         if joint:
             self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
@@ -234,6 +260,8 @@ class ReconstructionNode(Node):
             )
         if out is None:
             return
+        if self.calibrated_pub is not None and name == self.calibration.layer_name:
+            self._publish_calibrated(msg.header, frame, flags, out, processor)
         self._publish_images(state, msg.header, out.image)
         state.last_image = out.image
         state.imaged += 1
@@ -253,6 +281,20 @@ class ReconstructionNode(Node):
             colour.step = width * 3
             colour.data = state.scale.to_rgb(physical).tobytes()
             state.colour_pub.publish(colour)
+
+    def _publish_calibrated(self, header, frame, flags, out, processor: LayerProcessor) -> None:
+        """The frame's calibrated contact (none if untouched), before its images."""
+        Contact, ContactArray = _contact_types()
+        array = ContactArray(header=header, patch=self.patch.name)
+        contact = self.calibration.contact(frame, flags, out, processor)
+        if contact is not None:
+            item = Contact(layer=self.calibration.layer_name, area_m2=0.0, mean=float("nan"))
+            item.centroid.x, item.centroid.y = (float(v) for v in contact.xy_m)
+            item.peak = float(np.nanmax(out.image, initial=-np.inf))
+            item.depth_m = contact.depth_m
+            item.confidence = contact.confidence
+            array.contacts.append(item)
+        self.calibrated_pub.publish(array)
 
     # --------------------------------------------------------------- services
     def _on_rezero(self, request, response):
@@ -362,6 +404,12 @@ def _frame_type():
     from eit_skin_msgs.msg import EitFrame
 
     return EitFrame
+
+
+def _contact_types():
+    from eit_skin_msgs.msg import Contact, ContactArray
+
+    return Contact, ContactArray
 
 
 def main(args: list[str] | None = None) -> int:

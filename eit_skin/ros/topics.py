@@ -15,6 +15,7 @@ name                           type                        from
 ``<image>/image_color``        ``sensor_msgs/Image``       reconstruction, one per layer
 ``skin_marker``                ``visualization_msgs/Marker``  reconstruction
 ``eit_reconstruction/rezero``  ``std_srvs/Trigger``        reconstruction (service)
+``calibrated_contacts``        ``eit_skin_msgs/ContactArray``  reconstruction (``calibration`` set)
 ``touch_events``               ``eit_skin_msgs/TouchEvent``  classifier
 ``contacts``                   ``eit_skin_msgs/ContactArray``  classifier
 ``/diagnostics``               ``DiagnosticArray``         every node (absolute)
@@ -65,6 +66,8 @@ class PatchTopics:
         layers: layer name -> its topics, in the patch's layer order.
         skin_marker: rviz marker of the patch (``Marker``).
         rezero: the reconstruction's re-zero service (``std_srvs/Trigger``).
+        calibrated_contacts: press-calibrated contacts of every imaged frame of the
+            calibrated layer (``ContactArray``; docs/press-calibration.md).
         touch_events: classified touches (``TouchEvent``).
         contacts: contacts of every image (``ContactArray``).
         diagnostics: ``/diagnostics`` (absolute).
@@ -75,6 +78,7 @@ class PatchTopics:
     layers: dict[str, LayerTopics]
     skin_marker: str
     rezero: str
+    calibrated_contacts: str
     touch_events: str
     contacts: str
     diagnostics: str = DIAGNOSTICS
@@ -117,6 +121,7 @@ def patch_topics(patch: Patch, namespace: str = "") -> PatchTopics:
         layers=layers,
         skin_marker=f"{prefix}skin_marker",
         rezero=f"{prefix}{RECONSTRUCTION_NODE}/rezero",
+        calibrated_contacts=f"{prefix}calibrated_contacts",
         touch_events=f"{prefix}touch_events",
         contacts=f"{prefix}contacts",
     )
