@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from eit_skin_msgs.msg import ContactArray, TouchEvent
+from eit_skin_msgs.msg import Contact, ContactArray, TouchEvent
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
@@ -170,3 +170,68 @@ def test_bad_patch_refuses_to_start(tmp_path) -> None:
     )
     assert node.wait(30) == 2
     assert "refusing to start" in log.read_text()
+
+
+def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None:
+    """With calibrated_contacts for a frame, the event centroid is the calibrated press.
+
+    The calibrated press is put ~60 mm from the image blob, so the image centroid cannot
+    pass; a low-confidence calibrated press (not a single known press) is ignored.
+    """
+    case = elbow(tmp_path)
+    patch = load_patch(config_path(case.config))
+    topics = patch_topics(patch, "/elbow_calibrated_cls_test")
+    grid = layer_image_grid(patch.layer(case.pressure))
+    probe = Probe("calibrated_classifier_probe")
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    probe.subscribe(TouchEvent, topics.touch_events, reliable)
+    probe.subscribe(ContactArray, topics.contacts, 10)
+    pub = probe.node.create_publisher(
+        Image, topics.layers[case.pressure].image, qos_profile_sensor_data
+    )
+    calibrated_pub = probe.node.create_publisher(ContactArray, topics.calibrated_contacts, 10)
+    log = tmp_path / "classifier.log"
+    namespace = topics.namespace
+    node = start_node("eit_classifier", namespace, {"patch_config": case.config}, log)
+    calibrated_xy = (case.centre[0] - 0.02, case.centre[1] + 0.055)
+    try:
+        linked = probe.spin_until(
+            lambda: pub.get_subscription_count() and calibrated_pub.get_subscription_count(), 30
+        )
+        assert linked, log.read_text()
+        assert probe.spin_until(lambda: probe.node.count_publishers(topics.touch_events) > 0, 10)
+        rng = np.random.default_rng(0)
+        xx, yy = np.meshgrid(grid.x, grid.y)
+        cx, cy = case.centre
+        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
+            touch = 30 <= k < 80
+            image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
+            array = ContactArray(header=image.header, patch=patch.name)
+            if touch:  # the reconstruction publishes the calibrated press before the image
+                confidence = 0.01 if k == 55 else 0.5
+                item = Contact(layer=case.pressure, confidence=confidence, depth_m=0.004)
+                item.centroid.x, item.centroid.y = calibrated_xy
+                array.contacts.append(item)
+            calibrated_pub.publish(array)
+            probe.spin_for(0.005)
+            pub.publish(image)
+            probe.spin_for(0.015)
+        topic = topics.touch_events
+        probe.spin_until(
+            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), 10
+        )
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+    events = [m for _, m in probe.messages[topic] if m.state != TouchEvent.END]
+    assert events, log.read_text()
+    for e in events:
+        k = round((e.header.stamp.sec - 1000) * 50 + e.header.stamp.nanosec / 20e6)
+        xy = (e.centroid.x, e.centroid.y)
+        if 30 <= k < 80 and k != 55:
+            assert xy == pytest.approx(calibrated_xy, abs=1e-6), k
+        else:  # no calibrated press of that stamp, or one of too low confidence
+            assert xy == pytest.approx(case.centre, abs=grid.x[1] - grid.x[0]), k
+    segmented = [c for _, m in probe.messages[topics.contacts] for c in m.contacts]
+    assert segmented and all(np.isnan(c.confidence) and np.isnan(c.depth_m) for c in segmented)

@@ -28,6 +28,10 @@ from eit_skin.frames import excluded_channels
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.processor import LayerImages, LayerProcessor
 
+MIN_CONFIDENCE = 0.05
+"""Below this localiser confidence a contact is not a calibrated single press
+(docs/press-calibration.md); the classifier then keeps its own centroid."""
+
 
 @dataclass(frozen=True)
 class CalibratedContact:

@@ -12,6 +12,11 @@ Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), `
 mesh; the single-finger spread map comes from the reconstruction cache:
 :func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
 must be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
+
+Calibrated positions: when the reconstruction publishes ``calibrated_contacts`` (its
+``calibration`` parameter), an event's centroid is the calibrated press of the same
+``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then; otherwise
+it stays the image centroid. Segmented ``contacts`` carry NaN depth and confidence.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
+from eit_skin.calibration.online import MIN_CONFIDENCE
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
@@ -140,6 +146,8 @@ class ClassifierNode(Node):
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         self.events_pub = self.create_publisher(TouchEvent, topics.touch_events, reliable)
         self.contacts_pub = self.create_publisher(ContactArray, topics.contacts, 10)
+        self._calibrated: dict[int, tuple[float, float]] = {}  # stamp ns -> press xy, m
+        self.create_subscription(ContactArray, topics.calibrated_contacts, self._on_calibrated, 10)
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
@@ -208,6 +216,13 @@ class ClassifierNode(Node):
                 self.counts["unpaired"] += 1
                 self._process(msg, image, None)
 
+    def _on_calibrated(self, msg) -> None:
+        if msg.contacts and msg.contacts[0].confidence >= MIN_CONFIDENCE:
+            c = msg.contacts[0].centroid
+            self._calibrated[self._stamp_ns(msg)] = (c.x, c.y)
+            while len(self._calibrated) > 50:
+                self._calibrated.pop(next(iter(self._calibrated)))
+
     # ------------------------------------------------------------------ output
     def _process(self, msg: Image, pressure: np.ndarray, stretch: np.ndarray | None) -> None:
         started = time.perf_counter()
@@ -226,7 +241,8 @@ class ClassifierNode(Node):
             out.label = LABELS.index(event.label)
             out.state = STATES.index(event.state)
             out.confidence = float(event.confidence)
-            out.centroid.x, out.centroid.y = event.centroid_m
+            xy = self._calibrated.get(self._stamp_ns(msg), event.centroid_m)
+            out.centroid.x, out.centroid.y = xy
             out.area_m2 = float(event.area_m2)
             out.peak = float(event.peak_pa)
             duration_ns = max(0, round(event.duration_s * 1e9))
@@ -246,6 +262,7 @@ class ClassifierNode(Node):
                 item.area_m2 = float(c.area_m2)
                 item.peak = float(c.peak)
                 item.mean = float(c.mean)
+                item.depth_m = item.confidence = float("nan")
                 array.contacts.append(item)
             self.contacts_pub.publish(array)
         self._busy_s += time.perf_counter() - started
