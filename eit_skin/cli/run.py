@@ -31,11 +31,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="simulator frame rate, Hz")
     parser.add_argument("--scenario", default="demo", help="simulator touch script (name or YAML)")
     parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
+    parser.add_argument(
+        "--calibration",
+        default="",
+        help="press calibration npz (eit-skin calibrate): calibrated contacts and positions",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from eit_skin.ros.node_graph import ROBOT_PATCHES, patch_nodes
 
+    if args.all and args.calibration:
+        print("eit-skin run: a calibration belongs to one patch; not with --all", file=sys.stderr)
+        return 2
     if args.all and args.port:
         print("eit-skin run: --all simulates every patch; --port serves one", file=sys.stderr)
         return 2
@@ -54,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
             )
         script_frames = {} if args.port or args.duration else _script_frames(args, specs)
         specs = [_monitor_aware(spec) for spec in specs]
+        if args.calibration:
+            specs = [_calibrated(spec, args.calibration) for spec in specs]
     except (ValueError, OSError) as error:
         print(f"eit-skin run: {error}", file=sys.stderr)
         return 2
@@ -66,6 +76,15 @@ def run(args: argparse.Namespace) -> int:
         script_frames=script_frames,
         first_frame_timeout_s=None if args.port else 120.0,  # a board may be plugged in later
     )
+
+
+def _calibrated(spec, calibration: str):
+    """The reconstruction with the ``calibration`` parameter; other nodes unchanged."""
+    from dataclasses import replace
+
+    if spec.executable != "eit_reconstruction":
+        return spec
+    return replace(spec, parameters={**spec.parameters, "calibration": calibration})
 
 
 def _monitor_aware(spec):

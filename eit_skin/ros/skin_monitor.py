@@ -50,6 +50,7 @@ class PatchView:
     touch_peak: float = -np.inf
     touch_best: dict[str, np.ndarray] | None = None
     gif_frames: list[np.ndarray] = field(default_factory=list)
+    calibrated: dict[int, object] = field(default_factory=dict)  # stamp ns -> Contact
 
     @property
     def layers(self) -> list[str]:
@@ -62,7 +63,7 @@ class SkinMonitor(Node):
 
     def __init__(self, views: list[PatchView], out: Path, script_frames: dict[str, int]) -> None:
         super().__init__("eit_skin_run")
-        from eit_skin_msgs.msg import EitFrame, TouchEvent
+        from eit_skin_msgs.msg import ContactArray, EitFrame, TouchEvent
 
         self.views = views
         self.out = out
@@ -76,6 +77,12 @@ class SkinMonitor(Node):
                 view.topics.touch_events,
                 lambda msg, v=view: self._on_event(v, msg),
                 50,
+            )
+            self.create_subscription(
+                ContactArray,
+                view.topics.calibrated_contacts,
+                lambda msg, v=view: self._on_calibrated(v, msg),
+                10,
             )
             first_layer = next(iter(view.layers))
             self.create_subscription(
@@ -106,6 +113,13 @@ class SkinMonitor(Node):
                 view.touch_peak = peak
                 view.touch_best = {k: v.copy() for k, v in view.latest.items()}
 
+    def _on_calibrated(self, view: PatchView, msg) -> None:
+        if msg.contacts:
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            view.calibrated[stamp] = msg.contacts[0]
+            while len(view.calibrated) > 50:
+                view.calibrated.pop(next(iter(view.calibrated)))
+
     def _on_event(self, view: PatchView, msg) -> None:
         label = LABELS[msg.label] if msg.label < len(LABELS) else str(msg.label)
         state = STATES[msg.state] if msg.state < len(STATES) else str(msg.state)
@@ -113,12 +127,15 @@ class SkinMonitor(Node):
         if state == "START":
             view.touch_peak, view.touch_best = -np.inf, {}
         if state != "UPDATE":
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            press = view.calibrated.get(stamp)
+            calibrated = "" if press is None else _calibrated_text(press)
             _clear_status()
             print(
                 f"[{self.elapsed():6.2f} s] {view.name:<6} {label.upper():<5} {state:<6} "
                 f"conf {msg.confidence:.2f}  at ({msg.centroid.x * 1e3:+6.1f}, "
                 f"{msg.centroid.y * 1e3:+6.1f}) mm  area {msg.area_m2 * 1e4:5.2f} cm^2  "
-                f"peak {msg.peak / 1e3:5.1f} kPa  {duration:4.2f} s",
+                f"peak {msg.peak / 1e3:5.1f} kPa  {duration:4.2f} s{calibrated}",
                 flush=True,
             )
         if state == "END":
@@ -138,6 +155,15 @@ class SkinMonitor(Node):
         for view in self.views:
             if view.latest:
                 view.gif_frames.append(render_rgb(view, view.latest))
+
+
+def _calibrated_text(press) -> str:
+    """The calibrated press (``eit_skin_msgs/Contact``) of an event's frame, for a log line."""
+    x, y = press.centroid.x * 1e3, press.centroid.y * 1e3
+    return (
+        f"  calibrated ({x:+6.1f}, {y:+6.1f}) mm depth {press.depth_m * 1e3:.1f} mm "
+        f"conf {press.confidence:.2f}"
+    )
 
 
 def render_rgb(view: PatchView, images: dict[str, np.ndarray], zoom: int = 3) -> np.ndarray:
