@@ -5,7 +5,8 @@ range WITHOUT touching the skin (on the simulator: the driver running a posture-
 scenario). Every frame of every layer is paired with the angle of ``--joint``
 (``/joint_states``) interpolated at the frame's acquisition stamp; frames are averaged per
 angle bin and written to ``--out``, the file the reconstruction node's
-``posture_references`` parameter takes.
+``posture_references`` parameter takes. The ``--duration`` counts from the first frame, so a
+driver that is slow to start does not shorten the sweep.
 """
 
 from __future__ import annotations
@@ -21,7 +22,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch", default="elbow", help="patch name or YAML path")
     parser.add_argument("--namespace", default="", help="ROS namespace (default: patch name)")
     parser.add_argument("--joint", required=True, help="joint name in /joint_states")
-    parser.add_argument("--duration", type=float, default=30.0, help="recording time, s")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=30.0,
+        help="recording time from the first frame received, s",
+    )
+    parser.add_argument(
+        "--wait",
+        type=float,
+        default=60.0,
+        help="longest wait for the first frame, s (the driver may still be starting)",
+    )
     parser.add_argument("--bin-deg", type=float, default=10.0, help="angle bin width, degrees")
     parser.add_argument("--min-frames", type=int, default=5, help="frames needed per bin")
     parser.add_argument("--out", type=Path, required=True, help="output npz")
@@ -76,10 +88,18 @@ def run(args: argparse.Namespace) -> int:
         "without touching the skin",
         flush=True,
     )
-    end = time.monotonic() + args.duration
+    started = time.monotonic()
+    first: float | None = None  # monotonic time of the first frame
     try:
-        while time.monotonic() < end:
+        while True:
             rclpy.spin_once(node, timeout_sec=0.1)
+            now = time.monotonic()
+            if first is None and any(samples.values()):
+                first = now
+            if first is not None and now - first >= args.duration:
+                break
+            if first is None and now - started >= args.wait:
+                break
     finally:
         node.destroy_node()
         rclpy.shutdown()

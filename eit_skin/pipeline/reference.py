@@ -25,6 +25,7 @@ Difference imaging compares every frame with a reference frame of the untouched 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -140,6 +141,52 @@ class JointAngleHistory:
         if not self._stamps:
             return float("nan")
         return float(np.interp(stamp_ns, self._stamps, self._angles))
+
+    def covers(self, stamp_ns: int) -> bool:
+        """Whether a joint state at or after ``stamp_ns`` has arrived (``at`` interpolates)."""
+        return bool(self._stamps) and stamp_ns <= self._stamps[-1]
+
+
+class PostureSync:
+    """Pairs each frame with the joint angle at its acquisition time, whatever the delays.
+
+    A frame whose stamp is newer than the newest joint state waits (in arrival order) until a
+    joint state at or after its stamp arrives, or until it has waited ``max_wait_s`` of
+    receive time: then it goes on with the newest angle held, and is counted in ``late``.
+    Frames never overtake each other, so a layer's frames stay in order.
+
+    Args:
+        history: the joint angles received so far.
+        max_wait_s: longest a frame waits for its joint state, s of receive time.
+    """
+
+    def __init__(self, history: JointAngleHistory, max_wait_s: float = 0.5) -> None:
+        self.history = history
+        self.max_wait_ns = int(max_wait_s * 1e9)
+        self._waiting: deque[tuple[int, int, object]] = deque()  # (stamp, received, frame)
+        self.late = 0
+
+    @property
+    def waiting(self) -> int:
+        return len(self._waiting)
+
+    def push(self, stamp_ns: int, received_ns: int, item: object) -> list[tuple[object, float]]:
+        """Queue a frame; returns the frames now ready, with their angles (rad), in order."""
+        self._waiting.append((stamp_ns, received_ns, item))
+        return self.ready(received_ns)
+
+    def ready(self, now_ns: int) -> list[tuple[object, float]]:
+        """Frames whose angle is known, or that waited too long (held angle), in order."""
+        out = []
+        while self._waiting:
+            stamp, received, item = self._waiting[0]
+            if not self.history.covers(stamp):
+                if now_ns - received < self.max_wait_ns:
+                    break
+                self.late += 1
+            self._waiting.popleft()
+            out.append((item, self.history.at(stamp)))
+        return out
 
 
 class ReferenceTracker:

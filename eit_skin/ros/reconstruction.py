@@ -49,7 +49,7 @@ from eit_skin.pipeline.processor import (
     LayerProcessor,
     stamp_to_s,
 )
-from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences
+from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, PostureSync
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     ParameterTable,
@@ -85,6 +85,11 @@ _PARAMETERS: ParameterTable = [
     ),
     ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
     ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
+    (
+        "posture_wait_s",
+        0.5,
+        "longest a frame waits for the joint state of its acquisition time, s (posture only)",
+    ),
     ("pressure_range_pa", 10000.0, "top of the pressure colour scale, Pa"),
     ("stretch_range", 0.05, "top of the stretch colour scale, strain"),
     ("marker_period_s", 0.5, "period of skin_marker updates, s; 0: no marker"),
@@ -196,8 +201,10 @@ class ReconstructionNode(Node):
                 f"from {self.calibration.source}"
             )
         self.joint_history = JointAngleHistory()
+        self.posture_sync = PostureSync(self.joint_history, float(p["posture_wait_s"]))
         if joint:
             self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
+            self.create_timer(0.05, self._release_late_frames)
         self.create_service(Trigger, topics.rezero, self._on_rezero)
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
@@ -244,13 +251,23 @@ class ReconstructionNode(Node):
                 state.dropped += gap - 1
         state.last_sequence = msg.sequence
         stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        started = time.perf_counter()
         frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
         flags = np.frombuffer(msg.channel_flags, np.uint8) if len(msg.channel_flags) else None
         if flags is not None and flags.size != m:
             self._reject(state, f"frame has {flags.size} channel flags for {m} values")
             return
-        angle = self.joint_history.at(stamp_ns) if self.joint else None
+        if self.joint:  # image it once the joint angle at its acquisition time is known
+            self._release(
+                self.posture_sync.push(stamp_ns, time.monotonic_ns(), (state, msg, frame, flags))
+            )
+            return
+        self._image(state, msg, frame, flags, None)
+
+    def _image(self, state: LayerState, msg, frame: np.ndarray, flags, angle) -> None:
+        """Step the layer's processor with a decoded frame and publish what it gives."""
+        name = state.layer.name
+        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        started = time.perf_counter()
         processor = state.processor
         was_ready = processor.reference_ready
         out = processor.step(frame, stamp_to_s(stamp_ns), flags, angle)
@@ -311,6 +328,15 @@ class ReconstructionNode(Node):
             stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
             angle = float(msg.position[list(msg.name).index(self.joint)])
             self.joint_history.add(stamp or self.get_clock().now().nanoseconds, angle)
+            self._release(self.posture_sync.ready(time.monotonic_ns()))
+
+    def _release_late_frames(self) -> None:
+        """Frames whose joint state is overdue go on with the held angle (counted late)."""
+        self._release(self.posture_sync.ready(time.monotonic_ns()))
+
+    def _release(self, ready: list) -> None:
+        for (state, msg, frame, flags), angle in ready:
+            self._image(state, msg, frame, flags, angle)
 
     # ------------------------------------------------------------------ rviz
     def _marker_mesh(self, state: LayerState) -> tuple[list[Point], np.ndarray]:
@@ -379,6 +405,8 @@ class ReconstructionNode(Node):
                 "drift_updates": str(processor.drift_updates),
                 "faulty_electrodes": ",".join(str(e) for e in faulty),
                 "joint_angle_rad": f"{processor.angle_rad:.3f}",
+                "frames_waiting_for_joint": str(self.posture_sync.waiting),
+                "frames_joint_late": str(self.posture_sync.late),
             }
             if state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"
