@@ -28,6 +28,7 @@ Same frames, same times, same settings: bit-identical images, whichever process 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -198,7 +199,7 @@ class LayerProcessor:
         if frame.shape != (m,):
             raise ValueError(f"a frame must be [{m}] volts, got shape {frame.shape}")
         t_s = float(t_s)
-        if not np.isfinite(t_s):
+        if not math.isfinite(t_s):
             raise ValueError(f"frame time must be finite, got {t_s}")
         if flags is not None and np.size(flags):
             if np.shape(flags) != (m,):
@@ -214,13 +215,17 @@ class LayerProcessor:
                 self._reference_ready(t_s)
             return None
         reference = tracker.reference()
-        if not np.isfinite(frame).any():
+        finite = np.isfinite(frame)
+        n_finite = int(np.count_nonzero(finite))
+        if n_finite == 0:
             self.frames_unusable += 1
             return None
         self._recent.append(frame)
         self._check_faults_if_due(t_s, reference)
-        usable = np.isfinite(frame) & np.isfinite(reference) & ~self._fault_mask
-        used = int(np.count_nonzero(usable))
+        if n_finite == m and not self._faulty.size and np.isfinite(reference).all():
+            used = m  # the common case, without building the mask
+        else:
+            used = int(np.count_nonzero(finite & np.isfinite(reference) & ~self._fault_mask))
         if used == 0:
             self.frames_unusable += 1
             return None

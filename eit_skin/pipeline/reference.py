@@ -25,6 +25,7 @@ Difference imaging compares every frame with a reference frame of the untouched 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -323,13 +324,17 @@ class ReferenceTracker:
             table = self.posture.at(self.angle_rad)
             target = np.divide(frame, table, out=self._base.copy(), where=table != 0)
         finite = np.isfinite(target)
-        if not finite.any():
+        all_finite = bool(finite.all())
+        if not all_finite and not finite.any():
             return
         dt = 0.0 if self.updated_at_s is None else max(0.0, t_s - self.updated_at_s)
-        alpha = 1.0 - np.exp(-dt / self.drift_time_constant_s)
-        with np.errstate(invalid="ignore"):  # inf targets: masked out below
-            moved = self._base + alpha * (target - self._base)
-        self._base = np.where(finite, moved, self._base)
+        alpha = 1.0 - math.exp(-dt / self.drift_time_constant_s)
+        if all_finite:  # the common case: every channel follows
+            self._base = self._base + alpha * (target - self._base)
+        else:
+            with np.errstate(invalid="ignore"):  # inf targets: masked out below
+                moved = self._base + alpha * (target - self._base)
+            self._base = np.where(finite, moved, self._base)
         self.updated_at_s = t_s
         self.drift_updates += 1
 
