@@ -278,33 +278,33 @@ class FramesNpzReader:
 class NpzStreamWriter:
     """An npz written row block by row block, renamed into place only when complete.
 
-    Each array is declared with its final shape and dtype and streamed as a ``.npy`` file
-    into a temporary directory next to ``path``; :meth:`close` checks that every array got
-    all its rows, packs them into a zip (stored, zip64: what ``np.savez`` writes, so
-    ``np.load`` reads it) and renames it into place. Memory: one block; disk: twice the
-    output while closing. Leaving the context with an exception (or :meth:`discard`)
-    removes everything: the destination is complete or untouched.
+    Each array's rows are streamed raw into a temporary directory next to ``path``;
+    :meth:`close` checks that every array got all its rows, packs them as ``.npy`` members
+    into a zip (stored, zip64: what ``np.savez`` writes, so ``np.load`` reads it) and renames
+    it into place. Memory: one block; disk: twice the output while closing. Leaving the
+    context with an exception (or :meth:`discard`) removes everything: the destination is
+    complete or untouched.
 
     Args:
         path: destination (the name is used as given; no ``.npz`` is appended).
-        arrays: name -> (shape, dtype) of every array; the first axis is filled by
-            :meth:`append`.
+        arrays: name -> (shape, dtype) of every array, members in this order; the first
+            axis is filled by :meth:`append` (None: as many rows as are appended; None in
+            another axis: that of the first block).
     """
 
-    def __init__(self, path: str | Path, arrays: dict[str, tuple[tuple[int, ...], Any]]) -> None:
+    def __init__(
+        self, path: str | Path, arrays: dict[str, tuple[tuple[int | None, ...], Any]]
+    ) -> None:
         self.path = Path(path)
         self._dir = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
         self._shapes = {
             name: (tuple(shape), np.dtype(dtype)) for name, (shape, dtype) in arrays.items()
         }
         self._rows = dict.fromkeys(arrays, 0)
-        self._files = {}
+        self._files: dict[str, Any] = {}
         try:
-            for name, (shape, dtype) in self._shapes.items():
-                stream = open(self._dir / f"{name}.npy", "wb")  # noqa: SIM115 (closed in close)
-                self._files[name] = stream
-                header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False}
-                np.lib.format.write_array_header_2_0(stream, {**header, "shape": shape})
+            for name in self._shapes:
+                self._files[name] = open(self._dir / name, "wb")  # noqa: SIM115 (see close)
         except BaseException:
             self.discard()
             raise
@@ -314,19 +314,23 @@ class NpzStreamWriter:
         for name, block in blocks.items():
             shape, dtype = self._shapes[name]
             block = np.ascontiguousarray(block, dtype=dtype)
-            if block.shape[1:] != shape[1:] or self._rows[name] + len(block) > shape[0]:
+            if None in shape[1:]:  # set by the first block
+                shape = (shape[0], *block.shape[1:])
+                self._shapes[name] = (shape, dtype)
+            rows = self._rows[name] + len(block)
+            if block.shape[1:] != shape[1:] or (shape[0] is not None and rows > shape[0]):
                 raise ValueError(
                     f"{self.path}: '{name}' rows {block.shape} do not fit {shape} after "
                     f"{self._rows[name]} rows"
                 )
             self._files[name].write(block.tobytes())
-            self._rows[name] += len(block)
+            self._rows[name] = rows
 
     def close(self) -> None:
         """Check completeness, pack the zip and rename it into place; then clean up."""
         try:
             for name, (shape, _) in self._shapes.items():
-                if shape and self._rows[name] != shape[0]:
+                if shape[0] is not None and self._rows[name] != shape[0]:
                     raise ValueError(
                         f"{self.path}: '{name}' got {self._rows[name]} of {shape[0]} rows"
                     )
@@ -337,11 +341,17 @@ class NpzStreamWriter:
                     os.fdopen(fd, "wb") as raw,
                     zipfile.ZipFile(raw, "w", zipfile.ZIP_STORED, allowZip64=True) as archive,
                 ):
-                    for name in self._shapes:
+                    for name, (shape, dtype) in self._shapes.items():
+                        header = {
+                            "descr": np.lib.format.dtype_to_descr(dtype),
+                            "fortran_order": False,
+                            "shape": (self._rows[name], *shape[1:]),
+                        }
                         with (
-                            open(self._dir / f"{name}.npy", "rb") as src,
+                            open(self._dir / name, "rb") as src,
                             archive.open(f"{name}.npy", "w", force_zip64=True) as dst,
                         ):
+                            np.lib.format.write_array_header_2_0(dst, header)
                             shutil.copyfileobj(src, dst, 1 << 20)
                 os.replace(tmp, self.path)
             except BaseException:
