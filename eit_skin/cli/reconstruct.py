@@ -7,8 +7,11 @@ positive = more conductive, NaN outside the sheet and in holes), ``physical`` fl
 [T, H, W] in the layer's unit (Pa for pressure, strain for stretch) exactly as
 ``eit_reconstruction`` publishes it, ``imaged`` bool [T] (False: no image, all NaN), ``t`` [T]
 the frame times used, s, ``x`` [W] and ``y`` [H] pixel-centre coordinates in metres (patch
-frame). The output is written to a temporary file next to OUT and renamed, so it is either
-complete or absent. Errors: one line on stderr, exit status 1.
+frame). The file is read, imaged and written ``--block-frames`` frames at a time (memory does
+not grow with T); the output goes to temporary files next to OUT and is renamed into place,
+so it is either complete or absent. A frame without a usable channel (e.g. all NaN) is not
+imaged (``imaged`` False, all-NaN images); how many were skipped and the first indices go to
+stderr, exit status 0. Errors: one line on stderr, exit status 1.
 
 Every frame goes through :class:`~eit_skin.pipeline.processor.LayerProcessor`, the code the
 reconstruction node runs per frame: drift tracking, flag/NaN handling and fault checks on frame
