@@ -18,6 +18,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from eit_skin.cli.reconstruct import FileRun
 
 from eit_skin.cli.reconstruct import add_pipeline_arguments
 
@@ -50,18 +54,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from eit_skin.cli.reconstruct import report_skipped
+
+    runs: dict[Path, FileRun] = {}
     try:
-        for event in classify_file(args):
+        for event in classify_file(args, runs):
             print(json.dumps(event.to_dict()), flush=True)
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"eit-skin classify: error: {message}", file=sys.stderr)
         return 1
+    for path, file_run in runs.items():
+        report_skipped("eit-skin classify", path, file_run)
     return 0
 
 
-def classify_file(args: argparse.Namespace):
-    """Finished touch events (END) of the files named in ``args``."""
+def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = None):
+    """Finished touch events (END) of the files named in ``args``, read block by block.
+
+    ``runs`` (if given) receives, per file, the frames skipped and electrodes left out.
+    """
     from eit_skin.cli.reconstruct import cache_dir
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
@@ -71,12 +83,13 @@ def classify_file(args: argparse.Namespace):
 
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
+    runs = {} if runs is None else runs
     patch_path = args.patch if Path(args.patch).exists() else config_path(args.patch)
     patch = load_patch(patch_path)
     pressure_layer, stretch_layer = classifier_layers(patch)
     cache = cache_dir(args)
     imager = LayerImager.build(pressure_layer, cache_dir=cache)
-    times, pressure = _images(imager, args.frames, args)
+    reader = _reader(imager, args.frames, args)
     stretch = None
     if args.stretch_frames is not None:
         if stretch_layer is None:
@@ -85,37 +98,48 @@ def classify_file(args: argparse.Namespace):
                 f"--stretch-frames: patch {patch.name!r} has no layer measuring stretch ({names})"
             )
         stretch_imager = LayerImager.build(stretch_layer, cache_dir=cache)
-        _, stretch = _images(stretch_imager, args.stretch_frames, args)
-        if len(stretch) != len(pressure):
+        stretch_reader = _reader(stretch_imager, args.stretch_frames, args)
+        if stretch_reader.n_frames != reader.n_frames:
             raise ValueError(
-                f"{args.stretch_frames}: {len(stretch)} frames, but {args.frames} has "
-                f"{len(pressure)}"
+                f"{args.stretch_frames}: {stretch_reader.n_frames} frames, but {args.frames} has "
+                f"{reader.n_frames}"
             )
+        stretch = _images(stretch_imager, stretch_reader, args, runs)
     # one fingertip's blur at every pixel, m
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
-    for k, images in enumerate(pressure):
-        if images is None:  # reference capture (--reference capture) or no usable channel
-            continue
-        extra = None if stretch is None or stretch[k] is None else stretch[k].image
-        for event in classifier.step(times[k] - times[0], images.image, extra):
-            if event.state == "end":
-                yield event
+    t0 = None
+    for times, pressure in _images(imager, reader, args, runs):
+        extras = [None] * len(times) if stretch is None else next(stretch)[1]
+        t0 = times[0] if t0 is None else t0
+        for t, images, extra in zip(times, pressure, extras, strict=True):
+            if images is None:  # reference capture (--reference capture) or no usable channel
+                continue
+            image = None if extra is None else extra.image
+            for event in classifier.step(t - t0, images.image, image):
+                if event.state == "end":
+                    yield event
     yield from classifier.finish()
 
 
-def _images(imager, path: Path, args: argparse.Namespace):
-    """Frame times ``[T]`` s and per-frame results of one layer's frames file."""
-    from eit_skin.cli.reconstruct import frame_times, make_processor, process_file
-    from eit_skin.io.npz import load_frames_npz
+def _reader(imager, path: Path, args: argparse.Namespace):
+    """The block reader of one layer's frames file, checked against the layer and ``--rate``."""
+    from eit_skin.io.npz import FramesNpzReader
 
     if not Path(path).is_file():
         raise ValueError(f"{path}: no such file")
-    reference, frames, t = load_frames_npz(path, imager.n_measurements)
-    if t is None and args.rate is None:
+    reader = FramesNpzReader(path, imager.n_measurements, args.block_frames)
+    if not reader.has_t and args.rate is None:
         raise ValueError(f"{path}: no 't' (frame times) in the file: give --rate")
-    times = frame_times(t, frames.shape[0], args.rate, 0.0)
-    results, _ = process_file(
-        make_processor(imager, args), reference, frames, times, args.reference
-    )
-    return times, results
+    return reader
+
+
+def _images(imager, reader, args: argparse.Namespace, runs: dict):
+    """``(times [B] s, per-frame results)`` per block of one layer's frames file."""
+    from eit_skin.cli.reconstruct import FileRun, frame_times, make_processor, process_file
+
+    def times(start, frames, t):
+        return frame_times(t, len(frames), args.rate, 0.0, start)
+
+    run = runs.setdefault(reader.path, FileRun())
+    return process_file(make_processor(imager, args), reader, times, args.reference, run)

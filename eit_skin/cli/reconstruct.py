@@ -7,8 +7,11 @@ positive = more conductive, NaN outside the sheet and in holes), ``physical`` fl
 [T, H, W] in the layer's unit (Pa for pressure, strain for stretch) exactly as
 ``eit_reconstruction`` publishes it, ``imaged`` bool [T] (False: no image, all NaN), ``t`` [T]
 the frame times used, s, ``x`` [W] and ``y`` [H] pixel-centre coordinates in metres (patch
-frame). The output is written to a temporary file next to OUT and renamed, so it is either
-complete or absent. Errors: one line on stderr, exit status 1.
+frame). The file is read, imaged and written ``--block-frames`` frames at a time (memory does
+not grow with T); the output goes to temporary files next to OUT and is renamed into place,
+so it is either complete or absent. A frame without a usable channel (e.g. all NaN) is not
+imaged (``imaged`` False, all-NaN images); how many were skipped and the first indices go to
+stderr, exit status 0. Errors: one line on stderr, exit status 1.
 
 Every frame goes through :class:`~eit_skin.pipeline.processor.LayerProcessor`, the code the
 reconstruction node runs per frame: drift tracking, flag/NaN handling and fault checks on frame
@@ -30,7 +33,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,6 +43,7 @@ from eit_skin.inverse.methods import METHODS
 if TYPE_CHECKING:
     import numpy as np
 
+    from eit_skin.io.npz import FramesNpzReader
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.pipeline.processor import LayerImages, LayerProcessor
 
@@ -70,6 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     """The reference, drift and fault options of the offline commands (node defaults)."""
+    from eit_skin.io.npz import DEFAULT_BLOCK_FRAMES
     from eit_skin.pipeline.processor import (
         DEFAULT_CONTACT_K,
         DEFAULT_DRIFT_TIME_CONSTANT_S,
@@ -116,6 +122,14 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {DEFAULT_FAULT_CHECK_PERIOD_S:g})",
     )
     group.add_argument(
+        "--block-frames",
+        type=int,
+        default=DEFAULT_BLOCK_FRAMES,
+        metavar="N",
+        help="frames read, processed and written at a time: memory does not grow with the "
+        f"file (default {DEFAULT_BLOCK_FRAMES})",
+    )
+    group.add_argument(
         "--cache-dir",
         default="default",
         help="reconstruction matrix cache; 'none': no cache "
@@ -126,43 +140,64 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         result = _reconstruct(args)
-        from eit_skin.io.npz import write_npz_atomic
-
-        write_npz_atomic(
-            args.out,
-            images=result.images,
-            physical=result.physical,
-            imaged=result.imaged,
-            t=result.t,
-            x=result.x,
-            y=result.y,
-        )
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"eit-skin reconstruct: error: {message}", file=sys.stderr)
         return 1
-    t, h, w = result.images.shape
+    h, w = result.image_shape
     print(
-        f"wrote {args.out}: {t} images {h}x{w}, {int(result.imaged.sum())} imaged; {result.summary}"
+        f"wrote {args.out}: {result.n_frames} images {h}x{w}, {result.n_imaged} imaged; "
+        f"{result.summary}"
     )
+    report_skipped("eit-skin reconstruct", args.frames, result.run)
     return 0
 
 
 @dataclass
 class OfflineImages:
-    """What the offline pipeline gives for one layer's file (see the module docstring)."""
+    """What the offline pipeline wrote for one layer's file (see the module docstring)."""
 
-    images: np.ndarray
-    physical: np.ndarray
-    imaged: np.ndarray
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
+    n_frames: int
+    n_imaged: int
+    image_shape: tuple[int, int]
+    run: FileRun
     summary: str
 
 
+@dataclass
+class FileRun:
+    """What a run over a file met: skipped frames and left-out electrodes.
+
+    Skipped: frames without a usable channel after the reference was ready (``count``, the
+    ``first`` indices); ``faulty``: electrodes the fault checks left out.
+    """
+
+    count: int = 0
+    first: list[int] = field(default_factory=list)
+    faulty: set[int] = field(default_factory=set)
+
+    #: Frame indices kept for the report.
+    KEEP = 5
+
+    def add(self, index: int) -> None:
+        self.count += 1
+        if len(self.first) < self.KEEP:
+            self.first.append(index)
+
+
+def report_skipped(command: str, path: Path, run: FileRun) -> None:
+    """One stderr line: how many frames of ``path`` were skipped, and the first indices."""
+    if run.count:
+        more = ", ..." if run.count > len(run.first) else ""
+        print(
+            f"{command}: {path}: skipped {run.count} frame(s) without a usable channel "
+            f"(frame {', '.join(map(str, run.first))}{more}): not imaged",
+            file=sys.stderr,
+        )
+
+
 def _reconstruct(args: argparse.Namespace) -> OfflineImages:
-    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, with_method
     from eit_skin.resources import config_path
@@ -174,9 +209,8 @@ def _reconstruct(args: argparse.Namespace) -> OfflineImages:
     imager = LayerImager.build(layer, cache_dir=cache_dir(args))
     if not args.frames.exists():
         raise ValueError(f"{args.frames}: no such file")
-    reference, frames, t = load_frames_npz(args.frames, imager.n_measurements)
-    times = frame_times(t, frames.shape[0], args.rate, FALLBACK_RATE_HZ)
-    return run_offline(imager, reference, frames, times, args)
+    reader = FramesNpzReader(args.frames, imager.n_measurements, args.block_frames)
+    return run_offline(imager, reader, args.out, args)
 
 
 def cache_dir(args: argparse.Namespace) -> str | None:
@@ -185,9 +219,15 @@ def cache_dir(args: argparse.Namespace) -> str | None:
 
 
 def frame_times(
-    t: np.ndarray | None, n_frames: int, rate_hz: float | None, fallback_hz: float
+    t: np.ndarray | None,
+    n_frames: int,
+    rate_hz: float | None,
+    fallback_hz: float,
+    start: int = 0,
 ) -> np.ndarray:
-    """Frame times ``[T]`` s: ``k / rate_hz`` if given, else ``t``, else ``k / fallback_hz``.
+    """Times ``[n_frames]`` s of frames ``start..``: ``k / rate_hz``, else ``t``, else fallback.
+
+    ``t`` is the block's (frames ``start..``), the fallback ``k / fallback_hz``.
 
     Times that go backwards are kept (the node too just skips drift for such a frame).
     Raises ValueError for a rate that is not > 0.
@@ -198,7 +238,7 @@ def frame_times(
         raise ValueError(f"--rate: must be > 0 Hz, got {rate_hz:g}")
     if rate_hz is None and t is not None:
         return np.asarray(t, dtype=np.float64)
-    return np.arange(n_frames) / float(rate_hz or fallback_hz)
+    return np.arange(start, start + n_frames) / float(rate_hz or fallback_hz)
 
 
 def make_processor(imager: LayerImager, args: argparse.Namespace) -> LayerProcessor:
@@ -218,54 +258,85 @@ def make_processor(imager: LayerImager, args: argparse.Namespace) -> LayerProces
 
 def process_file(
     processor: LayerProcessor,
-    reference: np.ndarray,
-    frames: np.ndarray,
-    times: np.ndarray,
+    reader: FramesNpzReader,
+    times: Callable[[int, np.ndarray, np.ndarray | None], np.ndarray],
     mode: str,
-) -> tuple[list[LayerImages | None], set[int]]:
-    """Run a processor over a file's frames: per-frame results, electrodes found faulty.
+    run: FileRun,
+) -> Iterator[tuple[np.ndarray, list[LayerImages | None]]]:
+    """Run a processor over a file block by block: ``(times [B] s, per-frame results)``.
 
-    ``mode`` ``"file"``: ``reference`` is the reference at ``times[0]``, the first
-    ``processor.reference_frames`` frames give the noise; ``"capture"``: it is not used.
+    ``times(start, frames, t)`` gives a block's frame times. ``mode`` ``"file"``: the
+    file's reference is the reference at the first frame time, the first
+    ``processor.reference_frames`` frames (those with any value) give the noise;
+    ``"capture"``: it is not used. Frames without a usable channel once the reference is
+    ready, and the electrodes found faulty, are noted in ``run``.
     """
-    if mode == "file":
-        processor.set_reference(reference, times[0], frames[: processor.reference_frames])
-    faulty: set[int] = set()
-    results = []
-    for frame, t in zip(frames, times, strict=True):
-        results.append(processor.step(frame, t))
-        faulty.update(processor.faulty_electrodes.tolist())
-    return results, faulty
+    import numpy as np
+
+    for start, frames, t_file in reader.blocks():
+        block_times = times(start, frames, t_file)
+        if start == 0 and mode == "file":
+            noise = reader.head(processor.reference_frames)
+            noise = noise[np.isfinite(noise).any(axis=1)]  # an all-NaN frame has no noise
+            processor.set_reference(reader.reference, block_times[0], noise)
+        results = []
+        for k, (frame, t) in enumerate(zip(frames, block_times, strict=True)):
+            unusable = processor.frames_unusable
+            results.append(processor.step(frame, t))
+            run.faulty.update(processor.faulty_electrodes.tolist())
+            if processor.frames_unusable > unusable:
+                run.add(start + k)
+        yield block_times, results
 
 
 def run_offline(
     imager: LayerImager,
-    reference: np.ndarray,
-    frames: np.ndarray,
-    times: np.ndarray,
+    reader: FramesNpzReader,
+    out: Path,
     args: argparse.Namespace,
 ) -> OfflineImages:
-    """The node's per-frame pipeline over one file: relative and physical images ``[T, H, W]``."""
+    """The node's per-frame pipeline over one file, written block by block to ``out``.
+
+    ``out`` gets relative and physical images ``[T, H, W]`` (see the module docstring).
+    """
     import numpy as np
 
+    from eit_skin.io.npz import NpzStreamWriter
+
     processor = make_processor(imager, args)
-    results, faulty = process_file(processor, reference, frames, times, args.reference)
-    imaged = np.array([r is not None for r in results], dtype=bool)
-    shape = (len(results), *imager.grid.shape)
-    physical = np.full(shape, np.nan, dtype=np.float32)
-    images = np.full(shape, np.nan, dtype=np.float32)
-    if imaged.any():
-        done = [r for r in results if r is not None]
-        physical[imaged] = np.stack([r.image for r in done])
-        images[imaged] = imager.images(np.stack([r.values for r in done]))
+    shape = (reader.n_frames, *imager.grid.shape)
+    arrays = {
+        "images": (shape, np.float32),
+        "physical": (shape, np.float32),
+        "imaged": (shape[:1], np.bool_),
+        "t": (shape[:1], np.float64),
+        "x": (imager.grid.x.shape, imager.grid.x.dtype),
+        "y": (imager.grid.y.shape, imager.grid.y.dtype),
+    }
+    run = FileRun()
+    n_imaged = 0
+
+    def times(start: int, frames: np.ndarray, t: np.ndarray | None) -> np.ndarray:
+        return frame_times(t, len(frames), args.rate, FALLBACK_RATE_HZ, start)
+
+    with NpzStreamWriter(out, arrays) as writer:
+        writer.append(x=imager.grid.x, y=imager.grid.y)
+        for block_times, results in process_file(processor, reader, times, args.reference, run):
+            imaged = np.array([r is not None for r in results], dtype=bool)
+            physical = np.full((len(results), *shape[1:]), np.nan, dtype=np.float32)
+            images = np.full_like(physical, np.nan)
+            if imaged.any():
+                done = [r for r in results if r is not None]
+                physical[imaged] = np.stack([r.image for r in done])
+                images[imaged] = imager.images(np.stack([r.values for r in done]))
+            writer.append(images=images, physical=physical, imaged=imaged, t=block_times)
+            n_imaged += int(imaged.sum())
     if args.reference == "file":
-        n = min(processor.reference_frames, len(results))
+        n = min(processor.reference_frames, reader.n_frames)
         how = f"reference from the file, noise from the first {n} frames"
     else:
         how = f"reference captured from the first {processor.reference_frames} frames"
     tau = processor.tracker.drift_time_constant_s
     drift = f"drift tracking {tau:g} s: {processor.drift_updates} updates" if tau else "no drift"
-    note = f"; left out electrodes {sorted(faulty)}" if faulty else ""
-    return OfflineImages(
-        images, physical, imaged, times, imager.grid.x, imager.grid.y, f"{how}; {drift}{note}"
-    )
+    note = f"; left out electrodes {sorted(run.faulty)}" if run.faulty else ""
+    return OfflineImages(reader.n_frames, n_imaged, imager.grid.shape, run, f"{how}; {drift}{note}")

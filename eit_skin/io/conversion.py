@@ -9,7 +9,7 @@ import numpy as np
 
 from eit_skin.frames import FLAG_INVALID, FrameRecord, excluded_channels
 from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
-from eit_skin.io.npz import load_frames_npz, save_frames_npz
+from eit_skin.io.npz import DEFAULT_BLOCK_FRAMES, NpzStreamWriter, load_frames_npz
 
 
 def mcap_to_npz(
@@ -18,8 +18,9 @@ def mcap_to_npz(
     topic: str | None = None,
     reference_frames: int = 1,
     on_damage: Callable[[McapDamage], None] | None = None,
+    block_frames: int = DEFAULT_BLOCK_FRAMES,
 ) -> int:
-    """Export one topic's frames to the npz format; returns T.
+    """Export one topic's frames to the npz format, ``block_frames`` at a time; returns T.
 
     ``frames`` are the voltages (float32 -> float64, NaN where a flag keeps the channel out of
     imaging: saturated or invalid, as the reconstruction pipeline treats it), ``t`` the header
@@ -39,42 +40,65 @@ def mcap_to_npz(
             on_damage(found)
 
     head_size = max(1, reference_frames)
-    rows, raw_head, stamps, seen = [], [], [], set()
+    raw_head, head, seen = [], [], set()
+    rows, stamps = [], []
+    n_frames, m = 0, None
     topics = [topic] if topic else None
     messages = read_mcap_frames(mcap_path, topics, None if on_damage is None else note)
-    for name, _, record in messages:
-        seen.add(name)
-        if len(seen) > 1:
-            raise ValueError(f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic=")
-        volts = record.voltages.astype(np.float64)
-        if len(raw_head) < head_size:
-            raw_head.append(volts.copy())
-        if record.channel_flags.size:
-            volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
-        if rows and volts.size != rows[0].size:
-            raise ValueError(f"{mcap_path}: topic {name} changes M from {rows[0].size}")
-        rows.append(volts)
-        stamps.append(record.stamp_ns)
-    if not rows:
-        raise ValueError(
-            f"{mcap_path}: no EitFrame messages"
-            + (f" on {topic}" if topic else "")
-            + "".join(f" ({found})" for found in damage)
-        )
-    frames = np.stack(rows)
-    head = frames[:head_size]
-    reference = np.full(frames.shape[1], np.nan)
-    for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
-        missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
-        reference[missing] = np.nanmean(values[:, missing], axis=0)
-    if not np.isfinite(reference).all():
-        raise ValueError(
-            f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is invalid "
-            f"in all of the first {len(head)} frames, so there is no reference; raise "
-            "reference_frames"
-        )
-    save_frames_npz(npz_path, reference, frames, np.asarray(stamps, dtype=np.int64) / 1e9)
-    return len(rows)
+    npz_path = Path(npz_path)
+    # frames and t go to disk every block_frames rows: memory does not grow with the recording
+    writer = NpzStreamWriter(
+        npz_path,
+        {
+            "reference": ((None,), np.float64),
+            "frames": ((None, None), np.float64),
+            "t": ((None,), np.float64),
+        },
+    )
+    with writer:
+        for name, _, record in messages:
+            seen.add(name)
+            if len(seen) > 1:
+                raise ValueError(
+                    f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic="
+                )
+            volts = record.voltages.astype(np.float64)
+            if len(raw_head) < head_size:
+                raw_head.append(volts.copy())
+            if record.channel_flags.size:
+                volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
+            if m is not None and volts.size != m:
+                raise ValueError(f"{mcap_path}: topic {name} changes M from {m}")
+            m = volts.size
+            if len(head) < head_size:
+                head.append(volts)
+            rows.append(volts)
+            stamps.append(record.stamp_ns)
+            n_frames += 1
+            if len(rows) == block_frames:
+                writer.append(frames=np.stack(rows), t=np.asarray(stamps, dtype=np.int64) / 1e9)
+                rows, stamps = [], []
+        if not n_frames:
+            raise ValueError(
+                f"{mcap_path}: no EitFrame messages"
+                + (f" on {topic}" if topic else "")
+                + "".join(f" ({found})" for found in damage)
+            )
+        if rows:
+            writer.append(frames=np.stack(rows), t=np.asarray(stamps, dtype=np.int64) / 1e9)
+        head = np.stack(head)
+        reference = np.full(m, np.nan)
+        for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
+            missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
+            reference[missing] = np.nanmean(values[:, missing], axis=0)
+        if not np.isfinite(reference).all():
+            raise ValueError(
+                f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is "
+                f"invalid in all of the first {len(head)} frames, so there is no reference; "
+                "raise reference_frames"
+            )
+        writer.append(reference=reference)
+    return n_frames
 
 
 def npz_to_mcap(

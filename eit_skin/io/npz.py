@@ -8,9 +8,12 @@ complete or not at all (temporary file + rename).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -115,3 +118,259 @@ def load_frames_npz(
     return _check_frames(
         str(path), arrays["reference"], arrays["frames"], arrays.get("t"), n_measurements
     )
+
+
+#: Frames per block of the streaming reader (208 channels x 4096 x 8 B = 6.8 MB).
+DEFAULT_BLOCK_FRAMES = 4096
+
+
+def _member_header(path: str, key: str, stream: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """Shape, Fortran order and dtype of a ``.npy`` member opened at its start."""
+    try:
+        version = np.lib.format.read_magic(stream)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(stream)
+        else:
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
+    except ValueError as error:
+        raise ValueError(f"{path}: '{key}' is not a .npy array ({error})") from error
+    if dtype.kind not in "fiu" or dtype.hasobject:
+        raise ValueError(f"{path}: '{key}' must be real numbers, got dtype {dtype}")
+    return tuple(shape), bool(fortran), dtype
+
+
+class FramesNpzReader:
+    """An offline frames file read block by block: memory bounded by ``block_frames``.
+
+    ``reference`` is read and checked at once; ``frames`` and ``t`` are streamed from their
+    ``.npy`` members (stored or deflated: read through :mod:`zipfile`, never loaded whole,
+    except a Fortran-ordered ``frames``, which is read in one go). Every problem raises
+    ValueError naming the file, the key and, for values, the frame index.
+
+    Args:
+        path: the ``.npz`` frames file (format: module docstring).
+        n_measurements: the M the protocol expects, or None.
+        block_frames: frames per block of :meth:`blocks` (>= 1).
+
+    Attributes:
+        reference: float64 ``[M]`` V. n_frames: T. has_t: whether the file has ``t``.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        n_measurements: int | None = None,
+        block_frames: int = DEFAULT_BLOCK_FRAMES,
+    ) -> None:
+        if block_frames < 1:
+            raise ValueError(f"block_frames must be >= 1, got {block_frames}")
+        self.path = Path(path)
+        self.block_frames = int(block_frames)
+        where = str(self.path)
+        try:
+            with zipfile.ZipFile(self.path) as archive:
+                members = {
+                    name.removesuffix(".npy"): name
+                    for name in archive.namelist()
+                    if name.endswith(".npy")
+                }
+                for key in ("reference", "frames"):
+                    if key not in members:
+                        raise ValueError(f"{where}: missing key '{key}' (found {sorted(members)})")
+                with archive.open(members["reference"]) as stream:
+                    reference = np.lib.format.read_array(stream, allow_pickle=False)
+                headers = {}
+                for key in ("frames", "t"):
+                    if key in members:
+                        with archive.open(members[key]) as stream:
+                            headers[key] = _member_header(where, key, stream)
+        except FileNotFoundError:
+            raise
+        except (zipfile.BadZipFile, OSError, EOFError) as error:
+            raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
+        self._members = members
+        shape, self._fortran, self._dtype = headers["frames"]
+        t_shape = headers["t"][0] if "t" in headers else None
+        # the in-memory checks (same messages as load_frames_npz), frames' shape checked apart
+        stand_in = np.zeros((1, max(np.size(reference), 1)))
+        self.reference, _, _ = _check_frames(where, reference, stand_in, None, n_measurements)
+        m = self.reference.size
+        if len(shape) != 2 or shape[0] == 0 or shape[1] != m:
+            raise ValueError(
+                f"{where}: 'frames' must have shape [T>=1, M={m}] like 'reference', got {shape}"
+            )
+        self.n_frames = int(shape[0])
+        self.n_measurements = int(shape[1])
+        if t_shape is not None and t_shape != (self.n_frames,):
+            raise ValueError(
+                f"{where}: 't' must be finite with shape [T={self.n_frames}], got {t_shape}"
+            )
+        self.has_t = t_shape is not None
+        self._t_dtype = headers["t"][2] if self.has_t else None
+
+    def head(self, n: int) -> np.ndarray:
+        """The first ``min(n, T)`` frames, float64 ``[n, M]`` V."""
+        n = min(max(int(n), 0), self.n_frames)
+        rows: list[np.ndarray] = []
+        for _, frames, _ in self.blocks():
+            rows.append(frames[: n - sum(len(r) for r in rows)])
+            if sum(len(r) for r in rows) >= n:
+                break
+        return np.concatenate(rows) if rows else np.zeros((0, self.n_measurements))
+
+    def blocks(self) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        """``(start, frames float64 [B, M] V, t float64 [B] s or None)`` over the file."""
+        where = str(self.path)
+        try:
+            with zipfile.ZipFile(self.path) as archive:
+                frames_stream = archive.open(self._members["frames"])
+                t_stream = archive.open(self._members["t"]) if self.has_t else None
+                with frames_stream, t_stream or contextlib.nullcontext():
+                    _member_header(where, "frames", frames_stream)
+                    if t_stream is not None:
+                        _member_header(where, "t", t_stream)
+                    whole = None
+                    if self._fortran:
+                        shape = (self.n_frames, self.n_measurements)
+                        whole = self._rows(frames_stream, "frames", 0, shape, self._dtype, True)
+                    for start in range(0, self.n_frames, self.block_frames):
+                        n = min(self.block_frames, self.n_frames - start)
+                        if whole is not None:
+                            frames = whole[start : start + n]
+                        else:
+                            shape = (n, self.n_measurements)
+                            frames = self._rows(frames_stream, "frames", start, shape, self._dtype)
+                        t = None
+                        if t_stream is not None:
+                            t = self._rows(t_stream, "t", start, (n,), self._t_dtype)
+                            if not np.isfinite(t).all():
+                                bad = start + int(np.flatnonzero(~np.isfinite(t))[0])
+                                raise ValueError(
+                                    f"{where}: 't' must be finite, frame {bad} is {t[bad - start]}"
+                                )
+                        yield start, frames, t
+        except (zipfile.BadZipFile, OSError, EOFError) as error:
+            raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
+
+    def _rows(
+        self,
+        stream: Any,
+        key: str,
+        start: int,
+        shape: tuple[int, ...],
+        dtype: np.dtype,
+        fortran: bool = False,
+    ) -> np.ndarray:
+        """The next ``shape[0]`` rows of a member as float64; ValueError if it ends early."""
+        count = int(np.prod(shape))
+        data = stream.read(count * dtype.itemsize)
+        if len(data) < count * dtype.itemsize:
+            got = len(data) // max(dtype.itemsize * int(np.prod(shape[1:])), 1)
+            raise ValueError(
+                f"{self.path}: '{key}' is cut short: it ends at frame {start + got} of "
+                f"{self.n_frames}"
+            )
+        array = np.frombuffer(data, dtype=dtype, count=count)
+        array = array.reshape(shape[::-1]).T if fortran else array.reshape(shape)
+        return array.astype(np.float64)
+
+
+class NpzStreamWriter:
+    """An npz written row block by row block, renamed into place only when complete.
+
+    Each array's rows are streamed raw into a temporary directory next to ``path``;
+    :meth:`close` checks that every array got all its rows, packs them as ``.npy`` members
+    into a zip (stored, zip64: what ``np.savez`` writes, so ``np.load`` reads it) and renames
+    it into place. Memory: one block; disk: twice the output while closing. Leaving the
+    context with an exception (or :meth:`discard`) removes everything: the destination is
+    complete or untouched.
+
+    Args:
+        path: destination (the name is used as given; no ``.npz`` is appended).
+        arrays: name -> (shape, dtype) of every array, members in this order; the first
+            axis is filled by :meth:`append` (None: as many rows as are appended; None in
+            another axis: that of the first block).
+    """
+
+    def __init__(
+        self, path: str | Path, arrays: dict[str, tuple[tuple[int | None, ...], Any]]
+    ) -> None:
+        self.path = Path(path)
+        self._dir = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
+        self._shapes = {
+            name: (tuple(shape), np.dtype(dtype)) for name, (shape, dtype) in arrays.items()
+        }
+        self._rows = dict.fromkeys(arrays, 0)
+        self._files: dict[str, Any] = {}
+        try:
+            for name in self._shapes:
+                self._files[name] = open(self._dir / name, "wb")  # noqa: SIM115 (see close)
+        except BaseException:
+            self.discard()
+            raise
+
+    def append(self, **blocks: np.ndarray) -> None:
+        """Add rows ``[B, ...]`` to the named arrays (each array's rows in order)."""
+        for name, block in blocks.items():
+            shape, dtype = self._shapes[name]
+            block = np.ascontiguousarray(block, dtype=dtype)
+            if None in shape[1:]:  # set by the first block
+                shape = (shape[0], *block.shape[1:])
+                self._shapes[name] = (shape, dtype)
+            rows = self._rows[name] + len(block)
+            if block.shape[1:] != shape[1:] or (shape[0] is not None and rows > shape[0]):
+                raise ValueError(
+                    f"{self.path}: '{name}' rows {block.shape} do not fit {shape} after "
+                    f"{self._rows[name]} rows"
+                )
+            self._files[name].write(block.tobytes())
+            self._rows[name] = rows
+
+    def close(self) -> None:
+        """Check completeness, pack the zip and rename it into place; then clean up."""
+        try:
+            for name, (shape, _) in self._shapes.items():
+                if shape[0] is not None and self._rows[name] != shape[0]:
+                    raise ValueError(
+                        f"{self.path}: '{name}' got {self._rows[name]} of {shape[0]} rows"
+                    )
+                self._files[name].close()
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
+            try:
+                with (
+                    os.fdopen(fd, "wb") as raw,
+                    zipfile.ZipFile(raw, "w", zipfile.ZIP_STORED, allowZip64=True) as archive,
+                ):
+                    for name, (shape, dtype) in self._shapes.items():
+                        header = {
+                            "descr": np.lib.format.dtype_to_descr(dtype),
+                            "fortran_order": False,
+                            "shape": (self._rows[name], *shape[1:]),
+                        }
+                        with (
+                            open(self._dir / name, "rb") as src,
+                            archive.open(f"{name}.npy", "w", force_zip64=True) as dst,
+                        ):
+                            np.lib.format.write_array_header_2_0(dst, header)
+                            shutil.copyfileobj(src, dst, 1 << 20)
+                os.replace(tmp, self.path)
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+        finally:
+            self.discard()
+
+    def discard(self) -> None:
+        """Remove the temporary files (the destination is left as it was)."""
+        for stream in self._files.values():
+            stream.close()
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+    def __enter__(self) -> NpzStreamWriter:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.discard()
