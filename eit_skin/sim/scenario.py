@@ -500,3 +500,139 @@ def resolve_scenario(
         f"unknown scenario {text!r}: not a built-in ({', '.join(BUILTIN_SCENARIOS)}) "
         "and not a .yaml file"
     )
+
+
+# --------------------------------------------------------------------------- hard scenes
+
+HARD_SCENES = (
+    "light_push",
+    "electrode_push",
+    "slow_rub",
+    "fast_rub",
+    "short_rub",
+    "close_pinch",
+    "edge_pinch",
+    "uneven_grab",
+    "palm_grab",
+    "back_to_back",
+)
+"""Touch categories of :func:`hard_scenario` (the hard-scene benchmark's touch scenes)."""
+
+
+def hard_scenario(category: str, seed: int, duration_s: float, patch: Patch) -> Scenario:
+    """Touches of one hard ``category`` (see :data:`HARD_SCENES`) one after the other.
+
+    * ``light_push``: 1-2 N in the middle third of the sheet;
+    * ``electrode_push``: 2-6 N with the disc next to an electrode (edge margin only);
+    * ``slow_rub`` (10-20 mm/s), ``fast_rub`` (150-250 mm/s), ``short_rub`` (12-15 mm);
+    * ``close_pinch`` / ``edge_pinch``: two fingers 15 mm apart closing to 5 mm, in the middle
+      / with the pair next to the outline;
+    * ``uneven_grab``: 3-5 fingers bunched on one side (30-60 mm across, uneven angles);
+    * ``palm_grab``: a palm plus 3-4 fingers (every contact 8-11 mm radius, at most a fifth
+      of the sheet's half extent);
+    * ``back_to_back``: random kinds (as :func:`random_scenario`) separated by 0.1-0.2 s of
+      release.
+
+    Pauses are 0.6-1.5 s (``back_to_back``: 0.1-0.2 s after a rub's trail). Deterministic for a
+    given category, seed and patch.
+    """
+    if category not in HARD_SCENES:
+        raise KeyError(f"unknown hard scene {category!r}; one of {', '.join(HARD_SCENES)}")
+    rng = np.random.default_rng([int(seed), HARD_SCENES.index(category), 0x4A2D])
+    frame = SheetFrame.of(patch)
+    ext = float(min(frame.half_extent))
+    electrodes = np.array([e.center for e in patch.layers[0].electrodes])
+    touches: list[Stimulus] = []
+    t = float(rng.uniform(0.8, 1.2))
+    while True:
+        stimulus = None
+        for _ in range(300):
+            candidate = _hard_touch(rng, category, t, frame, ext, electrodes)
+            if candidate is not None and frame.fits(candidate):
+                stimulus = candidate
+                break
+        if stimulus is None:
+            raise ValueError(f"hard scene: no {category} fits on patch {patch.name}")
+        if stimulus.t_end_s + stimulus.settle_s + 0.5 > duration_s:
+            break
+        touches.append(stimulus)
+        pause = rng.uniform(0.1, 0.2) if category == "back_to_back" else rng.uniform(0.6, 1.5)
+        t = stimulus.t_end_s + stimulus.settle_s + float(pause)
+    return Scenario(f"{category}-{seed}", tuple(touches), float(duration_s))
+
+
+def _hard_touch(
+    rng, category: str, t: float, frame: SheetFrame, ext: float, electrodes: np.ndarray
+) -> Stimulus | None:
+    radius = float(rng.uniform(0.005, 0.0075))
+    force = float(rng.uniform(2.0, 6.0))
+    ramp = float(rng.uniform(0.1, 0.25))
+    if category == "back_to_back":
+        label = LABELS[int(rng.integers(len(LABELS)))]
+        return _random_touch(rng, label, t, frame, ext)
+    if category == "light_push":
+        pos = frame.point(*rng.uniform(-0.33, 0.33, size=2))
+        return Push(
+            t, float(rng.uniform(0.6, 1.5)), pos, float(rng.uniform(1.0, 2.0)), radius, ramp
+        )
+    if category == "electrode_push":
+        e = electrodes[int(rng.integers(len(electrodes)))]
+        inward = frame.center - e
+        inward /= max(float(np.linalg.norm(inward)), 1e-9)
+        pos = e + inward * (radius + EDGE_MARGIN_M + float(rng.uniform(0.0005, 0.003)))
+        return Push(
+            t, float(rng.uniform(0.6, 1.5)), (float(pos[0]), float(pos[1])), force, radius, ramp
+        )
+    if category.endswith("_rub"):
+        pos = frame.point(*rng.uniform(-0.6, 0.6, size=2))
+        if category == "slow_rub":
+            speed, length = float(rng.uniform(0.01, 0.02)), float(rng.uniform(0.3, 0.6)) * ext
+        elif category == "fast_rub":
+            speed, length = float(rng.uniform(0.15, 0.25)), float(rng.uniform(0.5, 0.9)) * ext
+        else:
+            speed, length = float(rng.uniform(0.02, 0.06)), float(rng.uniform(0.012, 0.015))
+        direction = float(rng.uniform(0, 2 * math.pi))
+        return Rub(t, length / speed + 2 * ramp, pos, force, radius, ramp, direction, speed)
+    if category.endswith("_pinch"):
+        radius = float(rng.uniform(0.005, 0.006))
+        if category == "close_pinch":
+            pos = frame.point(*rng.uniform(-0.3, 0.3, size=2))
+            axis = float(rng.uniform(0, math.pi))
+        else:  # the pair next to the outline, along it
+            e = electrodes[int(rng.integers(len(electrodes)))]
+            inward = frame.center - e
+            inward /= max(float(np.linalg.norm(inward)), 1e-9)
+            pos = e + inward * (radius + EDGE_MARGIN_M + float(rng.uniform(0.001, 0.004)))
+            pos = (float(pos[0]), float(pos[1]))
+            axis = math.atan2(inward[0], -inward[1])
+        start, end = float(rng.uniform(0.014, 0.016)), float(rng.uniform(0.004, 0.006))
+        return Pinch(
+            t, float(rng.uniform(1.0, 1.8)), pos, force * 0.6, radius, ramp, axis, start, end
+        )
+    # grabs
+    if category == "palm_grab":
+        n = int(rng.integers(3, 5))
+        radius = min(float(rng.uniform(0.008, 0.011)), 0.2 * ext)
+        spread = max(float(rng.uniform(0.5, 0.65)) * ext, 2.5 * radius)
+        angles = np.linspace(-1.3, 1.3, n) + rng.uniform(-0.1, 0.1, n) + rng.uniform(0, 6.3)
+        offsets = [(0.0, 0.0), *(np.column_stack([np.cos(angles), np.sin(angles)]) * spread)]
+    else:
+        n = int(rng.integers(3, 6))
+        spread = float(rng.uniform(0.3, 0.5)) * ext
+        angles = np.sort(rng.uniform(-1.2, 1.2, n)) + rng.uniform(0, 2 * math.pi)
+        offsets = list(np.column_stack([np.cos(angles), np.sin(angles)]) * spread)
+    offsets_a = np.asarray(offsets, dtype=float)
+    offsets_a -= offsets_a.mean(axis=0)
+    gaps = np.linalg.norm(offsets_a[:, None] - offsets_a[None], axis=-1) + np.eye(len(offsets_a))
+    if gaps.min() < 2.0 * radius:
+        return None
+    pos = frame.point(*rng.uniform(-0.2, 0.2, size=2))
+    return Grab(
+        t,
+        float(rng.uniform(0.8, 1.8)),
+        pos,
+        force * 0.6,
+        radius,
+        ramp,
+        tuple((float(x), float(y)) for x, y in offsets_a),
+    )
