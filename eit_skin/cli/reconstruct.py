@@ -8,7 +8,9 @@ positive = more conductive, NaN outside the sheet and in holes), ``physical`` fl
 ``eit_reconstruction`` publishes it, ``imaged`` bool [T] (False: no image, all NaN), ``t`` [T]
 the frame times used, s, ``x`` [W] and ``y`` [H] pixel-centre coordinates in metres (patch
 frame). The output is written to a temporary file next to OUT and renamed, so it is either
-complete or absent. Errors: one line on stderr, exit status 1.
+complete or absent. Errors: one line on stderr, exit status 1, nothing written; an unusable
+reference (all zero, more than half of the channels 0/NaN/Inf/near zero/of the wrong sign) is
+such an error, single bad reference channels are left out and named in the summary.
 
 Every frame goes through :class:`~eit_skin.pipeline.processor.LayerProcessor`, the code the
 reconstruction node runs per frame: drift tracking, flag/NaN handling and fault checks on frame
@@ -250,6 +252,8 @@ def run_offline(
 
     processor = make_processor(imager, args)
     results, faulty = process_file(processor, reference, frames, times, args.reference)
+    if processor.reference_error is not None:
+        raise ValueError(f"{args.frames}: {processor.reference_error}")
     imaged = np.array([r is not None for r in results], dtype=bool)
     shape = (len(results), *imager.grid.shape)
     physical = np.full(shape, np.nan, dtype=np.float32)
@@ -266,6 +270,8 @@ def run_offline(
     tau = processor.tracker.drift_time_constant_s
     drift = f"drift tracking {tau:g} s: {processor.drift_updates} updates" if tau else "no drift"
     note = f"; left out electrodes {sorted(faulty)}" if faulty else ""
+    if processor.reference_report is not None:
+        note += "; " + "; ".join(processor.reference_report.lines())
     return OfflineImages(
         images, physical, imaged, times, imager.grid.x, imager.grid.y, f"{how}; {drift}{note}"
     )

@@ -338,8 +338,14 @@ class ReconstructionNode(Node):
                 "faulty_electrodes": ",".join(str(e) for e in faulty),
                 "joint_angle_rad": f"{processor.angle_rad:.3f}",
             }
-            if state.rejected and state.last_reject:
+            report = processor.reference_report
+            excluded = report.check.excluded.sum() if report is not None else 0
+            if processor.reference_error is not None:
+                level, text = 2, f"not imaging: {processor.reference_error}"
+            elif state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"
+            elif excluded:
+                level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
             elif not processor.reference_ready:
