@@ -58,6 +58,8 @@ def eit_skin_images(name: str):
     layer = load_patch(DATA / f"{name}.yaml").layers[0]
     data = scoring.load_set(DATA / f"{name}.npz")
     imager = LayerImager.build(layer)  # cached in EIT_SKIN_CACHE (conftest: never ~/.cache)
+    with np.load(DATA / f"{name}.npz") as raw:  # the node's rule: reference check, noise
+        imager.use_reference(data.reference, raw.get("reference_frames"), data.frames)
     images = imager.images(imager.relative_change(data.frames, data.reference))
     radius = float(np.linalg.norm(layer.outline, axis=1).max())
     return data, images, imager.grid, radius
