@@ -247,3 +247,16 @@ def test_bad_reference_offline(small, tmp_path, capsys, case):
             assert (
                 d["imaged"].all() and np.isfinite(d["images"][-1][~np.isnan(d["images"][0])]).all()
             )
+
+
+def test_tune_shows_what_was_measured_and_chosen(small, tmp_path, capsys):
+    path, _, v0, _ = small
+    rng = np.random.default_rng(5)
+    frames_file = tmp_path / "in.npz"
+    repeated = v0 + rng.normal(0.0, 1e-4 * np.abs(v0).mean(), (8, v0.size))
+    reference = bad_reference(v0, "zero")
+    np.savez(frames_file, reference=reference, frames=repeated, reference_frames=repeated)
+    assert main(["tune", "--patch", str(path), "--frames", str(frames_file)]) == 0
+    out = capsys.readouterr().out
+    assert f"{frames_file}: reference: 1 of 208 channels excluded ({CHANNEL_17}" in out
+    assert "8 repeated reference frames" in out and "chosen for the measured noise" in out
