@@ -79,6 +79,7 @@ class Run:
     build_s: float
     frame_ms: float
     model_v: np.ndarray  # [M] homogeneous model voltages (for the convention check)
+    notes: tuple[str, ...] = ()  # what eit_skin measured and chose for the set's reference
 
 
 def sheet_radius(layer: Layer) -> float:
@@ -101,9 +102,17 @@ def median_frame_ms(fn, frames: np.ndarray) -> float:
 
 
 def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
-    """The node's chain with the patch's shipped settings, built without the cache."""
+    """The node's chain with the patch's shipped settings, built without the cache.
+
+    The reference goes through ``LayerImager.use_reference`` as in the node: the set's
+    repeated no-load frames (``reference_frames``, when the file has them), else its frames,
+    give the channel noise that weights the channels and chooses the hyperparameter.
+    """
+    with np.load(DATA / f"{data.name}.npz") as raw:
+        repeated = raw.get("reference_frames")
     t = time.perf_counter()
     imager = LayerImager.build(layer, cache_dir=None)
+    report = imager.use_reference(data.reference, repeated, data.frames)
     build_s = time.perf_counter() - t
     images = imager.images(imager.relative_change(data.frames, data.reference))
     frame_ms = median_frame_ms(
@@ -113,7 +122,7 @@ def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
         build_mesh(layer), imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
     )
     model_v = forward.voltages(layer.material.sheet_conductance_s)
-    return Run("eit_skin", images, imager.grid, build_s, frame_ms, model_v)
+    return Run("eit_skin", images, imager.grid, build_s, frame_ms, model_v, tuple(report.lines()))
 
 
 def pyeit_protocol(data: scoring.RealSet):
@@ -320,7 +329,10 @@ def write_report(results: dict, started: str, load_start: float, pyeit_version: 
         "Data: the five recordings of [data/real/](../data/real/README.md) (real devices, "
         "other groups' phantoms and skins). eit_skin: each patch file's shipped solver "
         "(GREIT-trained one-step matrix, noise figure 0.13, the patch's inverse mesh) through "
-        "`LayerImager`, the reconstruction node's chain. pyEIT JAC: its examples' settings "
+        "`LayerImager`, the reconstruction node's chain, with the set's reference checked "
+        "and its channels weighted by their measured noise, the hyperparameter chosen for "
+        "the noise figure on that noise (`LayerImager.use_reference`, "
+        "docs/reconstruction.md; what was measured: Details). pyEIT JAC: its examples' settings "
         "(distmesh circle h0 = 0.1, p = 0.5, lambda = 0.01, kotre, normalised Jacobian and "
         "data), electrodes at the patch's electrode centres, the set's own measurement list; "
         "both imaged on the same pixel grid (the patch's, 64 pixels across). Scoring "
@@ -429,6 +441,8 @@ def write_report(results: dict, started: str, load_start: float, pyeit_version: 
 def details(results: dict) -> list[str]:
     """Per-target errors of the small sets, hydrogel by depth, sensitivity of the figures."""
     lines = ["", "## Details", ""]
+    for name, r in results.items():
+        lines.append(f"- {name}, eit_skin's reference and noise: {'; '.join(r['runs'][0].notes)}.")
     for name, r in results.items():
         data = r["data"]
         if not data.has_positions or len(data.frames) > 10:

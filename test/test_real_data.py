@@ -1,7 +1,8 @@
 """Regression guard on real measurements: the five recordings of ``data/real/``.
 
 eit_skin's shipped defaults (each set's patch file, through ``LayerImager``, the
-reconstruction node's chain) must keep imaging every set about as well as they do now, and
+reconstruction node's chain, with the reference check and measured channel noise of
+``LayerImager.use_reference``) must keep imaging every set about as well as they do now, and
 never produce a non-finite pixel. The bounds are loose on purpose: the figures of
 ``bench/real_data.md`` (run 2026-11-23) with a margin, so that method work can improve them
 freely while a broken chain (wrong sign, order, scale, geometry) fails. The figures are
@@ -41,14 +42,18 @@ def _load_scoring():
 
 scoring = _load_scoring()
 
-# Position sets: bound on the median position error, metres. Measured (bench/real_data.md):
-# ottawa_ph1 19.5 mm, ottawa_ph3 19.8 mm -> x 1.5. hydrogel_ohmc16 41.0 mm: it must stay
-# better than always answering the centre of the skin (50.9 mm, computed below from the truth).
-MEDIAN_BOUND_M = {"ottawa_ph1": 0.0293, "ottawa_ph3": 0.0297, "hydrogel_ohmc16": None}
+# Position sets: bound on the median position error, metres. Measured (bench/real_data.md,
+# run 2026-11-24, reference check + measured channel noise): ottawa_ph1 16.8 mm, ottawa_ph3
+# 16.5 mm -> 19.0 mm, which the previous defaults (19.5 / 19.8 mm, unweighted, fixed h) fail;
+# the images are deterministic, the margin covers BLAS rounding and small method changes.
+# hydrogel_ohmc16 39.5 mm (previously 41.0 mm) -> 40.5 mm, and it must stay better than
+# always answering the centre of the skin (50.9 mm).
+MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16": 0.0405}
 # Track sets: (lowest direction consistency, largest circle-fit residual in metres). Measured:
-# iirc_rotate 0.970 / 3.7 mm, sciospec_adjacent 0.778 / 3.7 mm -> consistency - 0.1 (a random
-# track scores about 0.5), residual x 1.5.
-TRACK_BOUND = {"iirc_rotate": (0.87, 0.0056), "sciospec_adjacent": (0.68, 0.0056)}
+# iirc_rotate 0.980 / 3.9 mm (previously 0.970, which fails 0.975), sciospec_adjacent
+# 0.778 / 3.7 mm (unchanged: its slow phase limits it, see the report) -> consistency - 0.1,
+# residual x 1.5.
+TRACK_BOUND = {"iirc_rotate": (0.975, 0.0059), "sciospec_adjacent": (0.68, 0.0056)}
 SETS = (*MEDIAN_BOUND_M, *TRACK_BOUND)
 
 
@@ -58,6 +63,8 @@ def eit_skin_images(name: str):
     layer = load_patch(DATA / f"{name}.yaml").layers[0]
     data = scoring.load_set(DATA / f"{name}.npz")
     imager = LayerImager.build(layer)  # cached in EIT_SKIN_CACHE (conftest: never ~/.cache)
+    with np.load(DATA / f"{name}.npz") as raw:  # the node's rule: reference check, noise
+        imager.use_reference(data.reference, raw.get("reference_frames"), data.frames)
     images = imager.images(imager.relative_change(data.frames, data.reference))
     radius = float(np.linalg.norm(layer.outline, axis=1).max())
     return data, images, imager.grid, radius
@@ -74,10 +81,8 @@ def within_bounds(name: str, s: dict[str, float]) -> bool:
     if name in TRACK_BOUND:
         lowest, largest = TRACK_BOUND[name]
         return s["consistency"] >= lowest and s["fit_residual_m"] <= largest
-    bound = MEDIAN_BOUND_M[name]
-    if bound is None:
-        bound = float(np.median(scoring.centre_errors(data.truth_xy)))
-    return s["median_m"] <= bound
+    centre = float(np.median(scoring.centre_errors(data.truth_xy)))
+    return s["median_m"] <= min(MEDIAN_BOUND_M[name], centre)
 
 
 @pytest.mark.parametrize("name", SETS)

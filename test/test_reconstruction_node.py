@@ -217,7 +217,9 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
     try:
         wait_ready(probe, "/arm", recon, log)
         assert "from cache" in log.read_text()
-        good = EitFrame(n_electrodes=16, drive_pattern="adjacent", voltages=[0.01] * 208)
+        # the arm's model reads negative on every channel: a positive reference would be a
+        # sign flip on all of them, an unusable reference (test_channel_noise.py)
+        good = EitFrame(n_electrodes=16, drive_pattern="adjacent", voltages=[-0.01] * 208)
         for i in range(40):
             good.sequence = i
             publisher.publish(good)

@@ -11,7 +11,10 @@ frame). The file is read, imaged and written ``--block-frames`` frames at a time
 not grow with T); the output goes to temporary files next to OUT and is renamed into place,
 so it is either complete or absent. A frame without a usable channel (e.g. all NaN) is not
 imaged (``imaged`` False, all-NaN images); how many were skipped and the first indices go to
-stderr, exit status 0. Errors: one line on stderr, exit status 1.
+stderr, exit status 0. Errors: one line on stderr, exit status 1, nothing written; an
+unusable reference (all zero, more than half of the channels 0/NaN/Inf/near zero/of the
+wrong sign) is such an error, single bad reference channels are left out and named in
+the summary.
 
 Every frame goes through :class:`~eit_skin.pipeline.processor.LayerProcessor`, the code the
 reconstruction node runs per frame: drift tracking, flag/NaN handling and fault checks on frame
@@ -329,6 +332,8 @@ def run_offline(
                 done = [r for r in results if r is not None]
                 physical[imaged] = np.stack([r.image for r in done])
                 images[imaged] = imager.images(np.stack([r.values for r in done]))
+            if processor.reference_error is not None:
+                raise ValueError(f"{args.frames}: {processor.reference_error}")
             writer.append(images=images, physical=physical, imaged=imaged, t=block_times)
             n_imaged += int(imaged.sum())
     if args.reference == "file":
@@ -339,4 +344,6 @@ def run_offline(
     tau = processor.tracker.drift_time_constant_s
     drift = f"drift tracking {tau:g} s: {processor.drift_updates} updates" if tau else "no drift"
     note = f"; left out electrodes {sorted(run.faulty)}" if run.faulty else ""
+    if processor.reference_report is not None:
+        note += "; " + "; ".join(processor.reference_report.lines())
     return OfflineImages(reader.n_frames, n_imaged, imager.grid.shape, run, f"{how}; {drift}{note}")

@@ -56,6 +56,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="target noise figure (default: the layer's solver.noise_figure)",
     )
     parser.add_argument(
+        "--frames",
+        type=Path,
+        default=None,
+        metavar="IN.npz",
+        help="a recording (eit-skin reconstruct's input; optional reference_frames [K, M]): "
+        "show its reference check, measured channel noise and the hyperparameter chosen on it",
+    )
+    parser.add_argument(
         "--write",
         action="store_true",
         help="store the chosen value as solver.hyperparameter in the patch file",
@@ -72,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
             )
         result = tune_layer(path, args.layer, args.noise_figure)
         print(result.summary())
+        if args.frames is not None:
+            for line in measured(path, result.layer, args.frames):
+                print(f"{args.frames}: {line}")
         if args.write:
             write_hyperparameter(path, result.layer, result.hyperparameter)
             print(f"wrote hyperparameter: {result.text} to {path} (layer {result.layer}, solver)")
@@ -82,6 +93,25 @@ def run(args: argparse.Namespace) -> int:
         print(f"eit-skin tune: error: {message}", file=sys.stderr)
         return 1
     return 0
+
+
+def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
+    """What the pipeline measures and chooses on a recording (``LayerImager.use_reference``)."""
+    import numpy as np
+
+    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.pipeline.builder import LayerImager
+
+    if not frames_path.is_file():
+        raise ValueError(f"{frames_path}: no such file")
+    imager = LayerImager.build(load_patch(path).layer(layer_name))
+    reference, frames, _ = load_frames_npz(frames_path, imager.n_measurements)
+    with np.load(frames_path) as raw:
+        repeated = raw.get("reference_frames")
+    if repeated is not None and np.shape(repeated)[1:] != reference.shape:
+        raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
+    return imager.use_reference(reference, repeated, frames).lines()
 
 
 def _patch_path(name_or_path: str) -> tuple[Path, bool]:

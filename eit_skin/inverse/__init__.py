@@ -7,7 +7,8 @@ and greit), ``priors`` (Tikhonov, Laplace, NOSER), ``greit`` (training the GREIT
 ``gauss_newton`` (iterative regularised Gauss-Newton for large contrasts), ``dual_form``
 (``lambda^2`` and ``(K + lambda^2 I)^-1``, shared), ``hyperparameter`` (noise figure, GCV),
 ``figures_of_merit`` (GREIT figures), ``electrode_faults`` (detect faulty electrodes, image
-without them).
+without them), ``channel_noise`` (check a reference, measure the per-channel noise that weights
+the channels).
 """
 
 from __future__ import annotations

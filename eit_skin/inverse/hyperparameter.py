@@ -3,7 +3,9 @@
 Noise figure (Adler & Guardo 1996, as in EIDORS ``calc_noise_figure``):
 ``NF = SNR_out / SNR_in`` for a small target at the centre of the sheet, with
 unit white noise on the relative voltage changes. ``SNR_in = mean|dv_h| / 1``;
-``SNR_out = sum_e a_e |x_e| / sqrt(sum_e a_e var(x_e))`` with area weights ``a``.
+``SNR_out = sum_e a_e |x_e| / sqrt(sum_e a_e var(x_e))`` with area weights ``a``. For a
+channel-weighted matrix (measured noise, ``Sigma = diag(s^2)``) the noise is that measured
+noise: the figure is computed in the whitened channels ``S^-1 dv``, where it is white.
 Small ``h`` -> noisy image -> small NF; NF grows with ``h`` towards a plateau.
 :func:`choose_by_noise_figure` finds the ``h`` that hits a target NF (Brent's method in
 ``log h``) from ``K = J P^-1 J^T`` and ``Y = P^-1 J^T`` cached in the
@@ -62,7 +64,7 @@ class _NoiseFigure:
         self._k = k
         self._y = y
         self._weights = weights
-        self._dv = rm.jacobian[rm.channels] @ target  # [M_used]
+        self._dv = rm.whitened_jacobian @ target  # [M_used], in units of the channel noise
         self._snr_in = float(np.mean(np.abs(self._dv)))
         self._g = (y * weights[:, None]).T @ y  # [M, M] = Y^T diag(a) Y
         self._trace = float(np.trace(k))
@@ -113,6 +115,8 @@ def choose_by_gcv(rm: ReconstructionMatrix, dv: np.ndarray, n_grid: int = 60) ->
     k, _ = rm.gram
     m = k.shape[0]
     d = np.asarray(dv, dtype=np.float64)[rm.channels]
+    if rm.channel_scale is not None:
+        d = d / rm.channel_scale[rm.channels]
     trace = float(np.trace(k))
     hs = np.exp(np.linspace(np.log(H_RANGE[0]), np.log(H_RANGE[1]), n_grid))
     scores = np.empty(n_grid)

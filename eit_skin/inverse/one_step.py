@@ -18,6 +18,13 @@ with ``N`` (elements), never ``N^3``. ``lambda^2 = h^2 * trace(J P^-1 J^T) / M``
 the hyperparameter ``h`` is dimensionless and comparable between meshes
 (:mod:`eit_skin.inverse.dual_form`).
 
+Channel weights (:meth:`ReconstructionMatrix.with_channel_scale`): with measured relative noise
+``Sigma = diag(s^2)`` (:mod:`eit_skin.inverse.channel_noise`) the solution is the weighted
+least-squares one, ``x = Y (K + lambda^2 Sigma)^-1 dv`` =
+``Y S^-1 (S^-1 K S^-1 + lambda^2 I)^-1 S^-1 dv``: the same dual form on the whitened
+``K_w = S^-1 K S^-1``, ``Y_w = Y S^-1`` (``lambda^2`` from ``trace(K_w)``), so a new weighting
+costs one ``M x M`` factorisation and never a Jacobian.
+
 Method ``greit`` (:meth:`ReconstructionMatrix.greit`) is the matrix trained on simulated
 targets (:mod:`eit_skin.inverse.greit`): the same dual form with ``K = Y Y^T`` and ``D Y^T``
 in place of ``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
@@ -133,6 +140,8 @@ class ReconstructionMatrix:
             set and simulated responses) of a GREIT-trained one.
         jacobian: ``[M, N]`` relative Jacobian (all channels) it was built from.
         mesh: the mesh of the ``N`` elements, if known.
+        channel_scale: ``[M]`` relative noise scale of every channel (weighted least squares,
+            ``Sigma = diag(scale^2)``); None: all 1 (unweighted).
     """
 
     matrix: np.ndarray
@@ -142,6 +151,7 @@ class ReconstructionMatrix:
     model: Prior | GreitModel
     jacobian: np.ndarray
     mesh: Mesh | None = None
+    channel_scale: np.ndarray | None = None
     _p_inv_jt: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
     _gram: tuple[np.ndarray, np.ndarray] = field(default=None, repr=False)  # type: ignore[assignment]
     _cache: dict[Any, Any] = field(default_factory=dict, repr=False)
@@ -242,6 +252,7 @@ class ReconstructionMatrix:
         channels: np.ndarray,
         h: float,
         mesh: Mesh | None,
+        channel_scale: np.ndarray | None = None,
     ) -> ReconstructionMatrix:
         channels = np.asarray(channels, dtype=np.int64)
         if isinstance(p, GreitModel):
@@ -250,15 +261,19 @@ class ReconstructionMatrix:
             y = p_inv_jt[:, channels]
             k = j[channels] @ y
             k = 0.5 * (k + k.T)
-        r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
+        if channel_scale is not None:
+            w = 1.0 / channel_scale[channels]  # whitening S^-1 on the used channels
+            k = k * w[:, None] * w[None, :]
+            y = y * w[None, :]
         return cls(
-            matrix=r,
+            matrix=_matrix(k, y, h, channel_scale, channels),
             channels=channels,
             n_channels=j.shape[0],
             hyperparameter=float(h),
             model=p,
             jacobian=j,
             mesh=mesh,
+            channel_scale=channel_scale,
             _p_inv_jt=p_inv_jt,
             _gram=(k, y),
         )
@@ -275,7 +290,7 @@ class ReconstructionMatrix:
 
     @property
     def gram(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(K, Y)`` on the used channels, ``R = Y (K + lambda^2 I)^-1``.
+        """``(K, Y)`` on the used channels, ``R = Y (K + lambda^2 I)^-1`` (whitened: ``R S^-1``).
 
         Prior: ``K = J P^-1 J^T`` ``[Mu, Mu]``, ``Y = P^-1 J^T`` ``[N, Mu]``; GREIT:
         ``K = Y_t Y_t^T`` and ``Y = D Y_t^T`` (:mod:`eit_skin.inverse.greit`).
@@ -292,21 +307,47 @@ class ReconstructionMatrix:
         ch = self.channels if channels is None else np.asarray(channels, dtype=np.int64)
         if np.array_equal(ch, self.channels):
             k, y = self._gram
-            r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
             return ReconstructionMatrix(
-                matrix=r,
+                matrix=_matrix(k, y, h, self.channel_scale, ch),
                 channels=ch,
                 n_channels=self.n_channels,
                 hyperparameter=float(h),
                 model=self.model,
                 jacobian=self.jacobian,
                 mesh=self.mesh,
+                channel_scale=self.channel_scale,
                 _p_inv_jt=self._p_inv_jt,
                 _gram=self._gram,
             )
         return ReconstructionMatrix._assemble(
-            self.jacobian, self.model, self._p_inv_jt, ch, h, self.mesh
+            self.jacobian, self.model, self._p_inv_jt, ch, h, self.mesh, self.channel_scale
         )
+
+    def with_channel_scale(
+        self, scale: np.ndarray | None, h: float | None = None
+    ) -> ReconstructionMatrix:
+        """Same model and channels weighted by relative noise ``scale`` ``[M]`` (None: unweighted).
+
+        ``h``: the hyperparameter (default: this matrix's). One ``M x M`` factorisation.
+        """
+        if scale is not None:
+            scale = np.asarray(scale, dtype=np.float64)
+            if scale.shape != (self.n_channels,) or not (
+                np.isfinite(scale).all() and (scale > 0).all()
+            ):
+                raise ValueError(f"channel scale must be [{self.n_channels}] positive numbers")
+        h = self.hyperparameter if h is None else float(h)
+        return ReconstructionMatrix._assemble(
+            self.jacobian, self.model, self._p_inv_jt, self.channels, h, self.mesh, scale
+        )
+
+    @property
+    def whitened_jacobian(self) -> np.ndarray:
+        """``S^-1 J`` on the used channels ``[Mu, N]`` (``J`` when unweighted)."""
+        j = self.jacobian[self.channels]
+        if self.channel_scale is None:
+            return j
+        return j / self.channel_scale[self.channels, None]
 
     def without_channels(self, excluded: np.ndarray) -> ReconstructionMatrix:
         """The matrix that ignores channels where ``excluded`` (bool ``[M]``) is True; cached."""
@@ -392,6 +433,14 @@ class ReconstructionMatrix:
                 op = self.without_channels(pattern) if pattern.any() else self
                 out[rows] = op.solve(dv[rows])
         return out[0] if single else out
+
+
+def _matrix(
+    k: np.ndarray, y: np.ndarray, h: float, scale: np.ndarray | None, channels: np.ndarray
+) -> np.ndarray:
+    """``R = Y_w (K_w + lambda^2 I)^-1 S^-1`` ``[N, Mu]`` from the (whitened) Gram pair."""
+    r = y @ regularised_inverse(k, lambda_squared(h, np.trace(k), k.shape[0]))
+    return r if scale is None else r / scale[channels][None, :]
 
 
 def _checked_jacobian(jacobian: np.ndarray, mesh: Mesh) -> np.ndarray:

@@ -38,9 +38,6 @@ def _check_frames(
     if reference.ndim != 1 or reference.size == 0:
         raise ValueError(f"{where}: 'reference' must have shape [M], got {reference.shape}")
     m = reference.size
-    if not np.isfinite(reference).all():
-        bad = int(np.flatnonzero(~np.isfinite(reference))[0])
-        raise ValueError(f"{where}: 'reference' has a non-finite value at index {bad}")
     if frames.ndim != 2 or frames.shape[0] == 0 or frames.shape[1] != m:
         raise ValueError(
             f"{where}: 'frames' must have shape [T>=1, M={m}] like 'reference', got {frames.shape}"
@@ -99,8 +96,9 @@ def load_frames_npz(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Read and validate an offline frames file: returns (reference [M], frames [T, M], t|None).
 
-    Raises ValueError naming the file and key for a missing key, a wrong shape or dtype, a
-    non-finite reference or an M different from ``n_measurements``.
+    Raises ValueError naming the file and key for a missing key, a wrong shape or dtype or an M
+    different from ``n_measurements``. A NaN/Inf in the reference is a missing channel, left to
+    the pipeline's reference check (:func:`eit_skin.inverse.channel_noise.check_reference`).
     """
     try:
         data = np.load(path, allow_pickle=False)

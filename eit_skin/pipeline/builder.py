@@ -26,7 +26,14 @@ from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import excluded_channels
 from eit_skin.inverse.build import build_method
+from eit_skin.inverse.channel_noise import (
+    ReferenceCheck,
+    channel_scale,
+    check_reference,
+    estimate_channel_noise,
+)
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
+from eit_skin.inverse.hyperparameter import choose_by_noise_figure
 from eit_skin.inverse.methods import (
     DEFAULT_NOISE_FIGURE,
     METHODS,
@@ -39,7 +46,7 @@ from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
 
 #: Bumped whenever the cached quantities change meaning.
-CACHE_VERSION = "1"
+CACHE_VERSION = "2"
 
 #: Floor of the relative conductivity change before the physical conversion.
 MIN_RELATIVE_CHANGE = -0.9
@@ -76,12 +83,15 @@ class Operator:
         mesh: the imaging (inverse) mesh, ``N`` elements.
         reconstructor: the method (:class:`~eit_skin.inverse.methods.Reconstructor`).
         from_cache: whether the Jacobian and hyperparameter came from the disk cache.
+        model_voltages: ``[M]`` homogeneous model voltages of the sheet, volts (the sign check
+            of a reference, :func:`~eit_skin.inverse.channel_noise.check_reference`).
     """
 
     protocol: Protocol
     mesh: Mesh
     reconstructor: Reconstructor
     from_cache: bool = False
+    model_voltages: np.ndarray | None = None
 
 
 def build_operator(layer: Layer, cache_dir: Path | str | None = "default") -> Operator:
@@ -106,18 +116,23 @@ def build_operator(layer: Layer, cache_dir: Path | str | None = "default") -> Op
             with np.load(path) as cached:
                 jacobian = cached["jacobian"]
                 h = float(cached["hyperparameter"])
+                model_v = cached["model_voltages"]
             method = _method(layer, forward, inverse_mesh, jacobian, h)
-            return Operator(protocol, inverse_mesh, method, from_cache=True)
+            return Operator(protocol, inverse_mesh, method, True, model_v)
         except (OSError, KeyError, ValueError):
             pass  # unreadable or stale: rebuild and overwrite below
     if forward is None:
         forward = _forward(layer, inverse_mesh)
     method = _method(layer, forward, inverse_mesh, None, layer.solver.hyperparameter)
+    model_v = forward.voltages(layer.material.sheet_conductance_s)
     if path is not None:
         _save_to_cache(
-            path, jacobian=method.linearised.jacobian, hyperparameter=method.hyperparameter
+            path,
+            jacobian=method.linearised.jacobian,
+            hyperparameter=method.hyperparameter,
+            model_voltages=model_v,
         )
-    return Operator(protocol, inverse_mesh, method)
+    return Operator(protocol, inverse_mesh, method, model_voltages=model_v)
 
 
 def with_method(layer: Layer, method: str) -> Layer:
@@ -142,6 +157,41 @@ def with_method(layer: Layer, method: str) -> Layer:
     return replace(layer, solver=new)
 
 
+@dataclass(frozen=True)
+class ReferenceReport:
+    """What :meth:`LayerImager.use_reference` found and chose.
+
+    Attributes:
+        check: the reference's excluded channels and why.
+        noise_source: how the channel noise was measured; None: not measured (unweighted).
+        median_noise: median relative noise of one frame's ``dv`` over the used channels.
+        weighted: channels whose noise is above the median (down-weighted).
+        hyperparameter: the ``h`` in use; ``chosen``: whether it was chosen for the measured
+            noise (False: ``solver.hyperparameter`` fixed it, or the method takes no weights).
+    """
+
+    check: ReferenceCheck
+    noise_source: str | None
+    median_noise: float
+    weighted: int
+    hyperparameter: float
+    chosen: bool
+
+    def lines(self) -> list[str]:
+        """Human-readable summary, one fact per line."""
+        out = [self.check.summary]
+        if self.noise_source is None:
+            out.append("channel noise: not measured (channels weighted equally)")
+        else:
+            out.append(
+                f"channel noise: {self.noise_source}; median {self.median_noise:.3g} of the "
+                f"reference per frame, {self.weighted} channels noisier (down-weighted)"
+            )
+        how = "chosen for the measured noise" if self.chosen else "fixed"
+        out.append(f"hyperparameter {self.hyperparameter:.4g} ({how})")
+        return out
+
+
 @dataclass
 class LayerImager:
     """Reconstruction of one layer: frames (V) -> relative change -> physical images.
@@ -155,6 +205,9 @@ class LayerImager:
         grid: element -> pixel interpolation (``H x W``), NaN outside the sheet.
         from_cache: whether the Jacobian came from the disk cache.
         reconstructor: the layer's ``solver.method`` (default: ``matrix``).
+        model_voltages: ``[M]`` homogeneous model voltages (reference sign check), if known.
+        reference_excluded: bool ``[M]`` channels left out because of the reference
+            (:meth:`use_reference`); None before.
     """
 
     layer: Layer
@@ -164,10 +217,55 @@ class LayerImager:
     grid: ImageGrid
     from_cache: bool = False
     reconstructor: Reconstructor = None  # type: ignore[assignment]  # None: ``matrix``
+    model_voltages: np.ndarray | None = None
+    reference_excluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.reconstructor is None:
             self.reconstructor = self.matrix
+        self._unweighted = self.reconstructor
+
+    def use_reference(
+        self,
+        reference: np.ndarray,
+        reference_frames: np.ndarray | None = None,
+        frames: np.ndarray | None = None,
+    ) -> ReferenceReport:
+        """Check a reference ``[M]`` V and weight the channels by their measured noise.
+
+        The one rule, online and offline (:mod:`eit_skin.inverse.channel_noise`): channels
+        with an unusable reference value are left out of every later image; the noise of
+        ``reference_frames`` ``[K, M]`` V (else of ``frames`` ``[T, M]`` V, else of the
+        reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
+        not weighted) and the hyperparameter is re-chosen for the layer's noise figure on that
+        measured noise, unless ``solver.hyperparameter`` fixes it. One ``M x M``
+        factorisation per trial, no Jacobian.
+
+        Raises:
+            UnusableReferenceError: (a ValueError) the reference cannot be imaged against.
+        """
+        check = check_reference(reference, self.protocol, self.model_voltages)
+        self.reference_excluded = check.excluded
+        base = self._unweighted
+        noise = estimate_channel_noise(reference, self.protocol, reference_frames, frames)
+        if noise is None or not isinstance(base, ReconstructionMatrix):
+            self.reconstructor = base
+            self.matrix = base.linearised
+            return ReferenceReport(check, None, float("nan"), 0, base.hyperparameter, False)
+        relative = noise.relative(reference)
+        usable = ~check.excluded & np.isfinite(relative)
+        scale = channel_scale(relative, usable)
+        weighted = base.with_channel_scale(scale)
+        fixed = self.layer.solver.hyperparameter
+        if fixed is None:
+            target = self.layer.solver.noise_figure or DEFAULT_NOISE_FIGURE[base.method]
+            weighted = weighted.with_hyperparameter(choose_by_noise_figure(weighted, target))
+        self.reconstructor = self.matrix = weighted
+        median = float(np.median(relative[usable])) if usable.any() else float("nan")
+        n_weighted = int(np.count_nonzero(scale[usable] > 1.0))
+        return ReferenceReport(
+            check, noise.source, median, n_weighted, weighted.hyperparameter, fixed is None
+        )
 
     @classmethod
     def build(cls, layer: Layer, cache_dir: Path | str | None = "default") -> LayerImager:
@@ -175,7 +273,9 @@ class LayerImager:
         op = build_operator(layer, cache_dir)
         grid = ImageGrid.build(op.mesh, layer.solver.image_pixels)
         rec = op.reconstructor
-        return cls(layer, op.protocol, op.mesh, rec.linearised, grid, op.from_cache, rec)
+        return cls(
+            layer, op.protocol, op.mesh, rec.linearised, grid, op.from_cache, rec, op.model_voltages
+        )
 
     @property
     def method(self) -> str:
@@ -201,11 +301,14 @@ class LayerImager:
         Channels flagged saturated/invalid (``flags`` uint8 ``[M]``, ``EitFrame`` bits) and
         channels that are NaN in a frame or the reference are left out, never imaged
         (one-step/GREIT: cached reduced matrices; Gauss-Newton: fitted without them, one
-        fit per frame).
+        fit per frame), as are the channels :meth:`use_reference` excluded.
         """
-        excluded = None
+        excluded = self.reference_excluded
         if flags is not None and np.size(flags):
-            excluded = excluded_channels(flags, self.n_measurements)
+            flagged = excluded_channels(flags, self.n_measurements)
+            excluded = flagged if excluded is None else excluded | flagged
+        if excluded is not None and not excluded.any():
+            excluded = None
         return self.reconstructor.reconstruct(frames, reference, excluded=excluded)
 
     def images(self, element_values: np.ndarray) -> np.ndarray:

@@ -11,7 +11,12 @@ Per frame ``[M]`` volts at frame time ``t_s``:
    there are the same frame to everything below.
 2. **Reference.** Until the reference is ready (:class:`ReferenceTracker`: capture of the
    first ``reference_frames`` frames, or :meth:`LayerProcessor.set_reference`) no image is
-   made. The captured frames give the per-element noise of the contact decision.
+   made. The reference is checked (:meth:`LayerImager.use_reference`): channels whose
+   reference is 0, NaN, Inf, near zero or of the wrong sign are left out, named in
+   :attr:`LayerProcessor.reference_report`; an unusable reference (all zero, more than half of
+   the channels bad) sets :attr:`LayerProcessor.reference_error` and no frame is imaged until
+   the next capture. The captured frames give the per-channel noise that weights the channels
+   and chooses the hyperparameter, and the per-element noise of the contact decision.
 3. **Faults.** The captured frames, and then every ``fault_check_period_s`` of FRAME time
    (not wall time: an offline run over recorded frames checks at the same frames as the node
    did) the last :data:`FAULT_WINDOW_FRAMES` frames, are checked for faulty electrodes
@@ -35,8 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from eit_skin.frames import FLAG_INVALID, excluded_channels
+from eit_skin.inverse.channel_noise import UnusableReferenceError
 from eit_skin.inverse.electrode_faults import faulty_electrodes
-from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.builder import LayerImager, ReferenceReport
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 
 #: Defaults shared by the node's parameters and the offline commands' options.
@@ -111,6 +117,8 @@ class LayerProcessor:
         self._fault_flags: np.ndarray | None = None
         self._next_fault_check_s: float | None = None
         self._noise_frames: np.ndarray | None = None  # [K, M] V behind the element noise
+        self.reference_report: ReferenceReport | None = None
+        self.reference_error: str | None = None
         self.frames_in = 0
         self.frames_imaged = 0
         self.frames_unusable = 0
@@ -157,6 +165,8 @@ class LayerProcessor:
         self._recent.clear()
         self._next_fault_check_s = None
         self._noise_frames = None
+        self.reference_report = None
+        self.reference_error = None
 
     def set_reference(
         self, reference_v: np.ndarray, t_s: float, noise_frames_v: np.ndarray | None = None
@@ -214,6 +224,9 @@ class LayerProcessor:
                 self._noise_frames = tracker.captured_frames
                 self._reference_ready(t_s)
             return None
+        if self.reference_error is not None:
+            self.frames_unusable += 1
+            return None
         reference = tracker.reference()
         finite = np.isfinite(frame)
         n_finite = int(np.count_nonzero(finite))
@@ -222,10 +235,19 @@ class LayerProcessor:
             return None
         self._recent.append(frame)
         self._check_faults_if_due(t_s, reference)
-        if n_finite == m and not self._faulty.size and np.isfinite(reference).all():
+        excluded = self.imager.reference_excluded
+        if (
+            n_finite == m
+            and not self._faulty.size
+            and excluded is None
+            and np.isfinite(reference).all()
+        ):
             used = m  # the common case, without building the mask
         else:
-            used = int(np.count_nonzero(finite & np.isfinite(reference) & ~self._fault_mask))
+            usable = finite & np.isfinite(reference) & ~self._fault_mask
+            if excluded is not None:
+                usable &= ~excluded
+            used = int(np.count_nonzero(usable))
         if used == 0:
             self.frames_unusable += 1
             return None
@@ -253,8 +275,13 @@ class LayerProcessor:
 
     # ----------------------------------------------------------------- faults
     def _reference_ready(self, t_s: float) -> None:
-        """Fault check on the frames behind the noise, then the noise itself."""
+        """Reference check and channel noise, faults in the frames behind it, element noise."""
         frames = self._noise_frames
+        try:
+            self.reference_report = self.imager.use_reference(self.tracker.reference(), frames)
+        except UnusableReferenceError as error:
+            self.reference_error = str(error)
+            return
         if frames is not None and len(frames) >= MIN_FAULT_FRAMES and self.fault_check_period_s > 0:
             self._check_faults(frames, self.tracker.reference())
         self._update_element_noise()

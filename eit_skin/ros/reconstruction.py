@@ -408,8 +408,14 @@ class ReconstructionNode(Node):
                 "frames_waiting_for_joint": str(self.posture_sync.waiting),
                 "frames_joint_late": str(self.posture_sync.late),
             }
-            if state.rejected and state.last_reject:
+            report = processor.reference_report
+            excluded = report.check.excluded.sum() if report is not None else 0
+            if processor.reference_error is not None:
+                level, text = 2, f"not imaging: {processor.reference_error}"
+            elif state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"
+            elif excluded:
+                level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
             elif not processor.reference_ready:
