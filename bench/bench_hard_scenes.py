@@ -146,14 +146,16 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
 
 
 def classify(run: Run, x, y, spread, electrodes_m, config=None, faults: bool = True):
-    """Every event of one scene; the pipeline's faulty electrodes fed each frame."""
-    clf = TouchClassifier(x, y, config, contact_spread_m=spread, electrodes_m=electrodes_m)
-    events, last = [], None
+    """Every event of one scene.
+
+    The classifier does not take the pipeline's faulty electrodes yet (issue 18 open: a first
+    fault-aware classifier lost the easy scenes and was withdrawn), so ``electrodes_m`` and
+    ``faults`` are not used; the recorded faulty sets stay in the data for that work.
+    """
+    del electrodes_m, faults
+    clf = TouchClassifier(x, y, config, contact_spread_m=spread)
+    events = []
     for k in range(len(run.t)):
-        bad = tuple(np.flatnonzero(run.faulty[k])) if faults else ()
-        if bad != last:
-            clf.set_faulty_electrodes(bad)
-            last = bad
         stretch = None if run.stretch is None else run.stretch[k]
         events += clf.step(float(run.t[k]), run.pressure[k], stretch)
     return events + clf.finish()

@@ -8,12 +8,8 @@ import pytest
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import HARD_SCENES, SheetFrame, hard_scenario
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
-from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, envelope, sequence
-
-ELECTRODES = 0.04 * np.column_stack(
-    [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]
-)
+from eit_skin.touch.classifier import classify_stream
+from test.synthetic_touches import SIGMA_PA, X, Y, envelope, sequence
 
 
 def ends(events):
@@ -53,31 +49,6 @@ def test_two_pushes_separated_by_a_tenth_of_a_second_are_two_touches() -> None:
     got = ends(classify_stream(t, images, X, Y))
     assert [e.label for e in got] == ["push", "push"]
     assert got[0].t_end_s < 1.8 <= got[1].t_start_s
-
-
-def test_a_faulty_electrode_recalibrates_and_lowers_the_confidence_near_it() -> None:
-    clf = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
-    t, images = sequence(
-        lambda t: ([(0.032, 0.0)], 5000.0 * envelope(t, 2.0, 2.8)) if t > 1 else ([], 0), 3.5
-    )
-    # at 1.0 s the imaging starts leaving electrode 0 out: its image shifts by 20 sigma there
-    shifted = images + np.where((t >= 1.0)[:, None, None] & INSIDE, 20 * SIGMA_PA, 0.0)
-    events = []
-    for k in range(len(t)):
-        if t[k] == 1.0:
-            clf.set_faulty_electrodes([0])
-            assert not clf.calibrated  # the new image offset is learnt again, no event
-        events += clf.step(float(t[k]), shifted[k])
-    (end,) = ends(events)
-    assert end.label == "push" and clf.near_fault(end.centroid_m)
-    healthy = ends(classify_stream(t, images, X, Y))[0]
-    assert end.confidence == pytest.approx(0.5 * healthy.confidence, abs=0.05)
-    with pytest.raises(ValueError, match="out of range"):
-        clf.set_faulty_electrodes([16])
-    with pytest.raises(ValueError, match="electrodes_m"):
-        TouchClassifier(X, Y).set_faulty_electrodes([1])
-    with pytest.raises(ValueError, match="fault_confidence"):
-        ClassifierConfig(fault_confidence=0.0)
 
 
 def test_hard_scenes_fit_the_sheet_and_are_deterministic() -> None:

@@ -36,7 +36,6 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from eit_skin.patch.model import Layer, Patch, PatchError
 from eit_skin.touch.contacts import (
@@ -145,11 +144,6 @@ class ClassifierConfig:
             narrowing (``closing``) is measured (against single noisy frames).
         confidence_gain: slope of the confidence ``0.5 + 0.5 tanh(gain |f - t| / t)`` of a
             feature ``f`` deciding against its threshold ``t``.
-        contact_margin: pixels within this many single-finger spreads of a contact count as
-            touched: they neither give the sheet-wide offset nor follow the baseline.
-        fault_radius: an event whose centroid lies within this many single-finger spreads of a
-            faulty electrode has its confidence multiplied by ``fault_confidence``.
-        fault_confidence: confidence factor near a faulty electrode (0..1].
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -181,9 +175,6 @@ class ClassifierConfig:
     anchor_frames: int = 3
     closing_window: int = 5
     confidence_gain: float = 2.0
-    contact_margin: float = 1.0
-    fault_radius: float = 2.0
-    fault_confidence: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -208,8 +199,6 @@ class ClassifierConfig:
             "detect_kernel",
             "noise_floor_fraction",
             "track_missed_frames",
-            "contact_margin",
-            "fault_radius",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -232,8 +221,6 @@ class ClassifierConfig:
             raise ValueError(f"blob_fraction must be in [0, 1), got {self.blob_fraction}")
         if not 0 < self.learn_fraction <= 1:
             raise ValueError(f"learn_fraction must be in (0, 1], got {self.learn_fraction}")
-        if not 0 < self.fault_confidence <= 1:
-            raise ValueError(f"fault_confidence must be in (0, 1], got {self.fault_confidence}")
 
 
 @dataclass(frozen=True)
@@ -447,8 +434,6 @@ class TouchClassifier:
         contact_spread_m: spread of one fingertip's image, m: a ``[H, W]`` map
             (:func:`~eit_skin.touch.shapes.single_contact_spread`) or a scalar; ``None``:
             ``config.contact_spread_m``.
-        electrodes_m: ``[E, 2]`` electrode centres of the pressure layer, m (patch frame), so
-            that :meth:`set_faulty_electrodes` can name them; ``None``: no fault handling.
     """
 
     def __init__(
@@ -459,14 +444,12 @@ class TouchClassifier:
         pressure_noise_pa: float | None = None,
         stretch_noise: float | None = None,
         contact_spread_m: float | np.ndarray | None = None,
-        electrodes_m: np.ndarray | None = None,
     ) -> None:
         self.x = np.asarray(x, dtype=np.float64)
         self.y = np.asarray(y, dtype=np.float64)
         self.config = config or ClassifierConfig()
         self.pixel_m = float(abs(self.x[1] - self.x[0]))
         self.pressure_noise_pa = pressure_noise_pa
-        self.pressure_noise_pa_given = pressure_noise_pa is not None
         self.stretch_noise = stretch_noise
         self.segmenter: ContactSegmenter | None = None
         self._xx, self._yy = np.meshgrid(self.x, self.y)
@@ -499,66 +482,6 @@ class TouchClassifier:
         self.last_contacts: list[Contact] = []
         self.last_features: TouchFeatures | None = None
         self.frames = 0
-        self.electrodes_m = (
-            None if electrodes_m is None else np.asarray(electrodes_m, dtype=np.float64)
-        )
-        if self.electrodes_m is not None and (
-            self.electrodes_m.ndim != 2 or self.electrodes_m.shape[1] != 2
-        ):
-            raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
-        self.faulty: tuple[int, ...] = ()
-        self._recalibrate = False
-        self._touched = np.zeros(self._xx.shape, dtype=bool)  # previous frame's contacts, grown
-        margin_px = self.config.contact_margin * float(np.median(spread)) / self.pixel_m
-        self._margin_px = max(round(margin_px), 1)
-
-    def set_faulty_electrodes(self, electrodes) -> None:
-        """The electrodes the imaging now leaves out (e.g. ``LayerProcessor.faulty_electrodes``).
-
-        Leaving channels out changes the image's static offset and noise, so when the set
-        changes the classifier calibrates again (the next ``calibration_s`` of frames, no
-        events): at once if no touch goes on, else right after that touch's END. Events near a
-        faulty electrode (``fault_radius``) get ``fault_confidence`` times their confidence.
-
-        Raises:
-            ValueError: an index out of range, or no ``electrodes_m`` given while it is not
-                empty.
-        """
-        faulty = tuple(sorted({int(e) for e in np.atleast_1d(electrodes).tolist()}))
-        if faulty and self.electrodes_m is None:
-            raise ValueError("faulty electrodes given, but the classifier has no electrodes_m")
-        if faulty and not (faulty[0] >= 0 and faulty[-1] < len(self.electrodes_m)):
-            raise ValueError(f"faulty electrodes out of range 0..{len(self.electrodes_m) - 1}")
-        if faulty == self.faulty:
-            return
-        self.faulty = faulty
-        if self.segmenter is not None:
-            self._recalibrate = True
-            if self._touch is None:
-                self._restart_calibration()
-
-    def _restart_calibration(self) -> None:
-        self._recalibrate = False
-        self.segmenter = None
-        self.detector = None
-        self._t0 = None
-        self._calibration = []
-        self._calibration_stretch = []
-        self._noise_var = None
-        self._run = 0
-        self._run_shapes = []
-        self._touched[:] = False
-        self.tracker.reset()
-        if not self.pressure_noise_pa_given:
-            self.pressure_noise_pa = None
-
-    def near_fault(self, point_m) -> bool:
-        """True if ``(x, y)`` m is within ``fault_radius`` finger spreads of a faulty electrode."""
-        if not self.faulty or self.electrodes_m is None:
-            return False
-        d = np.linalg.norm(self.electrodes_m[list(self.faulty)] - np.asarray(point_m), axis=1)
-        unit = float(np.median(self.contact_spread_m))
-        return bool(d.min() <= self.config.fault_radius * unit)
 
     @property
     def calibrated(self) -> bool:
@@ -646,8 +569,6 @@ class TouchClassifier:
         if self.config.average_frames == 1:
             self._recent = [pressure]
         signal = np.mean(self._recent, axis=0) - self.baseline
-        if self._touch is not None:  # idle, the baseline follows the whole image
-            signal = signal - self._sheet_offset(signal)
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = None  # time of the first frame of a pooled detection, if there is one
         if self.detector is not None:
@@ -662,33 +583,14 @@ class TouchClassifier:
             s = stretch - self.stretch_baseline
             stretch_peak = float(np.nanmax(s)) if np.isfinite(s).any() else None
         shape = None
-        self._touched = ndimage.binary_dilation(parts > 0, iterations=self._margin_px)
         if contacts:
             shape = self._shape(t_s, signal, parts > 0)
         else:
             self._run_shapes = []
             if self._touch is None:
+                self._follow_baseline(dt, pressure, stretch)
                 self._follow_noise(dt, signal)
-        if self._touch is None and not contacts:
-            self._follow_baseline(dt, pressure, stretch)
-        elif contacts:  # only away from contacts; the touched pixels take the sheet-wide step
-            self._follow_baseline(dt, pressure, stretch, ~self._touched)
-        events = self._advance(t_s, contacts, stretch_peak, shape, detected)
-        if self._recalibrate and self._touch is None:
-            self._restart_calibration()
-        return events
-
-    def _sheet_offset(self, signal: np.ndarray) -> float:
-        """Median of ``signal`` over the sheet away from the previous frame's contacts.
-
-        Sheet-wide drift the baseline has not followed yet (sigma0 with temperature, or
-        accumulated while touches kept the baseline from learning) shifts the whole image; a
-        touch covers far less than half of the untouched sheet, so the median is that shift.
-        """
-        free = ~self._touched & np.isfinite(signal)
-        if np.count_nonzero(free) < 0.25 * np.count_nonzero(np.isfinite(signal)):
-            return 0.0
-        return float(np.median(signal[free]))
+        return self._advance(t_s, contacts, stretch_peak, shape, detected)
 
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
@@ -721,21 +623,10 @@ class TouchClassifier:
         self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
 
-    def _follow_baseline(self, dt: float, pressure, stretch, free=None) -> None:
-        """Baseline follows the image (time constant ``baseline_tau_s``).
-
-        With ``free`` (``[H, W]`` bool, the pixels away from contacts) only those follow;
-        the others move by the median step of the free ones (the sheet-wide drift).
-        """
+    def _follow_baseline(self, dt: float, pressure, stretch) -> None:
         alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
         ok = np.isfinite(pressure)
-        step = np.where(ok, alpha * (np.where(ok, pressure, 0.0) - self.baseline), 0.0)
-        if free is not None:
-            use = ok & free
-            if not use.any():
-                return
-            step = np.where(use, step, float(np.median(step[use])))
-        self.baseline += np.where(ok, step, 0.0)
+        self.baseline[ok] += alpha * (pressure[ok] - self.baseline[ok])
         if stretch is not None and self.stretch_baseline is not None:
             ok = np.isfinite(stretch)
             self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
@@ -862,14 +753,11 @@ class TouchClassifier:
             strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()
             latest = shapes[np.flatnonzero(strong)[-1]]
             centroid = (latest["x_m"], latest["y_m"])
-        confidence = float(touch.confidence)
-        if self.near_fault(centroid):
-            confidence *= self.config.fault_confidence
         return TouchEvent(
             touch_id=touch.id,
             state=state,
             label=touch.label,
-            confidence=confidence,
+            confidence=float(touch.confidence),
             t_s=float(t_s),
             t_start_s=float(touch.t_start_s),
             t_end_s=float(touch.t_last_s if state == "end" else t_s),
