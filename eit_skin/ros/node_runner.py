@@ -143,12 +143,13 @@ def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | N
     with signals.installed():
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-            node = make_node()
+            try:
+                node = make_node()
+            except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
+                print(f"{executable}: refusing to start: {error}", file=sys.stderr)
+                return 2
             signals.spinning = True
             spin_nodes([node], stop=signals.requested)
-        except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
-            print(f"{executable}: refusing to start: {error}", file=sys.stderr)
-            return 2
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
