@@ -170,9 +170,21 @@ class DriverNode(Node):
 
     def _publish_diagnostics(self) -> None:
         status: SourceStatus = self.source.status()
-        if status.level > 0:
-            log = self.get_logger().error if status.level > 1 else self.get_logger().warning
-            log(status.message, throttle_duration_sec=10.0)
+        if self.waits_for and not isinstance(self.source, SerialSource):
+            # holding the script until a subscriber listens is normal, not a fault
+            topics = ", ".join(
+                self.resolve_topic_name(p.topic) for p in self.frame_publishers.values()
+            )
+            status = SourceStatus(
+                0,
+                f"waiting for {self.waits_for} subscriber(s) on {topics}",
+                {**status.values, "waiting_for_subscribers": str(self.waits_for)},
+            )
+        # one call site per severity: rclpy refuses a severity change at one call site
+        if status.level > 1:
+            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+        elif status.level == 1:
+            self.get_logger().warning(status.message, throttle_duration_sec=10.0)
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [

@@ -89,6 +89,7 @@ _PARAMETERS: ParameterTable = [
         f"frame time between checks of the last {FAULT_WINDOW_FRAMES} frames for faulty "
         "electrodes, s; 0: never",
     ),
+    ("frame_timeout_s", 5.0, "no frame on a layer for this long: diagnostics ERROR, s; 0: off"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
 
@@ -114,6 +115,8 @@ class LayerState:
     processing_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
     last_image: np.ndarray | None = None
     last_reject: str = ""
+    last_arrival: float | None = None  # time.monotonic() of the last frame, good or bad
+    frames_topic: str = ""
 
 
 class ReconstructionNode(Node):
@@ -161,6 +164,7 @@ class ReconstructionNode(Node):
                 colour_pub=self.create_publisher(Image, topic.image_color, qos_profile_sensor_data),
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
+                frames_topic=topic.frames,
             )
             self.create_subscription(
                 _frame_type(),
@@ -169,6 +173,8 @@ class ReconstructionNode(Node):
                 FRAME_QOS,
             )
         self.joint = joint
+        self.frame_timeout_s = float(p["frame_timeout_s"])
+        self.started = time.monotonic()
         self.joint_history = JointAngleHistory()
         if joint:
             self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
@@ -197,6 +203,7 @@ class ReconstructionNode(Node):
 
     def _on_frame(self, name: str, msg) -> None:
         state = self.layers[name]
+        state.last_arrival = time.monotonic()
         m = state.imager.n_measurements
         if len(msg.voltages) != m or msg.n_electrodes != state.layer.n_electrodes:
             self._reject(
@@ -338,7 +345,12 @@ class ReconstructionNode(Node):
                 "faulty_electrodes": ",".join(str(e) for e in faulty),
                 "joint_angle_rad": f"{processor.angle_rad:.3f}",
             }
-            if state.rejected and state.last_reject:
+            silent_s = time.monotonic() - (state.last_arrival or self.started)
+            values["last_frame_age_s"] = f"{silent_s:.1f}" if state.last_arrival else "never"
+            if self.frame_timeout_s and silent_s > self.frame_timeout_s:
+                topic = self.resolve_topic_name(state.frames_topic)
+                level, text = 2, f"no frame on {topic} for {silent_s:.0f} s"
+            elif state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
