@@ -16,9 +16,8 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
-from eit_skin.ros.launch_actions import ros_nodes
+from eit_skin.ros.launch_actions import ros_nodes, rviz_actions
 from eit_skin.ros.node_graph import robot_nodes
 
 
@@ -38,10 +37,8 @@ def generate_launch_description():
             ),
             DeclareLaunchArgument("rviz", default_value="false", description="start rviz2"),
             OpaqueFunction(function=_robot_actions),
-            Node(
-                package="rviz2",
-                executable="rviz2",
-                arguments=["-d", rviz_config],
+            OpaqueFunction(
+                function=lambda context: rviz_actions(rviz_config),
                 condition=IfCondition(LaunchConfiguration("rviz")),
             ),
         ]

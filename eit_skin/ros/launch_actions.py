@@ -25,3 +25,25 @@ def ros_nodes(specs: list[NodeSpec]) -> list:
         )
         for spec in specs
     ]
+
+
+def rviz_actions(rviz_config: str) -> list:
+    """rviz2 with ``rviz_config``, or, where rviz2 is not installed, one log line saying so.
+
+    A missing rviz2 must not end the launch (which used to exit 1 and leave every skin node
+    running as an orphan): the skin runs on without the viewer.
+    """
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    from launch.actions import LogInfo
+    from launch_ros.actions import Node
+
+    try:
+        get_package_prefix("rviz2")
+    except PackageNotFoundError:
+        return [
+            LogInfo(
+                msg="rviz:=true but rviz2 is not installed (apt install ros-$ROS_DISTRO-rviz2); "
+                "the skin runs without it"
+            )
+        ]
+    return [Node(package="rviz2", executable="rviz2", arguments=["-d", rviz_config])]
