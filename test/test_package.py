@@ -76,6 +76,7 @@ def _stand_in_modules() -> dict[str, types.ModuleType]:
     modules["launch"].LaunchDescription = lambda actions: list(actions)
     modules["launch.actions"].DeclareLaunchArgument = _Argument
     modules["launch.actions"].OpaqueFunction = _Opaque
+    modules["launch.actions"].LogInfo = _Recorder
     modules["launch.conditions"].IfCondition = _Recorder
     modules["launch.substitutions"].LaunchConfiguration = _Config
     modules["launch_ros.actions"].Node = _Node
@@ -95,7 +96,11 @@ def test_launch_file_names_only_installed_executables(
     monkeypatch.setitem(
         sys.modules,
         "ament_index_python.packages",
-        types.SimpleNamespace(get_package_share_directory=lambda pkg: str(share / pkg)),
+        types.SimpleNamespace(
+            get_package_share_directory=lambda pkg: str(share / pkg),
+            get_package_prefix=lambda pkg: str(tmp_path),  # rviz2 "installed"
+            PackageNotFoundError=LookupError,
+        ),
     )
     path = repo / "launch" / launch_file
     spec = importlib.util.spec_from_file_location(launch_file.replace(".", "_"), path)
@@ -107,9 +112,11 @@ def test_launch_file_names_only_installed_executables(
     for name in arguments:  # every argument is documented in the file's docstring
         assert f"\n  {name} " in module.__doc__, f"{launch_file}: argument {name} undocumented"
     _Config.values = dict(arguments)
-    opaque = [a for a in actions if isinstance(a, _Opaque)]
+    opaque = [a for a in actions if isinstance(a, _Opaque) and "condition" not in a.kwargs]
     assert len(opaque) == 1
     nodes = opaque[0].kwargs["function"](None)
+    (viewer,) = [a for a in actions if isinstance(a, _Opaque) and "condition" in a.kwargs]
+    assert viewer.kwargs["condition"].args[0].name == "rviz"
 
     scripts = console_scripts(repo)
     assert nodes, "launch file starts no node"
@@ -119,7 +126,7 @@ def test_launch_file_names_only_installed_executables(
         for params in node.kwargs["parameters"]:
             assert Path(params["patch_config"]).is_file()
         assert node.kwargs["additional_env"] == NODE_ENVIRONMENT  # as in `eit-skin run`
-    rviz = [a for a in actions if isinstance(a, _Node) and a.kwargs["package"] == "rviz2"]
+    rviz = viewer.kwargs["function"](None)
     assert rviz and rviz[0].kwargs["arguments"][1] == str(share / "eit_skin/config/skin.rviz")
     assert (repo / "config" / "skin.rviz").is_file()
     namespaces = {node.kwargs["namespace"] for node in nodes}
