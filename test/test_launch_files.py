@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from eit_skin_msgs.msg import TouchEvent
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from eit_skin.patch.loading import load_patch
@@ -37,7 +37,11 @@ pytestmark = [
     ),
 ]
 pytest.importorskip("launch_ros", reason="launch_ros not installed (../shared/ros2-tools)")
+TFMessage = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed").TFMessage
 
+LATCHED = QoSProfile(
+    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
+)
 STARTUP_S = 300.0
 """Ceiling of every wait for messages (each returns as soon as they arrive)."""
 EXIT_S = 60.0
@@ -120,14 +124,22 @@ def flowing(probe: Probe, topics: list[str], process: subprocess.Popen, log: Pat
 
 
 def test_patch_launch_images_touches_and_ctrl_c(tmp_path: Path, env: dict[str, str]) -> None:
-    """The face patch with rviz:=true where rviz2 is not installed: the skin runs anyway."""
+    """The face patch with rviz:=true where rviz2 is not installed: the skin runs anyway; a
+    params file reaches the nodes (here the driver's parent frame on /tf_static)."""
     log = tmp_path / "launch.log"
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/eit_driver:\n  ros__parameters:\n    tf_parent_frame: from_params\n")
     probe = Probe("launch_probe")
     topics = watch(probe, ["face"])
-    process = launch(["skin_patch.launch.py", "patch:=face", "rviz:=true"], env, log)
+    args = ["skin_patch.launch.py", "patch:=face", "rviz:=true", f"params_file:={params}"]
+    process = launch(args, env, log)
     try:
         flowing(probe, topics, process, log)
         assert process.poll() is None
+        probe.subscribe(TFMessage, "/tf_static", LATCHED)
+        assert probe.spin_until(lambda: bool(probe.messages["/tf_static"]), STARTUP_S)
+        (transform,) = probe.messages["/tf_static"][0][1].transforms
+        assert transform.header.frame_id == "from_params"
     finally:
         output = interrupt(process, log)
         probe.close()

@@ -5,10 +5,13 @@ from __future__ import annotations
 from eit_skin.ros.node_graph import NODE_ENVIRONMENT, NodeSpec
 
 
-def ros_nodes(specs: list[NodeSpec]) -> list:
+def ros_nodes(specs: list[NodeSpec], params_file: str = "") -> list:
     """One ``launch_ros.actions.Node`` per spec (package eit_skin, output to the screen).
 
-    Every node gets :data:`~eit_skin.ros.node_graph.NODE_ENVIRONMENT` (one BLAS thread), as in
+    ``params_file`` (a ROS 2 parameters YAML; node names as ``/<ns>/<node>`` or wildcards
+    ``/**/eit_driver``) is given to every node after the spec's parameters, so it can set
+    any node parameter and overrides the launch arguments. Every node gets
+    :data:`~eit_skin.ros.node_graph.NODE_ENVIRONMENT` (one BLAS thread), as in
     ``eit-skin run``.
     """
     from launch_ros.actions import Node
@@ -19,7 +22,7 @@ def ros_nodes(specs: list[NodeSpec]) -> list:
             executable=spec.executable,
             name=spec.name,
             namespace=spec.namespace,
-            parameters=[spec.parameters],
+            parameters=[spec.parameters, *([params_file] if params_file else [])],
             additional_env=dict(NODE_ENVIRONMENT),
             output="screen",
         )
