@@ -54,6 +54,20 @@ $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg package.xml
 	@$(UV) pip install --quiet --no-deps -e .
 	@touch $@
 
+# launch, launch_testing, launch_ros, tf2_msgs and the ros2 CLI (not on PyPI) from
+# ../shared/ros2-tools when that folder exists; without it the launch tests skip.
+ROS2_TOOLS := $(abspath $(CURDIR)/../shared/ros2-tools)
+ifneq ($(wildcard $(ROS2_TOOLS)/install.sh),)
+setup: $(VENV)/.stamp-ros2-tools
+
+$(VENV)/.stamp-ros2-tools: $(VENV)/.stamp-deps $(ROS2_TOOLS)/install.sh
+	@echo "[setup] installing launch, launch_testing and ros2 (log in build/ros2-tools.log)"
+	@mkdir -p $(BUILD)
+	@$(ROS2_TOOLS)/install.sh $(VENV) > $(BUILD)/ros2-tools.log 2>&1 \
+	  || { tail -30 $(BUILD)/ros2-tools.log; exit 1; }
+	@touch $@
+endif
+
 demo: setup
 	$(BIN)/eit-skin run --out $(BUILD)/demo
 

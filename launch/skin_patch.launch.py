@@ -7,6 +7,7 @@ Arguments:
   sim        run the physics simulator instead of a board [true; false when port is set]
   rate_hz    simulator frame rate, Hz [50]
   rviz       also start rviz2 with config/skin.rviz [false]
+  params_file  ROS 2 parameters YAML given to every node, e.g. /**/eit_driver: ... [empty]
 
 Example: ros2 launch eit_skin skin_patch.launch.py patch:=elbow port:=/dev/eit_skin_elbow
 The nodes come from eit_skin.ros.node_graph, the same place `eit-skin run` takes them from.
@@ -19,9 +20,8 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
-from eit_skin.ros.launch_actions import ros_nodes
+from eit_skin.ros.launch_actions import ros_nodes, rviz_actions
 from eit_skin.ros.node_graph import patch_nodes
 
 
@@ -40,7 +40,10 @@ def _patch_actions(context):
         sim=sim,
         rate_hz=float(LaunchConfiguration("rate_hz").perform(context)),
     )
-    return ros_nodes(specs)
+    params_file = LaunchConfiguration("params_file").perform(context)
+    if params_file and not os.path.isfile(params_file):
+        raise FileNotFoundError(f"params_file {params_file!r}: no such file")
+    return ros_nodes(specs, params_file)
 
 
 def generate_launch_description():
@@ -61,11 +64,14 @@ def generate_launch_description():
                 "rate_hz", default_value="50.0", description="simulator frame rate"
             ),
             DeclareLaunchArgument("rviz", default_value="false", description="start rviz2"),
+            DeclareLaunchArgument(
+                "params_file",
+                default_value="",
+                description="ROS 2 parameters YAML for every node (overrides the arguments)",
+            ),
             OpaqueFunction(function=_patch_actions),
-            Node(
-                package="rviz2",
-                executable="rviz2",
-                arguments=["-d", rviz_config],
+            OpaqueFunction(
+                function=lambda context: rviz_actions(rviz_config),
                 condition=IfCondition(LaunchConfiguration("rviz")),
             ),
         ]

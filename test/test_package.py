@@ -76,6 +76,7 @@ def _stand_in_modules() -> dict[str, types.ModuleType]:
     modules["launch"].LaunchDescription = lambda actions: list(actions)
     modules["launch.actions"].DeclareLaunchArgument = _Argument
     modules["launch.actions"].OpaqueFunction = _Opaque
+    modules["launch.actions"].LogInfo = _Recorder
     modules["launch.conditions"].IfCondition = _Recorder
     modules["launch.substitutions"].LaunchConfiguration = _Config
     modules["launch_ros.actions"].Node = _Node
@@ -95,7 +96,11 @@ def test_launch_file_names_only_installed_executables(
     monkeypatch.setitem(
         sys.modules,
         "ament_index_python.packages",
-        types.SimpleNamespace(get_package_share_directory=lambda pkg: str(share / pkg)),
+        types.SimpleNamespace(
+            get_package_share_directory=lambda pkg: str(share / pkg),
+            get_package_prefix=lambda pkg: str(tmp_path),  # rviz2 "installed"
+            PackageNotFoundError=LookupError,
+        ),
     )
     path = repo / "launch" / launch_file
     spec = importlib.util.spec_from_file_location(launch_file.replace(".", "_"), path)
@@ -107,9 +112,11 @@ def test_launch_file_names_only_installed_executables(
     for name in arguments:  # every argument is documented in the file's docstring
         assert f"\n  {name} " in module.__doc__, f"{launch_file}: argument {name} undocumented"
     _Config.values = dict(arguments)
-    opaque = [a for a in actions if isinstance(a, _Opaque)]
+    opaque = [a for a in actions if isinstance(a, _Opaque) and "condition" not in a.kwargs]
     assert len(opaque) == 1
     nodes = opaque[0].kwargs["function"](None)
+    (viewer,) = [a for a in actions if isinstance(a, _Opaque) and "condition" in a.kwargs]
+    assert viewer.kwargs["condition"].args[0].name == "rviz"
 
     scripts = console_scripts(repo)
     assert nodes, "launch file starts no node"
@@ -119,7 +126,7 @@ def test_launch_file_names_only_installed_executables(
         for params in node.kwargs["parameters"]:
             assert Path(params["patch_config"]).is_file()
         assert node.kwargs["additional_env"] == NODE_ENVIRONMENT  # as in `eit-skin run`
-    rviz = [a for a in actions if isinstance(a, _Node) and a.kwargs["package"] == "rviz2"]
+    rviz = viewer.kwargs["function"](None)
     assert rviz and rviz[0].kwargs["arguments"][1] == str(share / "eit_skin/config/skin.rviz")
     assert (repo / "config" / "skin.rviz").is_file()
     namespaces = {node.kwargs["namespace"] for node in nodes}
@@ -164,3 +171,84 @@ def test_colcon_build_installs_both_packages(repo: Path, tmp_path: Path) -> None
     msgs = install / "eit_skin_msgs"
     assert list(msgs.glob("lib/python3*/site-packages/eit_skin_msgs/msg/_eit_frame.py"))
     assert (msgs / "share" / "eit_skin_msgs" / "msg" / "TouchEvent.msg").is_file()
+
+
+#: Python module -> the rosdep key or ROS package that provides it (where the names differ).
+MODULE_KEYS = {
+    "numpy": "python3-numpy",
+    "scipy": "python3-scipy",
+    "yaml": "python3-yaml",
+    "serial": "python3-serial",
+    "matplotlib": "python3-matplotlib",
+    "PIL": "python3-pil",
+    "triangle": "python3-triangle-pip",
+    "mcap": "mcap-ros2-support",
+    "mcap_ros2": "mcap-ros2-support",
+    "pytest": "python3-pytest",
+    "hypothesis": "python3-hypothesis",
+}
+#: Imported only by tests that skip without it (a cross-check peer, not on rosdep).
+OPTIONAL_TEST_MODULES = {"pyeit"}
+
+
+def declared(repo: Path, kinds: tuple[str, ...]) -> set[str]:
+    """Dependencies of package.xml and msg/package.xml of the given tag kinds."""
+    import xml.etree.ElementTree as ET
+
+    names = set()
+    for path in (repo / "package.xml", repo / "msg" / "package.xml"):
+        for element in ET.parse(path).getroot():
+            if element.tag in kinds:
+                names.add(element.text.strip())
+    return names
+
+
+def imported_modules(folder: Path) -> set[str]:
+    """Top-level modules imported anywhere under ``folder`` (not the standard library)."""
+    modules = set()
+    for path in folder.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                modules |= {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                modules.add(node.module.split(".")[0])
+    return modules - set(sys.stdlib_module_names) - {"eit_skin", "test", "__future__"}
+
+
+DEPEND_TAGS = (
+    "depend",
+    "exec_depend",
+    "build_depend",
+    "buildtool_depend",
+    "test_depend",
+    "build_export_depend",
+)
+
+
+def test_every_dependency_is_a_valid_rosdep_key(repo: Path) -> None:
+    """`rosdep install --from-paths . msg --ignore-src` resolves every key: each one is in the
+    extract of rosdep's public key files and the Kilted distribution (test/data)."""
+    import yaml
+
+    known = yaml.safe_load((repo / "test" / "data" / "rosdep_keys.yaml").read_text())
+    valid = set(known["rosdep_keys"]) | set(known["ros_packages"]) | {"eit_skin_msgs"}
+    unknown = declared(repo, DEPEND_TAGS) - valid
+    assert not unknown, f"not rosdep keys nor Kilted packages: {sorted(unknown)}"
+
+
+def test_every_imported_module_is_declared(repo: Path) -> None:
+    """What the package imports is an exec_depend; what only the tests import, a test_depend."""
+    runtime = declared(repo, ("depend", "exec_depend"))
+    tests = runtime | declared(repo, ("test_depend",))
+    missing = {
+        module
+        for module in imported_modules(repo / "eit_skin")
+        if MODULE_KEYS.get(module, module) not in runtime
+    }
+    assert not missing, f"imported by eit_skin, not an exec_depend: {sorted(missing)}"
+    missing = {
+        module
+        for module in imported_modules(repo / "test") - OPTIONAL_TEST_MODULES
+        if MODULE_KEYS.get(module, module) not in tests
+    }
+    assert not missing, f"imported by the tests, not declared: {sorted(missing)}"

@@ -17,13 +17,19 @@ Sources, chosen by parameters:
 
 from __future__ import annotations
 
+import math
 import sys
 
 import rclpy
 import rclpy.time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from sensor_msgs.msg import JointState
 
 from eit_skin.frames import FrameRecord
@@ -63,6 +69,13 @@ _PARAMETERS: ParameterTable = [
     ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
     ("faults", "", f"simulator faults, comma separated {fault_help(',')}"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
+    (
+        "tf_parent_frame",
+        "base_link",
+        "parent of the patch frame in its static transform on /tf_static; empty: none "
+        "(the robot's URDF provides it)",
+    ),
+    ("tf_pose", [0.0] * 6, "patch frame in tf_parent_frame: x y z (m) roll pitch yaw (rad)"),
 ]
 
 
@@ -119,10 +132,48 @@ class DriverNode(Node):
                 1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
             )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.static_tf = self._publish_static_transform(
+            str(p["tf_parent_frame"]), frame_id, [float(v) for v in p["tf_pose"]]
+        )
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}), layers {list(self.factories)}, "
             f"source {self.hardware_id}, frame_id {frame_id!r}"
         )
+
+    def _publish_static_transform(self, parent: str, child: str, pose: list[float]):
+        """``parent -> child`` on /tf_static, latched like tf2_ros's static broadcaster.
+
+        Returns the publisher, or None when no transform is wanted or tf2_msgs is missing
+        (said once in the log; the skin runs on without TF).
+        """
+        if not parent:
+            return None
+        if len(pose) != 6:
+            raise ValueError(f"tf_pose: expected x y z roll pitch yaw, got {pose}")
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning(
+                f"tf2_msgs is not installed: no static transform {parent} -> {child} "
+                "on /tf_static (apt install ros-$ROS_DISTRO-tf2-msgs)"
+            )
+            return None
+        from geometry_msgs.msg import TransformStamped
+
+        latched = QoSProfile(
+            depth=1,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        publisher = self.create_publisher(TFMessage, "/tf_static", latched)
+        transform = TransformStamped()
+        transform.header.stamp = self.get_clock().now().to_msg()
+        transform.header.frame_id, transform.child_frame_id = parent, child
+        t = transform.transform
+        t.translation.x, t.translation.y, t.translation.z = pose[:3]
+        t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w = quaternion_from_rpy(*pose[3:])
+        publisher.publish(TFMessage(transforms=[transform]))
+        return publisher
 
     def _simulated_source(self, p: dict) -> SimulatedSource:
         from eit_skin.sim.simulator import SkinSimulator
@@ -170,9 +221,21 @@ class DriverNode(Node):
 
     def _publish_diagnostics(self) -> None:
         status: SourceStatus = self.source.status()
-        if status.level > 0:
-            log = self.get_logger().error if status.level > 1 else self.get_logger().warning
-            log(status.message, throttle_duration_sec=10.0)
+        if self.waits_for and not isinstance(self.source, SerialSource):
+            # holding the script until a subscriber listens is normal, not a fault
+            topics = ", ".join(
+                self.resolve_topic_name(p.topic) for p in self.frame_publishers.values()
+            )
+            status = SourceStatus(
+                0,
+                f"waiting for {self.waits_for} subscriber(s) on {topics}",
+                {**status.values, "waiting_for_subscribers": str(self.waits_for)},
+            )
+        # one call site per severity: rclpy refuses a severity change at one call site
+        if status.level > 1:
+            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+        elif status.level == 1:
+            self.get_logger().warning(status.message, throttle_duration_sec=10.0)
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
@@ -192,6 +255,19 @@ class DriverNode(Node):
         if self.recorder is not None:
             self.recorder.close()
         super().destroy_node()
+
+
+def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
+    """(x, y, z, w) of fixed-axis roll, then pitch, then yaw (as tf2 and URDF rpy)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
 
 
 def _msg_type():

@@ -61,6 +61,11 @@ def patch_nodes(
     if not port and not sim:
         raise ValueError("sim:=false needs a serial port (port:=/dev/...)")
     config = config_path(patch)
+    if not config.is_file():
+        raise ValueError(
+            f"patch {patch!r}: no such patch file, and not a shipped patch "
+            f"(valid: {', '.join(ROBOT_PATCHES)}, or a path to a patch YAML)"
+        )
     ns = "/" + (namespace or config.stem).strip("/")
     patch_param: dict[str, ParameterValue] = {"patch_config": str(config)}
     driver: dict[str, ParameterValue] = {**patch_param, "port": port, "rate_hz": float(rate_hz)}

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -12,6 +15,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from eit_skin.patch.model import PatchError
 
@@ -67,41 +71,91 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> Ex
     raise ValueError(f"{EXECUTOR_ENV}={kind!r}: expected 'events' or 'single'")
 
 
-def spin_nodes(nodes: Sequence[Node], kind: str | None = None) -> None:
-    """Spin ``nodes`` in one executor (:func:`make_executor`) until the context shuts down.
+def spin_nodes(
+    nodes: Sequence[Node], kind: str | None = None, stop: threading.Event | None = None
+) -> None:
+    """Spin ``nodes`` in one executor (:func:`make_executor`) until shutdown or ``stop``.
 
     A loop of short ``spin_once`` calls, because the EventsExecutor's ``spin()`` of the
     Kilted wheels neither ran our timers nor returned on shutdown; the loop returns within
-    0.5 s of a shutdown (Ctrl-C or another thread).
+    0.2 s of a shutdown (another thread) or of ``stop`` being set (a signal).
     """
     context = nodes[0].context
     executor = make_executor(kind, context)
     for node in nodes:
         executor.add_node(node)
     try:
-        while context.ok():
-            executor.spin_once(timeout_sec=0.5)
+        while context.ok() and not (stop is not None and stop.is_set()):
+            executor.spin_once(timeout_sec=0.2)
     except ExternalShutdownException:
         pass  # the context was shut down while waiting: the normal way out
     finally:
         executor.shutdown(timeout_sec=1.0)
 
 
+class StopSignals:
+    """SIGINT and SIGTERM as a request to stop, never an exception inside a callback.
+
+    rclpy's own handler shuts the context down at once and lets Python raise
+    KeyboardInterrupt wherever the main thread happens to be: inside a callback (a
+    traceback) or while a reader thread still publishes (an error after shutdown). Here a
+    signal only sets :attr:`requested`; the spin loop sees it between callbacks, and the
+    node is destroyed (threads joined, files closed) before the context shuts down.
+    Before :attr:`spinning` is set (a node still building its matrices) a signal raises
+    KeyboardInterrupt, so a slow start can still be interrupted.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.requested = threading.Event()
+        self.spinning = False
+
+    def _handle(self, signum: int, frame: object) -> None:
+        self.requested.set()
+        if not self.spinning:
+            raise KeyboardInterrupt
+
+    @contextmanager
+    def installed(self) -> Iterator[StopSignals]:
+        """Handle the signals while inside the block; the previous handlers after it."""
+        previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
+        try:
+            yield self
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def ignore(self) -> None:
+        """Ignore further signals (while cleaning up after the first one)."""
+        for sig in self.SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | None) -> int:
-    """Spin a node until shutdown (Ctrl-C: exit 0); a bad configuration exits 2 with one line."""
-    rclpy.init(args=args)
+    """Spin a node until SIGINT/SIGTERM (exit 0); a bad configuration exits 2 with one line.
+
+    On a signal the node is destroyed first (its threads stopped, recordings closed), then
+    the context is shut down: no traceback, no publishing after shutdown.
+    """
+    signals = StopSignals()
     node = None
-    try:
-        node = make_node()
-        spin_nodes([node])
-    except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
-        print(f"{executable}: refusing to start: {error}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    with signals.installed():
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+            try:
+                node = make_node()
+            except (PatchError, FileNotFoundError, KeyError, ValueError) as error:
+                print(f"{executable}: refusing to start: {error}", file=sys.stderr)
+                return 2
+            signals.spinning = True
+            spin_nodes([node], stop=signals.requested)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            signals.ignore()
+            if node is not None:
+                node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
     return 0

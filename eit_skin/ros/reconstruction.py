@@ -99,6 +99,7 @@ _PARAMETERS: ParameterTable = [
         f"frame time between checks of the last {FAULT_WINDOW_FRAMES} frames for faulty "
         "electrodes, s; 0: never",
     ),
+    ("frame_timeout_s", 5.0, "no frame on a layer for this long: diagnostics ERROR, s; 0: off"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
     (
         "calibration",
@@ -130,6 +131,8 @@ class LayerState:
     processing_ms: deque[float] = field(default_factory=lambda: deque(maxlen=500))
     last_image: np.ndarray | None = None
     last_reject: str = ""
+    last_arrival: float | None = None  # time.monotonic() of the last frame, good or bad
+    frames_topic: str = ""
 
 
 class ReconstructionNode(Node):
@@ -181,6 +184,7 @@ class ReconstructionNode(Node):
                 colour_pub=self.create_publisher(Image, topic.image_color, qos_profile_sensor_data),
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
+                frames_topic=topic.frames,
             )
             self.create_subscription(
                 _frame_type(),
@@ -200,6 +204,8 @@ class ReconstructionNode(Node):
                 f"layer {name}: calibrated contacts on {topics.calibrated_contacts} "
                 f"from {self.calibration.source}"
             )
+        self.frame_timeout_s = float(p["frame_timeout_s"])
+        self.started = time.monotonic()
         self.joint_history = JointAngleHistory()
         self.posture_sync = PostureSync(self.joint_history, float(p["posture_wait_s"]))
         if joint:
@@ -230,6 +236,7 @@ class ReconstructionNode(Node):
 
     def _on_frame(self, name: str, msg) -> None:
         state = self.layers[name]
+        state.last_arrival = time.monotonic()
         m = state.imager.n_measurements
         if len(msg.voltages) != m or msg.n_electrodes != state.layer.n_electrodes:
             self._reject(
@@ -410,7 +417,12 @@ class ReconstructionNode(Node):
             }
             report = processor.reference_report
             excluded = report.check.excluded.sum() if report is not None else 0
-            if processor.reference_error is not None:
+            silent_s = time.monotonic() - (state.last_arrival or self.started)
+            values["last_frame_age_s"] = f"{silent_s:.1f}" if state.last_arrival else "never"
+            if self.frame_timeout_s and silent_s > self.frame_timeout_s:
+                topic = self.resolve_topic_name(state.frames_topic)
+                level, text = 2, f"no frame on {topic} for {silent_s:.0f} s"
+            elif processor.reference_error is not None:
                 level, text = 2, f"not imaging: {processor.reference_error}"
             elif state.rejected and state.last_reject:
                 level, text = 1, f"rejected frames: {state.last_reject}"

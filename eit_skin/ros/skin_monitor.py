@@ -19,6 +19,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
@@ -26,6 +27,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.ros.bringup import RunningNode, last_lines, start, stop
 from eit_skin.ros.node_graph import NodeSpec
+from eit_skin.ros.node_runner import StopSignals
 from eit_skin.ros.topics import PatchTopics, patch_topics
 
 LABELS = ("push", "rub", "pinch", "grab")
@@ -273,8 +275,24 @@ def run_skin(
     ``first_frame_timeout_s`` (None: wait for a board forever).
     """
     out.mkdir(parents=True, exist_ok=True)
+    signals = StopSignals()
+    signals.spinning = True  # a signal only sets the flag the loops below check
+    with signals.installed():
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        return _run(specs, out, signals, duration_s, script_frames, first_frame_timeout_s)
+
+
+def _run(
+    specs: list[NodeSpec],
+    out: Path,
+    signals: StopSignals,
+    duration_s: float | None,
+    script_frames: dict[str, int] | None,
+    first_frame_timeout_s: float | None,
+) -> int:
+    """:func:`run_skin` once rclpy is up and the signals are handled."""
     logs = out / "logs"
-    rclpy.init()
+    stop_requested = signals.requested
     monitor = SkinMonitor(_views(specs), out, script_frames or {})
     nodes: list[RunningNode] = []
     executor: SingleThreadedExecutor | None = None
@@ -282,8 +300,8 @@ def run_skin(
     try:
         print(f"eit-skin run: {len(specs)} nodes, output in {out}/", flush=True)
         nodes += [start(spec, logs) for spec in specs if spec.executable != "eit_driver"]
-        code = _wait_ready(monitor, nodes)
-        if code:
+        code = _wait_ready(monitor, nodes, stop_requested)
+        if code or stop_requested.is_set():
             return code
         nodes += [start(spec, logs) for spec in specs if spec.executable == "eit_driver"]
         started = time.monotonic()
@@ -293,7 +311,7 @@ def run_skin(
         executor.add_node(monitor)
         spinner = threading.Thread(target=executor.spin, daemon=True)
         spinner.start()
-        while not _finished(monitor, duration_s):
+        while not _finished(monitor, duration_s) and not stop_requested.is_set():
             time.sleep(0.02)
             monitor.save_pending_snapshots()
             if monitor.t0 is None:  # the clock starts with the first frame of any patch
@@ -334,15 +352,14 @@ def run_skin(
                 events = sum(len(v.events) for v in monitor.views)
                 _status(f"  {now:5.1f}{total}  images: {images}  touches: {events}")
                 next_line = now + 0.5
-    except KeyboardInterrupt:
-        pass
     finally:
+        signals.ignore()  # a second Ctrl-C must not interrupt the clean-up
         _clear_status()
         codes = stop(nodes)
         if executor is not None:
             executor.shutdown()
         monitor.save_pending_snapshots()
-        failed = {label: rc for label, rc in codes.items() if rc not in (0, -2)}
+        failed = {label: rc for label, rc in codes.items() if rc != 0}
         if failed and not code:
             print(f"eit-skin run: nodes exited with errors: {failed}", file=sys.stderr)
             code = 1
@@ -367,11 +384,14 @@ def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:
     return False
 
 
-def _wait_ready(monitor: SkinMonitor, nodes: list[RunningNode]) -> int:
+def _wait_ready(monitor: SkinMonitor, nodes: list[RunningNode], stop: threading.Event) -> int:
     """Wait for every reconstruction node's rezero service (its matrices are built)."""
     clients = [monitor.create_client(Trigger, view.topics.rezero) for view in monitor.views]
     started = time.monotonic()
     while not all(client.service_is_ready() for client in clients):
+        if stop.is_set():
+            _clear_status()
+            return 0
         rclpy.spin_once(monitor, timeout_sec=0.1)
         dead = _dead(nodes)
         if dead is not None:

@@ -1,0 +1,174 @@
+"""`ros2 launch` of the shipped launch files, for real: images and touches flow per layer,
+Ctrl-C (SIGINT to the launch) ends every process with exit 0 and no traceback, a mistyped
+patch fails the launch with the valid ones, rviz:=true without rviz2 keeps the skin running.
+
+The package is registered the way an ament_python install does (ament index marker,
+share/eit_skin, lib/eit_skin) in a prefix under tmp_path that points at this checkout, so
+no colcon build is needed. Skips where launch_ros or the ros2 CLI is not installed
+(`make setup` installs them from ../shared/ros2-tools when that folder exists).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from eit_skin_msgs.msg import TouchEvent
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+
+from eit_skin.patch.loading import load_patch
+from eit_skin.pipeline.builder import LayerImager
+from eit_skin.resources import config_path
+from eit_skin.ros.node_graph import ROBOT_PATCHES
+from eit_skin.ros.probe import Probe
+from eit_skin.ros.topics import patch_topics
+
+ROS2 = Path(sys.executable).with_name("ros2")
+pytestmark = [
+    pytest.mark.ros,
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not ROS2.is_file(), reason="ros2 CLI / launch_ros not installed (../shared/ros2-tools)"
+    ),
+]
+pytest.importorskip("launch_ros", reason="launch_ros not installed (../shared/ros2-tools)")
+TFMessage = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed").TFMessage
+
+LATCHED = QoSProfile(
+    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
+)
+STARTUP_S = 300.0
+"""Ceiling of every wait for messages (each returns as soon as they arrive)."""
+EXIT_S = 60.0
+BAD_WORDS = ("Traceback", "FATAL", "KeyboardInterrupt", "exited with code")
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory, repo: Path) -> dict[str, str]:
+    """A prefix registering eit_skin (symlinks into the checkout) and a matrix cache."""
+    prefix = tmp_path_factory.mktemp("prefix")
+    index = prefix / "share" / "ament_index" / "resource_index" / "packages"
+    index.mkdir(parents=True)
+    (index / "eit_skin").write_text("")
+    share = prefix / "share" / "eit_skin"
+    for folder in ("launch", "config"):  # files, as ros2 launch does not enter linked folders
+        (share / folder).mkdir(parents=True)
+        for path in (repo / folder).iterdir():
+            (share / folder / path.name).symlink_to(path)
+    (share / "package.xml").symlink_to(repo / "package.xml")
+    lib = prefix / "lib" / "eit_skin"
+    lib.mkdir(parents=True)
+    for script in ("eit_driver", "eit_reconstruction", "eit_classifier"):
+        (lib / script).symlink_to(Path(sys.executable).with_name(script))
+    cache = tmp_path_factory.mktemp("cache")
+    for name in ROBOT_PATCHES:
+        for layer in load_patch(config_path(name)).layers:
+            LayerImager.build(layer, cache_dir=cache)
+    return dict(
+        os.environ,
+        AMENT_PREFIX_PATH=f"{prefix}{os.pathsep}{sys.prefix}",
+        EIT_SKIN_CACHE=str(cache),
+    )
+
+
+def launch(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [str(ROS2), "launch", "eit_skin", *args],
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
+        env=env,
+    )
+
+
+def interrupt(process: subprocess.Popen, log: Path) -> str:
+    """Ctrl-C: SIGINT to the launch; returns its output once it has exited."""
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(EXIT_S)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return log.read_text()
+
+
+def watch(probe: Probe, patches: list[str]) -> list[str]:
+    """Subscribe to every layer's image and the touch events; returns the topics."""
+    topics = []
+    for name in patches:
+        names = patch_topics(load_patch(config_path(name)), f"/{name}")
+        topics += [layer.image for layer in names.layers.values()]
+        topics.append(names.touch_events)
+        probe.subscribe(
+            TouchEvent,
+            names.touch_events,
+            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
+        )
+    for topic in topics:
+        if not topic.endswith("touch_events"):
+            probe.subscribe(Image, topic)
+    return topics
+
+
+def flowing(probe: Probe, topics: list[str], process: subprocess.Popen, log: Path) -> None:
+    ok = probe.spin_until(
+        lambda: all(probe.messages[t] for t in topics) or process.poll() is not None, STARTUP_S
+    )
+    missing = [t for t in topics if not probe.messages[t]]
+    assert ok and not missing, f"nothing on {missing}:\n{log.read_text()[-3000:]}"
+
+
+def test_patch_launch_images_touches_and_ctrl_c(tmp_path: Path, env: dict[str, str]) -> None:
+    """The face patch with rviz:=true where rviz2 is not installed: the skin runs anyway; a
+    params file reaches the nodes (here the driver's parent frame on /tf_static)."""
+    log = tmp_path / "launch.log"
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/eit_driver:\n  ros__parameters:\n    tf_parent_frame: from_params\n")
+    probe = Probe("launch_probe")
+    topics = watch(probe, ["face"])
+    args = ["skin_patch.launch.py", "patch:=face", "rviz:=true", f"params_file:={params}"]
+    process = launch(args, env, log)
+    try:
+        flowing(probe, topics, process, log)
+        assert process.poll() is None
+        probe.subscribe(TFMessage, "/tf_static", LATCHED)
+        assert probe.spin_until(lambda: bool(probe.messages["/tf_static"]), STARTUP_S)
+        (transform,) = probe.messages["/tf_static"][0][1].transforms
+        assert transform.header.frame_id == "from_params"
+    finally:
+        output = interrupt(process, log)
+        probe.close()
+    assert process.returncode == 0, output
+    assert not [w for w in BAD_WORDS if w in output], output
+    assert "rviz2 is not installed" in output or "rviz2-" in output, output
+
+
+def test_robot_launch_every_patch_flows_and_stops(tmp_path: Path, env: dict[str, str]) -> None:
+    log = tmp_path / "launch.log"
+    probe = Probe("launch_probe")
+    topics = [t for t in watch(probe, list(ROBOT_PATCHES)) if not t.endswith("touch_events")]
+    process = launch(["robot_skin.launch.py"], env, log)
+    try:
+        flowing(probe, topics, process, log)
+    finally:
+        output = interrupt(process, log)
+        probe.close()
+    assert process.returncode == 0, output
+    assert not [w for w in BAD_WORDS if w in output], output
+    assert output.count("process has finished cleanly") == 3 * len(ROBOT_PATCHES), output
+
+
+def test_unknown_patch_fails_the_launch_listing_the_valid_ones(
+    tmp_path: Path, env: dict[str, str]
+) -> None:
+    log = tmp_path / "launch.log"
+    process = launch(["skin_patch.launch.py", "patch:=leg"], env, log)
+    process.wait(EXIT_S)
+    output = log.read_text()
+    assert process.returncode != 0, output
+    assert "'leg'" in output and all(name in output for name in ROBOT_PATCHES), output
