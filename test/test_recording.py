@@ -166,7 +166,11 @@ def test_npz_round_trip_and_atomic_write(tmp_path):
         ({"reference": np.zeros(4)}, None, "missing key 'frames'"),
         ({"reference": np.zeros((4, 1)), "frames": np.zeros((2, 4))}, None, "'reference'.*shape"),
         ({"reference": np.zeros(4), "frames": np.zeros((2, 5))}, None, "'frames'.*shape"),
-        ({"reference": np.array([0, np.nan, 0]), "frames": np.zeros((1, 3))}, None, "index 1"),
+        (
+            {"reference": np.zeros(2), "frames": np.zeros((2, 2)), "t": [0, np.nan]},
+            None,
+            "'t'.*finite",
+        ),
         ({"reference": np.zeros(4), "frames": np.zeros((1, 4))}, 208, "M=4.*208"),
         ({"reference": np.zeros(4), "frames": np.zeros((2, 4)), "t": np.zeros(3)}, None, "'t'"),
         ({"reference": np.array(["a"]), "frames": np.zeros((1, 1))}, None, "'reference'.*real"),
@@ -416,3 +420,11 @@ def test_replay_of_a_cut_recording_publishes_what_was_complete(tmp_path):
     status = source.status()
     assert status.level == 1 and "cut short" in status.values["skipped"]
     assert str(cut) in status.message
+
+
+def test_a_nan_reference_channel_is_read_and_left_to_the_pipeline(tmp_path):
+    """A missing reference channel is data, not a file error: the pipeline excludes it."""
+    path = tmp_path / "ref.npz"
+    np.savez(path, reference=np.array([1.0, np.nan, 1.0]), frames=np.ones((2, 3)))
+    reference, frames, _ = load_frames_npz(path)
+    assert np.isnan(reference[1]) and frames.shape == (2, 3)

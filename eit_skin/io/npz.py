@@ -1,7 +1,8 @@
 """The offline frames format (``.npz``) and atomic npz writes.
 
 A frames file (the stable input of ``eit-skin reconstruct`` and ``eit-skin classify``) holds
-``reference`` float [M] volts (finite), ``frames`` float [T, M] volts (T >= 1, NaN marks a
+``reference`` float [M] volts (NaN/Inf: a missing channel, left out by the pipeline's
+reference check), ``frames`` float [T, M] volts (T >= 1, NaN marks a
 missing value) and optionally ``t`` float [T] seconds. ``write_npz_atomic`` writes any npz
 complete or not at all (temporary file + rename).
 """

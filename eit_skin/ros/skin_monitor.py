@@ -416,6 +416,8 @@ def _finish(monitor: SkinMonitor) -> None:
     for view in monitor.views:
         labels = [label for _, label, _ in view.events]
         print(f"{view.name}: {view.images} images, touches: {', '.join(labels) or 'none'}")
+        if not view.gif_frames and view.latest:  # stopped before the first GIF period
+            view.gif_frames.append(render_rgb(view, view.latest))
         if view.gif_frames:
             height = max(f.shape[0] for f in view.gif_frames)
             width = max(f.shape[1] for f in view.gif_frames)
