@@ -120,6 +120,34 @@ def test_noise_figure_choice_hits_target():
     assert built.hyperparameter == pytest.approx(h)
 
 
+def test_noise_figure_is_its_definition_on_the_assembled_matrix():
+    """NF = SNR_out / SNR_in computed the long way from R itself (Adler & Guardo 1996)."""
+    mesh, j = random_case(m=40)
+    base = ReconstructionMatrix.from_jacobian(j, mesh, "laplace", hyperparameter=0.1)
+    scale = np.random.default_rng(7).uniform(0.5, 3.0, size=40)  # measured relative noise
+    areas = np.abs(mesh.areas)
+    c = mesh.centroids
+    d = np.linalg.norm(c - (areas[:, None] * c).sum(0) / areas.sum(), axis=1)
+    target = (d <= 0.05 * np.sqrt(areas.sum())).astype(float)
+    if not target.any():
+        target[d.argmin()] = 1.0
+    dv = j @ (target * areas)  # [M] relative change of a small central target
+    a = areas / areas.sum()
+    for s in (np.ones(40), scale):
+        weighted = base.with_channel_scale(s)
+        for h in (1e-3, 0.05, 1.0):
+            r = weighted.with_hyperparameter(h).matrix  # [N, M], acts on unwhitened channels
+            noise_cov_diag = np.sum((r * s[None, :]) ** 2, axis=1)  # unit noise in S^-1 dv
+            snr_out = (a @ np.abs(r @ dv)) / np.sqrt(a @ noise_cov_diag)
+            snr_in = np.mean(np.abs(dv / s))
+            assert noise_figure(weighted, h) == pytest.approx(snr_out / snr_in, rel=1e-8)
+    # choosing on the Gram pair before assembly gives the matrix hitting the target
+    chosen = base.with_channel_scale(scale, noise_figure=0.4)
+    assert noise_figure(chosen) == pytest.approx(0.4, rel=1e-6)
+    with pytest.raises(ValueError, match="not both"):
+        base.with_channel_scale(scale, h=0.1, noise_figure=0.4)
+
+
 def test_gcv_prefers_more_regularisation_for_noisier_data():
     mesh, j = random_case(m=40)
     rm = ReconstructionMatrix.from_jacobian(j, mesh, "tikhonov", hyperparameter=0.1)

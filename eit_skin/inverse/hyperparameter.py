@@ -7,11 +7,14 @@ unit white noise on the relative voltage changes. ``SNR_in = mean|dv_h| / 1``;
 channel-weighted matrix (measured noise, ``Sigma = diag(s^2)``) the noise is that measured
 noise: the figure is computed in the whitened channels ``S^-1 dv``, where it is white.
 Small ``h`` -> noisy image -> small NF; NF grows with ``h`` towards a plateau.
-:func:`choose_by_noise_figure` finds the ``h`` that hits a target NF (Brent's method in
+:func:`choose_by_noise_figure` finds the ``h`` that hits a target NF (bisection in
 ``log h``) from ``K = J P^-1 J^T`` and ``Y = P^-1 J^T`` cached in the
-:class:`ReconstructionMatrix`: each trial is one ``M x M`` Cholesky factorisation and one
-``[N, M]`` matrix-vector product, no rebuild. The chosen ``h`` is returned so it can be
-stored in the patch config (``solver.hyperparameter``).
+:class:`ReconstructionMatrix`. One symmetric eigendecomposition ``K = V diag(s) V^T`` and one
+``[N, M] x [M, M]`` product are paid once; with ``c = 1 / (s + lambda^2)`` each trial is then
+``x = (Y V) (c * V^T dv)`` and ``sum_e a_e var(x_e) = sum_i c_i^2 ||a^1/2 (Y V)_i||^2``:
+O(N M), no factorisation and no rebuild, so a node imaging several patches does not stall when
+they capture their references. The chosen ``h`` is returned so it can be stored in the patch
+config (``solver.hyperparameter``).
 """
 
 from __future__ import annotations
@@ -20,24 +23,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.optimize import brentq
 
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 
 if TYPE_CHECKING:
+    from eit_skin.fem.mesh import Mesh
     from eit_skin.inverse.one_step import ReconstructionMatrix
 
 H_RANGE = (1e-4, 1e1)
 
 
 def _target(
-    rm: ReconstructionMatrix, radius_fraction: float = 0.05
+    mesh: Mesh | None, n: int, radius_fraction: float = 0.05
 ) -> tuple[np.ndarray, np.ndarray]:
     """Area weights ``[N]`` and a centre target indicator ``[N]`` on the imaging mesh."""
-    mesh = rm.mesh
     if mesh is None:
-        n = rm.n_elements
         return np.full(n, 1.0 / n), np.eye(1, n, n // 2).ravel()
     areas = np.abs(mesh.areas)
     c = mesh.centroids
@@ -52,32 +53,35 @@ def _target(
 
 def noise_figure(rm: ReconstructionMatrix, h: float | None = None) -> float:
     """Noise figure of ``rm`` (or of the same matrix with hyperparameter ``h``)."""
-    return _NoiseFigure(rm)(rm.hyperparameter if h is None else float(h))
+    nf = _NoiseFigure(*rm.gram, rm.whitened_jacobian, rm.mesh)
+    return nf(rm.hyperparameter if h is None else float(h))
 
 
 class _NoiseFigure:
-    """``h -> NF(h)`` for one matrix; each call costs one ``M x M`` Cholesky and O(N M)."""
+    """``h -> NF(h)`` for one matrix: one eigendecomposition up front, O(N M) per call."""
 
-    def __init__(self, rm: ReconstructionMatrix) -> None:
-        k, y = rm.gram
-        weights, target = _target(rm)
-        self._k = k
-        self._y = y
+    def __init__(
+        self, k: np.ndarray, y: np.ndarray, jacobian: np.ndarray, mesh: Mesh | None
+    ) -> None:
+        weights, target = _target(mesh, y.shape[0])
+        dv = jacobian @ target  # [M_used], in units of the channel noise
+        s, v = sla.eigh(k, driver="evr", check_finite=False)
+        yv = y @ v  # [N, M]: Y in the eigenbasis of K
+        self._s = np.clip(s, 0.0, None)  # K is positive semi-definite; clip rounding
+        self._m = k.shape[0]
+        self._yv = yv
+        self._vdv = v.T @ dv  # [M]
         self._weights = weights
-        self._dv = rm.whitened_jacobian @ target  # [M_used], in units of the channel noise
-        self._snr_in = float(np.mean(np.abs(self._dv)))
-        self._g = (y * weights[:, None]).T @ y  # [M, M] = Y^T diag(a) Y
+        self._snr_in = float(np.mean(np.abs(dv)))
+        self._g = weights @ (yv * yv)  # [M] = diag(V^T Y^T diag(a) Y V)
         self._trace = float(np.trace(k))
 
     def __call__(self, h: float) -> float:
-        m = self._k.shape[0]
-        c = self._k + lambda_squared(h, self._trace, m) * np.eye(m)
-        low = np.linalg.cholesky(c)
-        w = sla.solve_triangular(low, np.eye(m), lower=True, check_finite=False)  # C^-1 = W^T W
-        x = self._y @ (w.T @ (w @ self._dv))
+        c = 1.0 / (self._s + lambda_squared(h, self._trace, self._m))  # [M] eigenvalues of C^-1
+        x = self._yv @ (c * self._vdv)  # [N] image of the centre target
         signal = float(self._weights @ np.abs(x))
-        # sum_e a_e var(x_e) = trace(C^-1 G C^-1) = trace((W G W^T)(W W^T))
-        noise2 = float(np.sum((w @ self._g @ w.T) * (w @ w.T)))
+        # sum_e a_e var(x_e) = trace(C^-1 G C^-1) = sum_i c_i^2 (V^T G V)_ii
+        noise2 = float(self._g @ (c * c))
         if not (noise2 > 0 and self._snr_in > 0):
             return 0.0
         return (signal / np.sqrt(noise2)) / self._snr_in
@@ -86,24 +90,53 @@ class _NoiseFigure:
 def choose_by_noise_figure(
     rm: ReconstructionMatrix, target: float | None = None, tolerance: float = 1e-9
 ) -> float:
-    """Hyperparameter ``h`` whose noise figure equals ``target`` (Brent's method in ``log h``).
+    """Hyperparameter ``h`` whose noise figure equals ``target`` (bisection in ``log h``).
 
     ``target`` ``None``: the default of the matrix's method
     (:data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`). If the target lies outside what
     ``h`` in :data:`H_RANGE` can reach, the nearest end of the range is returned.
     """
-    target = DEFAULT_NOISE_FIGURE[rm.method] if target is None else float(target)
+    target = DEFAULT_NOISE_FIGURE[rm.method] if target is None else target
+    return choose_for_gram(*rm.gram, rm.whitened_jacobian, rm.mesh, target, tolerance)
+
+
+def choose_for_gram(
+    k: np.ndarray,
+    y: np.ndarray,
+    jacobian: np.ndarray,
+    mesh: Mesh | None,
+    target: float,
+    tolerance: float = 1e-9,
+) -> float:
+    """:func:`choose_by_noise_figure` from the Gram pair, before any matrix is assembled.
+
+    Args:
+        k: ``[Mu, Mu]`` ``K`` of the used (whitened) channels.
+        y: ``[N, Mu]`` ``Y``, so that ``R = Y (K + lambda^2 I)^-1``.
+        jacobian: ``[Mu, N]`` the (whitened) Jacobian of the used channels.
+        mesh: the imaging mesh (area weights, centre target); None: equal weights.
+        target: the noise figure to hit.
+        tolerance: width of the final bracket in ``log h``.
+    """
+    target = float(target)
     if not (np.isfinite(target) and target > 0):
         raise ValueError(f"noise figure target must be > 0, got {target}")
-    nf = _NoiseFigure(rm)
+    nf = _NoiseFigure(k, y, jacobian, mesh)
     lo, hi = np.log(H_RANGE[0]), np.log(H_RANGE[1])
     f_lo, f_hi = nf(float(np.exp(lo))), nf(float(np.exp(hi)))
     if target <= f_lo:
         return float(np.exp(lo))
     if target >= f_hi:
         return float(np.exp(hi))
-    root = brentq(lambda t: nf(float(np.exp(t))) - target, lo, hi, xtol=tolerance, rtol=1e-12)
-    return float(np.exp(root))
+    # bisection in log h: each trial is O(N M), so ~35 trials cost a few ms, and the node does
+    # not import scipy.optimize (~10 MB resident, ~0.5 s) for one root
+    while hi - lo > tolerance:
+        mid = 0.5 * (lo + hi)
+        if nf(float(np.exp(mid))) < target:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(0.5 * (lo + hi)))
 
 
 def choose_by_gcv(rm: ReconstructionMatrix, dv: np.ndarray, n_grid: int = 60) -> float:

@@ -42,7 +42,7 @@ from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
-from eit_skin.inverse.hyperparameter import choose_by_noise_figure
+from eit_skin.inverse.hyperparameter import choose_by_noise_figure, choose_for_gram
 from eit_skin.inverse.priors import Prior, make_prior
 
 REFERENCE_FLOOR = 1e-2
@@ -253,7 +253,9 @@ class ReconstructionMatrix:
         h: float,
         mesh: Mesh | None,
         channel_scale: np.ndarray | None = None,
+        noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
+        """The matrix for hyperparameter ``h``, or for the one hitting ``noise_figure``."""
         channels = np.asarray(channels, dtype=np.int64)
         if isinstance(p, GreitModel):
             k, y = p.gram(channels)
@@ -265,6 +267,9 @@ class ReconstructionMatrix:
             w = 1.0 / channel_scale[channels]  # whitening S^-1 on the used channels
             k = k * w[:, None] * w[None, :]
             y = y * w[None, :]
+        if noise_figure is not None:  # chosen on the Gram pair: the matrix is assembled once
+            used = j[channels] if channel_scale is None else j[channels] * w[:, None]
+            h = choose_for_gram(k, y, used, mesh, noise_figure)
         return cls(
             matrix=_matrix(k, y, h, channel_scale, channels),
             channels=channels,
@@ -324,12 +329,19 @@ class ReconstructionMatrix:
         )
 
     def with_channel_scale(
-        self, scale: np.ndarray | None, h: float | None = None
+        self,
+        scale: np.ndarray | None,
+        h: float | None = None,
+        noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
         """Same model and channels weighted by relative noise ``scale`` ``[M]`` (None: unweighted).
 
-        ``h``: the hyperparameter (default: this matrix's). One ``M x M`` factorisation.
+        ``h``: the hyperparameter (default: this matrix's); ``noise_figure``: instead of ``h``,
+        the noise figure (on the weighted channels) the hyperparameter is chosen to hit. One
+        ``M x M`` factorisation.
         """
+        if h is not None and noise_figure is not None:
+            raise ValueError("give a hyperparameter or a noise figure target, not both")
         if scale is not None:
             scale = np.asarray(scale, dtype=np.float64)
             if scale.shape != (self.n_channels,) or not (
@@ -338,7 +350,14 @@ class ReconstructionMatrix:
                 raise ValueError(f"channel scale must be [{self.n_channels}] positive numbers")
         h = self.hyperparameter if h is None else float(h)
         return ReconstructionMatrix._assemble(
-            self.jacobian, self.model, self._p_inv_jt, self.channels, h, self.mesh, scale
+            self.jacobian,
+            self.model,
+            self._p_inv_jt,
+            self.channels,
+            h,
+            self.mesh,
+            scale,
+            noise_figure,
         )
 
     @property

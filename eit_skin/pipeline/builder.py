@@ -33,7 +33,6 @@ from eit_skin.inverse.channel_noise import (
     estimate_channel_noise,
 )
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.hyperparameter import choose_by_noise_figure
 from eit_skin.inverse.methods import (
     DEFAULT_NOISE_FIGURE,
     METHODS,
@@ -255,11 +254,11 @@ class LayerImager:
         relative = noise.relative(reference)
         usable = ~check.excluded & np.isfinite(relative)
         scale = channel_scale(relative, usable)
-        weighted = base.with_channel_scale(scale)
         fixed = self.layer.solver.hyperparameter
+        target = None
         if fixed is None:
             target = self.layer.solver.noise_figure or DEFAULT_NOISE_FIGURE[base.method]
-            weighted = weighted.with_hyperparameter(choose_by_noise_figure(weighted, target))
+        weighted = base.with_channel_scale(scale, noise_figure=target)
         self.reconstructor = self.matrix = weighted
         median = float(np.median(relative[usable])) if usable.any() else float("nan")
         n_weighted = int(np.count_nonzero(scale[usable] > 1.0))
