@@ -1,5 +1,8 @@
 """The frame record and its channel flag table: the ROS-free form of one ``EitFrame``.
 
+A layer's frames travel on ``<namespace>/<layer>/frames`` (:data:`FRAMES_TOPIC_NAME`; the topic
+map ``eit_skin.ros.topics`` builds the names, recordings are read by :func:`is_frames_topic`).
+
 One frame is one drive cycle of one layer: ``M`` differential voltages in the protocol's
 measurement order (:class:`eit_skin.patch.protocol.Protocol`) with one flag byte per channel.
 The flag bits are defined here once; ``msg/EitFrame.msg`` declares the same constants (a test
@@ -28,6 +31,13 @@ FLAGS: dict[str, int] = {
 }
 #: Flags that keep a channel out of imaging.
 EXCLUDING_FLAGS = FLAG_SATURATED | FLAG_INVALID
+#: Last name of the topic that carries a layer's frames: ``<namespace>/<layer>/frames``.
+FRAMES_TOPIC_NAME = "frames"
+
+
+def is_frames_topic(topic: str, layer: str) -> bool:
+    """Whether ``topic`` carries the frames of ``layer`` (``.../<layer>/frames``, any namespace)."""
+    return f"/{topic.lstrip('/')}".endswith(f"/{layer}/{FRAMES_TOPIC_NAME}")
 
 
 def excluded_channels(flags: np.ndarray | None, n_channels: int) -> np.ndarray:

@@ -1,5 +1,6 @@
-"""The layout keeps its promises: no import cycles, no private names across modules, no dead
-code, benchmarks that import only the package, and every subpackage says what it holds.
+"""The layout keeps its promises: no import cycles, a core that never imports the ROS or
+command-line adapters, no private names across modules, no dead code, benchmarks that import
+only the package, and every subpackage says what it holds.
 
 These read the source with ``ast`` (nothing is imported), so they are fast and exact.
 """
@@ -79,6 +80,21 @@ def test_no_import_cycles_between_modules():
     assert not cycles, "import cycles (function-local imports count too):\n" + "\n".join(
         " -> ".join(c) for c in cycles
     )
+
+
+#: The adapters: the numerical core (every other subpackage) never imports them.
+ADAPTERS = ("eit_skin.ros", "eit_skin.cli")
+
+
+def test_the_core_knows_nothing_of_ros_or_the_command_line():
+    offenders = [
+        f"{path.relative_to(ROOT)}:{line} imports {target}"
+        for name, path in MODULES.items()
+        if not name.startswith(ADAPTERS)
+        for target, _, line in eit_imports(path)
+        if target.startswith(ADAPTERS)
+    ]
+    assert not offenders, "\n".join(offenders)
 
 
 def python_files() -> list[Path]:

@@ -7,6 +7,7 @@ import copy
 import re
 from pathlib import Path
 
+from eit_skin.frames import is_frames_topic
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.resources import config_path
 from eit_skin.ros.topics import frames_topic, patch_topics
@@ -41,6 +42,12 @@ def test_arm_names_relative_and_in_its_namespace() -> None:
     assert (root.namespace, root.layers["pressure"].frames) == ("/", "/pressure/frames")
     assert frames_topic("stretch", "/leg") == "/leg/stretch/frames"
     assert frames_topic("stretch") == "stretch/frames"
+    # recordings are read back by the same rule, whatever namespace they were made in
+    for namespace in ("", "/", "/leg", "/robot/leg"):
+        assert is_frames_topic(frames_topic("stretch", namespace), "stretch")
+        assert not is_frames_topic(frames_topic("stretch", namespace), "pressure")
+    assert not is_frames_topic("/leg/prestretch/frames", "stretch")
+    assert not is_frames_topic("/leg/stretch/image", "stretch")
 
 
 def test_frames_follow_the_layer_name_and_images_its_quantity() -> None:

@@ -16,14 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from eit_skin.frames import FrameRecord
+from eit_skin.frames import FrameRecord, is_frames_topic
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
 from eit_skin.hardware.wire import DeviceFrame, PatternId
 from eit_skin.io.mcap import McapDamage, read_mcap_frames
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
-from eit_skin.ros.topics import frames_topic
 
 FrameSink = Callable[[FrameRecord], None]
 
@@ -356,7 +355,7 @@ class ReplaySource:
             self.damage = damage
 
         for topic, log_ns, record in read_mcap_frames(self.path, on_damage=note):
-            if record.layer in self.layers and topic.endswith(frames_topic(record.layer, "/")):
+            if record.layer in self.layers and is_frames_topic(topic, record.layer):
                 yield log_ns, record
 
     def tick(self, now_ns: int, sink: FrameSink, max_frames: int = 1000) -> None:

@@ -31,6 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from eit_skin.frames import FRAMES_TOPIC_NAME
+
 if TYPE_CHECKING:
     from eit_skin.patch.model import Patch
 
@@ -129,7 +131,7 @@ def patch_topics(patch: Patch, namespace: str = "") -> PatchTopics:
 
 def frames_topic(layer: str, namespace: str = "") -> str:
     """``<ns>/<layer>/frames`` of a layer known by its name only (e.g. in a recording)."""
-    return f"{_prefix(namespace)}{layer}/frames"
+    return f"{_prefix(namespace)}{layer}/{FRAMES_TOPIC_NAME}"
 
 
 def _prefix(namespace: str) -> str:
