@@ -28,9 +28,9 @@ setup(
     entry_points={
         "console_scripts": [
             "eit-skin = eit_skin.cli.main:main",
-            "eit_driver = eit_skin.ros.driver:main",
-            "eit_reconstruction = eit_skin.ros.reconstruction:main",
-            "eit_classifier = eit_skin.ros.classifier:main",
+            "eit_driver = eit_skin.ros.entry:driver",
+            "eit_reconstruction = eit_skin.ros.entry:reconstruction",
+            "eit_classifier = eit_skin.ros.entry:classifier",
         ],
     },
 )
