@@ -14,7 +14,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
-        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.rviz"))),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
     ],
     # Versions are pinned in requirements.txt (pip machines) or come from
     # rosdep (robots); setup.py names only what must be importable.
@@ -28,9 +28,9 @@ setup(
     entry_points={
         "console_scripts": [
             "eit-skin = eit_skin.cli.main:main",
-            "eit_driver = eit_skin.ros.driver:main",
-            "eit_reconstruction = eit_skin.ros.reconstruction:main",
-            "eit_classifier = eit_skin.ros.classifier:main",
+            "eit_driver = eit_skin.ros.entry:driver",
+            "eit_reconstruction = eit_skin.ros.entry:reconstruction",
+            "eit_classifier = eit_skin.ros.entry:classifier",
         ],
     },
 )

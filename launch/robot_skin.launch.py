@@ -1,53 +1,49 @@
 """The whole robot skin: arm, face and elbow patches, each in its own namespace.
 
 Arguments:
-  sim      run every patch on the physics simulator [true]
+  sim      run every patch on the physics simulator; false: on the boards of ports_file [true]
+  ports_file  ports YAML (patch namespace -> layer -> serial device) for sim:=false
+           [the shipped config/ports.yaml]
   rate_hz  simulator frame rate, Hz [50]
-  rviz     also start rviz2 with config/skin.rviz [false]
+  rviz     also start rviz2 with a configuration generated for the three patches [false]
   params_file  ROS 2 parameters YAML given to every node, e.g. /**/eit_driver: ... [empty]
+  <parameter>  any node parameter of docs/nodes.md by its name, e.g. publish_tf:=false;
+           set on every node of every patch that has it [not given]
 
-On hardware, start one skin_patch.launch.py per board with its port instead.
 The nodes come from eit_skin.ros.node_graph, the same place `eit-skin run --all` takes them from.
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 
-from eit_skin.ros.launch_actions import ros_nodes, rviz_actions
-from eit_skin.ros.node_graph import robot_nodes
+from eit_skin.ros.launch_actions import (
+    launch_nodes,
+    parameter_arguments,
+    robot_launch_nodes,
+    rviz_actions,
+)
 
-
-def _robot_actions(context):
-    sim = LaunchConfiguration("sim").perform(context).strip().lower() in ("1", "true", "yes", "on")
-    specs = robot_nodes(sim=sim, rate_hz=float(LaunchConfiguration("rate_hz").perform(context)))
-    params_file = LaunchConfiguration("params_file").perform(context)
-    if params_file and not os.path.isfile(params_file):
-        raise FileNotFoundError(f"params_file {params_file!r}: no such file")
-    return ros_nodes(specs, params_file)
+ARGUMENTS = [
+    ("sim", "true", "simulate every patch (false: the boards of ports_file)"),
+    ("ports_file", "", "ports YAML for sim:=false; empty: config/ports.yaml"),
+    ("rate_hz", "50.0", "simulator frame rate"),
+    ("rviz", "false", "start rviz2"),
+    ("params_file", "", "ROS 2 parameters YAML for every node (overrides the arguments)"),
+]
 
 
 def generate_launch_description():
-    rviz_config = os.path.join(get_package_share_directory("eit_skin"), "config", "skin.rviz")
     return LaunchDescription(
         [
-            DeclareLaunchArgument("sim", default_value="true", description="simulate every patch"),
-            DeclareLaunchArgument(
-                "rate_hz", default_value="50.0", description="simulator frame rate"
-            ),
-            DeclareLaunchArgument("rviz", default_value="false", description="start rviz2"),
-            DeclareLaunchArgument(
-                "params_file",
-                default_value="",
-                description="ROS 2 parameters YAML for every node (overrides the arguments)",
-            ),
-            OpaqueFunction(function=_robot_actions),
+            *(DeclareLaunchArgument(n, default_value=d, description=t) for n, d, t in ARGUMENTS),
+            *parameter_arguments({name for name, _, _ in ARGUMENTS}),
             OpaqueFunction(
-                function=lambda context: rviz_actions(rviz_config),
+                function=lambda context: launch_nodes(context, robot_launch_nodes(context))
+            ),
+            OpaqueFunction(
+                function=lambda context: rviz_actions(robot_launch_nodes(context)),
                 condition=IfCondition(LaunchConfiguration("rviz")),
             ),
         ]

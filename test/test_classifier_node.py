@@ -18,6 +18,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
+from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import layer_image_grid
 from test.patch_copies import shipped_patch_data, write_patch
 
@@ -105,9 +106,11 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         cx, cy = case.centre
         blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
         for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
-            if case.stretch is not None:  # the stretch image of the same stamp comes first
+            if case.stretch is not None:  # first, stamped 7 ms later as by a second board
                 strain = 1e-4 * rng.standard_normal(stretch_grid.shape)
-                stretch_pub.publish(image_msg(stretch_grid, k, strain))
+                stretch = image_msg(stretch_grid, k, strain)
+                stretch.header.stamp.nanosec += 7_000_000
+                stretch_pub.publish(stretch)
             touch = 30 <= k < 80
             pub.publish(image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob))
             probe.spin_for(0.01)
@@ -235,3 +238,85 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             assert xy == pytest.approx(case.centre, abs=grid.x[1] - grid.x[0]), k
     segmented = [c for _, m in probe.messages[topics.contacts] for c in m.contacts]
     assert segmented and all(np.isnan(c.confidence) and np.isnan(c.depth_m) for c in segmented)
+
+
+def test_images_that_stop_turn_the_diagnostics_error(tmp_path) -> None:
+    """The renamed arm's pressure images flow, its stretch images never come: after
+    image_timeout_s the classifier says ERROR naming the silent topic (not the flowing
+    one); once stretch images come too, the error clears."""
+    case = renamed_arm(tmp_path)
+    patch = load_patch(config_path(case.config))
+    topics = patch_topics(patch, "/arm_timeout_test")
+    pressure_topic, stretch_topic = (topics.layers[n].image for n in (case.pressure, case.stretch))
+    grids = {n: layer_image_grid(patch.layer(n)) for n in (case.pressure, case.stretch)}
+    probe = Probe("classifier_timeout_probe")
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 50)
+    pubs = {
+        name: probe.node.create_publisher(Image, topic, qos_profile_sensor_data)
+        for name, topic in ((case.pressure, pressure_topic), (case.stretch, stretch_topic))
+    }
+    params = {"patch_config": case.config, "image_timeout_s": 1.0, "diagnostics_period_s": 0.2}
+    log = tmp_path / "classifier.log"
+    node = start_node("eit_classifier", topics.namespace, params, log)
+    rng = np.random.default_rng(1)
+    sent = [0]
+
+    def publish(layers) -> None:
+        k = sent[0]
+        sent[0] += 1
+        for name in layers:
+            values = 10.0 * rng.standard_normal(grids[name].shape)
+            pubs[name].publish(image_msg(grids[name], k, values))
+
+    def status():
+        for _, msg in reversed(probe.messages[DIAGNOSTICS]):
+            for s in msg.status:
+                if s.name == f"{topics.namespace}/eit_classifier: touch classifier":
+                    return s
+        return None
+
+    def after(count: int, condition):
+        """Publish images and spin until a status after the first ``count`` meets it."""
+
+        def check() -> bool:
+            mine = [
+                s
+                for _, m in probe.messages[DIAGNOSTICS]
+                for s in m.status
+                if s.name.startswith(f"{topics.namespace}/eit_classifier")
+            ]
+            publish(layers)
+            return any(condition(s) for s in mine[count:]) or node.poll() is not None
+
+        return check
+
+    try:
+        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()), 60)
+        layers = [case.pressure]
+        error = f"no image on {stretch_topic}"
+        assert probe.spin_until(
+            after(0, lambda s: s.level[0] == 2 and s.message.startswith(error)), 60
+        ), (status(), log.read_text())
+        assert pressure_topic not in status().message
+        ages = {kv.key: kv.value for kv in status().values}
+        assert ages[f"last_image_age_s {patch_topics(patch).layers[case.stretch].image}"] == "never"
+        seen = len(probe.messages[DIAGNOSTICS])
+        layers = [case.pressure, case.stretch]
+        assert probe.spin_until(after(seen, lambda s: s.level[0] < 2), 60), status()
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+
+
+def test_stamp_pairer_pairs_the_nearest_stamp_within_the_slop() -> None:
+    pairer = StampPairer(slop_ns=10_000_000, timeout_ns=100_000_000)
+    assert pairer.push_stretch(1_007_000_000, "s0") == []
+    assert pairer.push_pressure(1_000_000_000, "p0") == [("p0", "s0")]  # 7 ms apart
+    assert pairer.push_pressure(1_020_000_000, "p1") == []  # its partner is late
+    assert pairer.push_stretch(1_045_000_000, "far") == []  # 25 ms: not its partner
+    assert pairer.push_stretch(1_026_000_000, "s1") == [("p1", "s1")]
+    assert pairer.push_pressure(1_040_000_000, "p2") == [("p2", "far")]  # nearest, 5 ms
+    assert pairer.push_pressure(1_100_000_000, "p3") == []
+    assert pairer.flush() == []  # p3 waited for nothing yet
+    assert pairer.push_pressure(1_200_000_000, "p4") == []
+    assert pairer.flush() == [("p3", None)] and pairer.unpaired == 1

@@ -172,3 +172,58 @@ def test_unknown_patch_fails_the_launch_listing_the_valid_ones(
     output = log.read_text()
     assert process.returncode != 0, output
     assert "'leg'" in output and all(name in output for name in ROBOT_PATCHES), output
+
+
+def test_arm_on_two_boards_through_the_launch_file(tmp_path: Path, env: dict[str, str]) -> None:
+    """ports:= starts one driver per pseudo-terminal board: both layers image; a node
+    parameter given as a launch argument (tf_parent_frame:=) reaches the driver."""
+    from eit_skin.hardware.fake_device import FakeDevice
+    from eit_skin.hardware.sources import pattern_id
+    from eit_skin.sim.simulator import SkinSimulator
+
+    arm = load_patch(config_path("arm"))
+    simulator = SkinSimulator(arm, "push", rate_hz=50.0, seed=0)
+    devices, ports = [], []
+    for layer in arm.layers:
+        device = FakeDevice(
+            lambda i, name=layer.name: simulator.frame(i % simulator.n_frames)[name].voltages_v,
+            50.0,
+            n_electrodes=layer.n_electrodes,
+            current_a=layer.current_a,
+            pattern_id=pattern_id(layer),
+            pattern_param=layer.protocol.drive_skip,
+        )
+        device.open()
+        device.link(tmp_path / f"board_{layer.name}")
+        device.start()
+        devices.append(device)
+        ports.append(f"{layer.name}={tmp_path / f'board_{layer.name}'}")
+    log = tmp_path / "launch.log"
+    probe = Probe("launch_boards_probe")
+    topics = [t for t in watch(probe, ["arm"]) if not t.endswith("touch_events")]
+    args = ["skin_patch.launch.py", "patch:=arm", f"ports:={','.join(ports)}"]
+    process = launch([*args, "tf_parent_frame:=from_arg"], env, log)
+    try:
+        flowing(probe, topics, process, log)
+        probe.subscribe(TFMessage, "/tf_static", LATCHED)
+        assert probe.spin_until(lambda: bool(probe.messages["/tf_static"]), STARTUP_S)
+        (transform,) = probe.messages["/tf_static"][0][1].transforms
+        assert transform.header.frame_id == "from_arg"
+    finally:
+        output = interrupt(process, log)
+        probe.close()
+        for device in devices:
+            device.stop()
+            device.unplug()
+    assert process.returncode == 0, output
+    assert not [w for w in BAD_WORDS if w in output], output
+    assert "eit_driver_pressure" in output and "eit_driver_stretch" in output, output
+
+
+def test_one_port_for_two_layers_fails_the_launch(tmp_path: Path, env: dict[str, str]) -> None:
+    log = tmp_path / "launch.log"
+    process = launch(["skin_patch.launch.py", "patch:=arm", "port:=/dev/ttyACM0"], env, log)
+    process.wait(EXIT_S)
+    output = log.read_text()
+    assert process.returncode != 0, output
+    assert "ports:=pressure=/dev/...,stretch=/dev/..." in output, output

@@ -76,7 +76,7 @@ def test_driver_waiting_for_subscribers_is_ok_not_an_error(tmp_path: Path) -> No
     probe.subscribe(DiagnosticArray, DIAGNOSTICS, 50)
     log = tmp_path / "driver.log"
     # TF off: without tf2_msgs (a bare pip install) the driver rightly warns once about it
-    params = {"patch_config": "face", "faults": "", "tf_parent_frame": ""}
+    params = {"patch_config": "face", "faults": "", "publish_tf": False}
     driver = start_node("eit_driver", "/face", params, log)
     try:
         assert probe.spin_until(

@@ -15,6 +15,7 @@ from typing import ClassVar
 import pytest
 
 from eit_skin.ros.node_graph import NODE_ENVIRONMENT
+from eit_skin.ros.parameters import launch_arguments
 
 
 def console_scripts(repo: Path) -> dict[str, str]:
@@ -109,8 +110,11 @@ def test_launch_file_names_only_installed_executables(
     actions = module.generate_launch_description()
 
     arguments = {a.args[0]: a.kwargs["default_value"] for a in actions if isinstance(a, _Argument)}
-    for name in arguments:  # every argument is documented in the file's docstring
+    per_parameter = set(launch_arguments())  # documented in docs/nodes.md
+    assert per_parameter <= set(arguments), per_parameter - set(arguments)
+    for name in set(arguments) - per_parameter:  # documented in the file's docstring
         assert f"\n  {name} " in module.__doc__, f"{launch_file}: argument {name} undocumented"
+    assert "\n  <parameter> " in module.__doc__
     _Config.values = dict(arguments)
     opaque = [a for a in actions if isinstance(a, _Opaque) and "condition" not in a.kwargs]
     assert len(opaque) == 1
@@ -126,9 +130,10 @@ def test_launch_file_names_only_installed_executables(
         for params in node.kwargs["parameters"]:
             assert Path(params["patch_config"]).is_file()
         assert node.kwargs["additional_env"] == NODE_ENVIRONMENT  # as in `eit-skin run`
-    rviz = viewer.kwargs["function"](None)
-    assert rviz and rviz[0].kwargs["arguments"][1] == str(share / "eit_skin/config/skin.rviz")
-    assert (repo / "config" / "skin.rviz").is_file()
+    (rviz,) = [a for a in viewer.kwargs["function"](None) if isinstance(a, _Node)]
+    config = Path(rviz.kwargs["arguments"][1])  # generated for the launched patches
+    assert rviz.kwargs["arguments"][0] == "-d" and config.suffix == ".rviz"
+    assert "/arm/pressure/image_color" in config.read_text()
     namespaces = {node.kwargs["namespace"] for node in nodes}
     assert namespaces == (
         {"/arm"} if launch_file.startswith("skin") else {"/arm", "/face", "/elbow"}

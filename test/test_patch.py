@@ -849,3 +849,41 @@ def test_triangle_estimate_of_shipped_layers(name):
     for layer in load_patch(CONFIG / f"{name}.yaml").layers:
         actual = build_mesh(layer).n_triangles
         assert 0.75 * actual < estimate_layer(layer).triangles < 1.5 * actual
+
+
+@pytest.mark.parametrize(
+    ("mount", "key_path", "reason"),
+    [
+        ({"xyz": [0, 0, 0]}, "mount.parent_frame", "missing required key"),
+        ({"parent_frame": "link", "xyz": [1, 2]}, "mount.xyz", "expected 3 numbers, got 2"),
+        ({"parent_frame": "link", "rpy": [0, 0, "x"]}, "mount.rpy[2]", "expected a number"),
+        ({"parent_frame": "link", "ryp": [0, 0, 0]}, "mount.ryp", "did you mean 'rpy'?"),
+        ({"parent_frame": ""}, "mount.parent_frame", "non-empty string"),
+        ("forearm", "mount", "expected a mapping"),
+    ],
+)
+def test_bad_mount_names_the_key(tmp_path, mount, key_path, reason):
+    data = base()
+    data["mount"] = mount
+    path = write(tmp_path, data)
+    with pytest.raises(PatchError) as info:
+        load_patch(path)
+    assert info.value.key_path == key_path and reason in str(info.value), str(info.value)
+
+
+def test_mount_is_read_in_metres_and_radians_and_keeps_layer_hashes(tmp_path):
+    data = base()
+    plain = load_patch(write(tmp_path, data))
+    assert (plain.mount.parent_frame, plain.mount.xyz, plain.mount.rpy) == (
+        "base_link",
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.0),
+    )
+    data["mount"] = {"parent_frame": "forearm_link", "xyz": [0.1, 0, 0.02], "rpy": [0, 0, 1.5]}
+    mounted = load_patch(write(tmp_path, data))
+    assert mounted.mount.xyz == (0.1, 0.0, 0.02) and mounted.mount.rpy == (0.0, 0.0, 1.5)
+    assert mounted.content_hash != plain.content_hash
+    assert mounted.layers[0].content_hash == plain.layers[0].content_hash  # caches stay
+    data["mount"] = {"parent_frame": data["frame_id"]}
+    with pytest.raises(PatchError, match=r"mount\.parent_frame: is the patch's own frame_id"):
+        load_patch(write(tmp_path, data))

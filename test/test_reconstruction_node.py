@@ -20,6 +20,7 @@ from eit_skin.pipeline.reference import ReferenceTracker
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.scenario import resolve_scenario
 
 pytestmark = pytest.mark.ros
@@ -74,7 +75,9 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
     probe.subscribe(Image, "/arm/pressure/image_color")
     probe.subscribe(EitFrame, "/arm/pressure/frames")
     probe.subscribe(DiagnosticArray, "/diagnostics", 10)
-    probe.subscribe(Marker, "/arm/skin_marker", 5)
+    markers_of = {name: t.marker for name, t in patch_topics(patch, "/arm").layers.items()}
+    for topic in markers_of.values():
+        probe.subscribe(Marker, topic, 5)
     recon_log, driver_log = tmp_path / "recon.log", tmp_path / "driver.log"
     recon = start_node(
         "eit_reconstruction",
@@ -137,9 +140,12 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         assert np.isnan(best[~imager.grid.inside]).all()
         assert np.isfinite(best[imager.grid.inside]).all()
         # rviz marker: coloured triangles lying on the arm's cylinder, in the patch frame
-        markers = [m for _, m in probe.messages["/arm/skin_marker"]]
-        assert {m.ns for m in markers} == {"pressure", "stretch"}
-        marker = next(m for m in reversed(markers) if m.ns == "pressure")
+        # one topic per layer, each with that layer only: stacked layers never share a display
+        assert len(set(markers_of.values())) == 2
+        for name, topic in markers_of.items():
+            assert probe.messages[topic], topic
+            assert {m.ns for _, m in probe.messages[topic]} == {name}, topic
+        marker = probe.messages[markers_of["pressure"]][-1][1]
         assert marker.type == Marker.TRIANGLE_LIST and marker.header.frame_id == patch.frame_id
         xyz = np.array([(q.x, q.y, q.z) for q in marker.points])
         assert len(xyz) % 3 == 0 and len(marker.colors) == len(xyz) > 300

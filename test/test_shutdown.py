@@ -11,6 +11,7 @@ import os
 import random
 import signal
 import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -156,3 +157,30 @@ def test_eit_skin_run_stops_its_nodes_on_a_signal(
     assert not [pid for pid in children if Path(f"/proc/{pid}").exists()]
     for log in (out / "logs").iterdir():
         assert _clean(log.read_text()), log.read_text()
+
+
+@pytest.mark.parametrize("executable", ["eit_driver", "eit_reconstruction", "eit_classifier"])
+def test_sigint_while_the_node_still_imports_is_quiet(tmp_path: Path, executable: str) -> None:
+    """Ctrl-C in the first second, while the process still imports rclpy and numpy: exit 0,
+    no traceback. ``python -v`` reports each import as it happens; the signal goes out on
+    the report of rclpy's first module, so it lands in the middle of the imports."""
+    script = find_executable(executable)
+    command = [sys.executable, "-v", str(script), "--ros-args", "-p", "patch_config:=face"]
+    process = subprocess.Popen(
+        command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=dict(os.environ)
+    )
+    seen = []
+    try:
+        for line in process.stderr:
+            seen.append(line)
+            if line.startswith("import 'rclpy"):
+                process.send_signal(signal.SIGINT)
+                break
+        output = "".join(seen) + process.communicate(timeout=EXIT_S)[1]
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert any(line.startswith("import 'rclpy") for line in seen), "".join(seen[-20:])
+    assert process.returncode == 0, output[-3000:]
+    assert _clean(output), output[-3000:]

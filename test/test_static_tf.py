@@ -12,6 +12,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from eit_skin.ros.driver import quaternion_from_rpy
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS
+from test.patch_copies import shipped_patch_data, write_patch
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed")
 pytestmark = pytest.mark.ros
@@ -53,3 +54,43 @@ def test_late_subscriber_gets_the_patch_transform(tmp_path: Path) -> None:
     t = transform.transform
     assert (t.translation.x, t.translation.y, t.translation.z) == pytest.approx((0.1, 0.0, 0.2))
     assert (t.rotation.z, t.rotation.w) == pytest.approx((math.sqrt(0.5), math.sqrt(0.5)))
+
+
+def _driver_transforms(tmp_path: Path, namespace: str, params: dict) -> tuple[list, set[str]]:
+    """Start a driver; once it reports, its /tf_static transforms and its publishers' topics."""
+    probe = Probe("tf_mount_probe")
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
+    probe.subscribe(tf2_msgs.TFMessage, "/tf_static", LATCHED)
+    log = tmp_path / "driver.log"
+    driver = start_node("eit_driver", namespace, params, log)
+    try:
+        assert probe.spin_until(
+            lambda: bool(probe.messages[DIAGNOSTICS]) or driver.poll() is not None, STARTUP_S
+        ), log.read_text()
+        assert driver.poll() is None, log.read_text()
+        publishers = probe.node.get_publisher_names_and_types_by_node("eit_driver", namespace)
+        topics = {name for name, _ in publishers}
+        if "/tf_static" in topics:
+            assert probe.spin_until(lambda: bool(probe.messages["/tf_static"]), STARTUP_S)
+        transforms = [t for _, m in probe.messages["/tf_static"] for t in m.transforms]
+    finally:
+        assert stop_node(driver) == 0
+        probe.close()
+    return transforms, topics
+
+
+def test_the_patch_mount_places_the_frame_and_publish_tf_false_sends_none(tmp_path: Path) -> None:
+    data = shipped_patch_data("face")
+    data["mount"] = {"parent_frame": "head_link", "xyz": [0.05, 0.0, 0.1], "rpy": [0, 0, 3.14159]}
+    patch = write_patch(tmp_path, data, "mounted_face")
+    transforms, _ = _driver_transforms(tmp_path, "/mounted_face", {"patch_config": str(patch)})
+    (transform,) = [t for t in transforms if t.child_frame_id == "face_skin_link"]
+    assert transform.header.frame_id == "head_link"
+    t = transform.transform
+    assert (t.translation.x, t.translation.y, t.translation.z) == pytest.approx((0.05, 0, 0.1))
+    assert abs(t.rotation.z) == pytest.approx(1.0, abs=1e-5)
+    # the URDF has the frame: no publisher of /tf_static at all
+    params = {"patch_config": str(patch), "publish_tf": False}
+    _, topics = _driver_transforms(tmp_path, "/urdf_face", params)
+    assert "/tf_static" not in topics and "/face/pressure/frames" not in topics
+    assert "/urdf_face/pressure/frames" in topics

@@ -20,12 +20,21 @@ def test_arm_names_relative_and_in_its_namespace() -> None:
     arm = load_patch(config_path("arm"))
     rel = patch_topics(arm)
     assert rel.namespace == ""
-    assert {k: (v.frames, v.image, v.image_color) for k, v in rel.layers.items()} == {
-        "pressure": ("pressure/frames", "pressure/image", "pressure/image_color"),
-        "stretch": ("stretch/frames", "stretch/image", "stretch/image_color"),
+    assert {k: (v.frames, v.image, v.image_color, v.marker) for k, v in rel.layers.items()} == {
+        "pressure": (
+            "pressure/frames",
+            "pressure/image",
+            "pressure/image_color",
+            "pressure/skin_marker",
+        ),
+        "stretch": (
+            "stretch/frames",
+            "stretch/image",
+            "stretch/image_color",
+            "stretch/skin_marker",
+        ),
     }
-    assert (rel.skin_marker, rel.touch_events, rel.contacts, rel.rezero) == (
-        "skin_marker",
+    assert (rel.touch_events, rel.contacts, rel.rezero) == (
         "touch_events",
         "contacts",
         "eit_reconstruction/rezero",

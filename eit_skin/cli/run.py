@@ -7,7 +7,8 @@ reconstruction matrices are ready (so the no-load reference is taken from untouc
 frames). It prints the touch events as they happen and writes PNG snapshots of the
 pressure and stretch images at every touch, an animated GIF per patch and the node logs
 to ``--out``. With the simulator it stops after one pass of the touch script (or after
-``--duration`` seconds) and exits 0; with ``--port`` it runs until ``--duration`` or Ctrl-C.
+``--duration`` seconds) and exits 0; with ``--port`` (a one-layer patch) or ``--ports`` /
+``--ports-file`` (one board per layer) it runs until ``--duration`` or Ctrl-C.
 """
 
 from __future__ import annotations
@@ -23,7 +24,19 @@ PATCH_HELP = "patch: arm, face, elbow or a YAML path (default: arm)"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch", default="arm", help=PATCH_HELP)
     parser.add_argument("--all", action="store_true", help="run arm, face and elbow at once")
-    parser.add_argument("--port", default="", help="serial device of a skin board (no simulator)")
+    parser.add_argument(
+        "--port", default="", help="serial device of the board of a one-layer patch (no simulator)"
+    )
+    parser.add_argument(
+        "--ports",
+        default="",
+        help="one board per layer: LAYER=DEVICE,..., e.g. pressure=/dev/ttyA,stretch=/dev/ttyB",
+    )
+    parser.add_argument(
+        "--ports-file",
+        default="",
+        help="the boards from a ports YAML (patch -> layer -> device), e.g. config/ports.yaml",
+    )
     parser.add_argument(
         "--duration", type=float, default=None, help="stop after SECONDS (default: one script pass)"
     )
@@ -39,28 +52,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.ros.node_graph import ROBOT_PATCHES, patch_nodes
+    from eit_skin.ros.node_graph import ROBOT_PATCHES, parse_ports, patch_nodes, read_ports_file
 
     if args.all and args.calibration:
         print("eit-skin run: a calibration belongs to one patch; not with --all", file=sys.stderr)
         return 2
-    if args.all and args.port:
-        print("eit-skin run: --all simulates every patch; --port serves one", file=sys.stderr)
+    serial = bool(args.port or args.ports or args.ports_file)
+    if args.all and serial:
+        print("eit-skin run: --all simulates every patch; --port(s) serve one", file=sys.stderr)
         return 2
     patches = list(ROBOT_PATCHES) if args.all else [args.patch]
     try:
+        if args.ports and args.ports_file:
+            raise ValueError("--ports and --ports-file given; choose one")
+        ports = parse_ports(args.ports)
+        if args.ports_file:
+            ports = read_ports_file(args.ports_file, Path(args.patch).stem)
         specs = []
         for patch in patches:
             specs += patch_nodes(
                 patch,
                 namespace=Path(patch).stem if args.all else "",
                 port=args.port,
-                sim=not args.port,
+                sim=not serial,
                 rate_hz=args.rate,
                 scenario=args.scenario,
                 loop=False,
+                ports=ports,
             )
-        script_frames = {} if args.port or args.duration else _script_frames(args, specs)
+        script_frames = {} if serial or args.duration else _script_frames(args, specs)
         specs = [_monitor_aware(spec) for spec in specs]
         if args.calibration:
             specs = [_calibrated(spec, args.calibration) for spec in specs]
@@ -74,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         args.out,
         duration_s=args.duration,
         script_frames=script_frames,
-        first_frame_timeout_s=None if args.port else 120.0,  # a board may be plugged in later
+        first_frame_timeout_s=None if serial else 120.0,  # a board may be plugged in later
     )
 
 

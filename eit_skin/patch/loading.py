@@ -25,7 +25,15 @@ from eit_skin.patch.electrodes import read_electrodes
 from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
 from eit_skin.patch.mesh_budget import budget_problem
-from eit_skin.patch.model import Electrode, Layer, MeshSpec, Patch, PatchError, SolverSpec
+from eit_skin.patch.model import (
+    Electrode,
+    Layer,
+    MeshSpec,
+    Mount,
+    Patch,
+    PatchError,
+    SolverSpec,
+)
 from eit_skin.patch.outline import read_outline
 from eit_skin.patch.placement import (
     CylinderPlacement,
@@ -72,7 +80,9 @@ def patch_from_dict(data: Any, source: str = "<dict>", *, check_budget: bool = T
     ``check_budget=False`` skips the mesh size limit (only for measuring it, bench/).
     """
     r = Reader(source, PatchError)
-    top = r.mapping(data, "", required=("name", "frame_id", "layers"), optional=("placement",))
+    top = r.mapping(
+        data, "", required=("name", "frame_id", "layers"), optional=("placement", "mount")
+    )
     name = r.string(top, "name", "")
     frame_id = r.string(top, "frame_id", "")
     items = r.sequence(top["layers"], "layers", min_len=1)
@@ -83,7 +93,19 @@ def patch_from_dict(data: Any, source: str = "<dict>", *, check_budget: bool = T
             raise r.error(f"layers[{i}].name", f"duplicate layer name {layer.name!r}")
         layers.append(layer)
     placement = _placement(r, top.get("placement", {"type": "plane"}), "placement", layers)
-    return Patch(name, frame_id, tuple(layers), placement, source)
+    mount = _mount(r, top["mount"], "mount", frame_id) if "mount" in top else Mount()
+    return Patch(name, frame_id, tuple(layers), placement, source, mount)
+
+
+def _mount(r: Reader, data: Any, path: str, frame_id: str) -> Mount:
+    """``mount: {parent_frame, xyz (m), rpy (rad)}``: the patch frame's pose on the robot."""
+    d = r.mapping(data, path, required=("parent_frame",), optional=("xyz", "rpy"))
+    parent = r.string(d, "parent_frame", path)
+    if parent == frame_id:
+        raise r.error(r.join(path, "parent_frame"), f"is the patch's own frame_id {frame_id!r}")
+    xyz = r.vector(d.get("xyz", [0, 0, 0]), r.join(path, "xyz"), 3)
+    rpy = r.vector(d.get("rpy", [0, 0, 0]), r.join(path, "rpy"), 3)
+    return Mount(parent, tuple(float(v) for v in xyz), tuple(float(v) for v in rpy))
 
 
 def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:

@@ -198,6 +198,25 @@ class Layer:
         return _hash(_canonical(self))
 
 
+DEFAULT_MOUNT_PARENT = "base_link"
+"""Parent frame of a patch frame whose patch has no ``mount`` block (REP 105's robot base)."""
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where the patch frame sits on the robot: its static transform from ``parent_frame``.
+
+    Attributes:
+        parent_frame: the robot frame the patch is mounted on (e.g. ``forearm_link``).
+        xyz: translation of the patch frame in ``parent_frame``, metres [3].
+        rpy: fixed-axis roll, pitch, yaw of the patch frame, radians [3] (URDF convention).
+    """
+
+    parent_frame: str = DEFAULT_MOUNT_PARENT
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True, eq=False)
 class Patch:
     """A validated skin patch.
@@ -208,6 +227,8 @@ class Patch:
         layers: stacked sheets, in file order.
         placement: 3-D placement for visualisation.
         source: file the patch was read from (``"<dict>"`` for in-memory data).
+        mount: the patch frame's pose on the robot (``mount`` block; default: identity in
+            ``base_link``); the driver publishes it on /tf_static.
     """
 
     name: str
@@ -215,6 +236,7 @@ class Patch:
     layers: tuple[Layer, ...]
     placement: Placement
     source: str = "<dict>"
+    mount: Mount = Mount()
 
     def layer(self, name: str) -> Layer:
         for layer in self.layers:
@@ -235,6 +257,8 @@ class Patch:
             "layers": [layer.content_hash for layer in self.layers],
             "placement": _canonical(self.placement),
         }
+        if self.mount != Mount():  # patches without a mount keep their earlier hash
+            content["mount"] = _canonical(self.mount)
         return _hash(content)
 
 

@@ -6,5 +6,8 @@ the same way), ``node_graph`` (the nodes of a patch, shared by launch files and 
 run``), ``topics`` (every topic and service name of a patch, derived from the patch),
 ``bringup`` (start/stop node processes), ``launch_actions`` (launch_ros actions),
 ``skin_monitor`` (the watching side of ``eit-skin run``), ``probe`` (a subscriber for tests
-and benchmarks).
+and benchmarks), ``parameters`` (every node parameter with its descriptor, rclpy-free),
+``param_docs`` (writes docs/nodes.md's parameter tables from them), ``rviz_config`` (an rviz2
+configuration generated from the launched patches' topics), ``entry`` (the nodes' console
+scripts: a Ctrl-C during their imports ends them quietly).
 """

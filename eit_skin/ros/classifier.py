@@ -4,8 +4,11 @@ Subscribes (sensor-data QoS) to the image of the patch's pressure layer and, whe
 of its stretch layer (chosen by material quantity, whatever their names:
 :func:`~eit_skin.touch.classifier.classifier_layers`; topic names from
 :mod:`eit_skin.ros.topics`; ``sensor_msgs/Image`` 32FC1, Pa / strain, NaN outside the
-sheet); a pressure image is paired with the stretch image of the same ``header.stamp`` (or
-classified alone after ``pair_timeout_s``). A patch without a pressure layer is refused.
+sheet); a pressure image is paired with the stretch image nearest in ``header.stamp``
+within ``pair_slop_s`` (the two layers may come from two boards with their own clocks:
+:class:`~eit_skin.touch.pairing.StampPairer`), or classified alone after ``pair_timeout_s``.
+No image on a subscribed topic for ``image_timeout_s`` turns the diagnostics ERROR. A patch
+without a pressure layer is refused.
 Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts``
 (``ContactArray``) and ``/diagnostics``. Pixel geometry: row i, column j is centred at
 (x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config`` (its inverse
@@ -35,11 +38,11 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
-    ParameterTable,
     declare_read_only,
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.parameters import CLASSIFIER
 from eit_skin.ros.topics import patch_topics
 from eit_skin.touch.classifier import (
     LABELS,
@@ -49,35 +52,8 @@ from eit_skin.touch.classifier import (
     classifier_layers,
 )
 from eit_skin.touch.contacts import SegmentationConfig
+from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import contact_geometry
-
-_SEG = SegmentationConfig()
-_CFG = ClassifierConfig()
-_PARAMETERS: ParameterTable = [
-    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
-    ("k_high", _SEG.k_high, "contact seed threshold, multiples of the image noise"),
-    ("k_low", _SEG.k_low, "contact growth threshold, multiples of the image noise"),
-    ("artifact_fraction", _SEG.artifact_fraction, "regions below this fraction of the peak"),
-    ("calibration_s", _CFG.calibration_s, "initial no-touch time for noise and baseline, s"),
-    ("noise_pa", 0.0, "pressure image noise, Pa; 0: estimated during calibration"),
-    ("baseline_tau_s", _CFG.baseline_tau_s, "baseline drift-following time constant, s"),
-    ("start_frames", _CFG.start_frames, "consecutive frames with contact before START"),
-    ("detect_kernel", _CFG.detect_kernel, "early START detector kernel, finger spreads; 0: off"),
-    ("k_detect", _CFG.k_detect, "early START threshold, multiples of the pooled image's noise"),
-    ("confirm_s", _CFG.confirm_s, "an early START with no contact segmented by then ends, s"),
-    ("end_hold_s", _CFG.end_hold_s, "time without contact before END, s"),
-    ("update_period_s", _CFG.update_period_s, "shortest time between UPDATEs, s"),
-    ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
-    ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
-    ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
-    (
-        "cache_dir",
-        "",
-        "reconstruction cache (spread map, matrix); empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin",
-    ),
-    ("pair_timeout_s", 0.1, "wait for the stretch image of the same stamp, s"),
-    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
-]
 
 
 class ClassifierNode(Node):
@@ -85,7 +61,7 @@ class ClassifierNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_classifier", **kwargs)
-        p = declare_read_only(self, _PARAMETERS)
+        p = declare_read_only(self, CLASSIFIER)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
@@ -125,21 +101,27 @@ class ClassifierNode(Node):
         )
         self.pressure_layer = layer.name
         self.has_stretch = stretch is not None
-        self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
-        self._pending: dict[int, tuple[Image, float]] = {}
-        self._stretch: dict[int, np.ndarray] = {}
-        self.counts = {"images": 0, "rejected": 0, "events": 0, "unpaired": 0}
+        self.pairer: StampPairer[tuple[Image, np.ndarray], np.ndarray] = StampPairer(
+            int(float(p["pair_slop_s"]) * 1e9), int(float(p["pair_timeout_s"]) * 1e9)
+        )
+        self.counts = {"images": 0, "rejected": 0, "events": 0}
+        self.image_timeout_s = float(p["image_timeout_s"])
+        self.started = time.monotonic()
         self._busy_s = 0.0
 
         topics = patch_topics(self.patch)
+        #: subscribed image topic -> time.monotonic() of its last image (None: none yet)
+        self.last_image: dict[str, float | None] = {topics.layers[layer.name].image: None}
         self.create_subscription(
             Image, topics.layers[layer.name].image, self._on_pressure, qos_profile_sensor_data
         )
         if self.has_stretch:
+            self.last_image[topics.layers[stretch.name].image] = None
             self.create_subscription(
                 Image, topics.layers[stretch.name].image, self._on_stretch, qos_profile_sensor_data
             )
             self.create_timer(0.02, self._flush_unpaired)
+        self.image_topics = list(self.last_image)
         from eit_skin_msgs.msg import ContactArray, TouchEvent
 
         self._msgs = (TouchEvent, ContactArray)
@@ -182,39 +164,28 @@ class ClassifierNode(Node):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
     def _on_pressure(self, msg: Image) -> None:
+        self.last_image[self.image_topics[0]] = time.monotonic()
         image = self._decode(msg)
         if image is None:
             return
-        stamp = self._stamp_ns(msg)
         if not self.has_stretch:
             self._process(msg, image, None)
-        elif stamp in self._stretch:
-            self._process(msg, image, self._stretch.pop(stamp))
-        else:
-            self._pending[stamp] = (msg, image)
+            return
+        self._process_pairs(self.pairer.push_pressure(self._stamp_ns(msg), (msg, image)))
 
     def _on_stretch(self, msg: Image) -> None:
+        self.last_image[self.image_topics[1]] = time.monotonic()
         # the stretch layer has its own grid; only its peak is used, so any shape is fine
         dtype = np.dtype(">f4" if msg.is_bigendian else "<f4")
         image = np.frombuffer(bytes(msg.data), dtype=dtype).astype(np.float32)
-        stamp = self._stamp_ns(msg)
-        if stamp in self._pending:
-            pressure_msg, pressure = self._pending.pop(stamp)
-            self._process(pressure_msg, pressure, image)
-        else:
-            self._stretch[stamp] = image
-            while len(self._stretch) > 20:
-                self._stretch.pop(next(iter(self._stretch)))
+        self._process_pairs(self.pairer.push_stretch(self._stamp_ns(msg), image))
 
     def _flush_unpaired(self) -> None:
-        if not self._pending:
-            return
-        newest = max(self._pending)
-        for stamp in sorted(self._pending):
-            if newest - stamp >= self.pair_timeout_ns or len(self._pending) > 10:
-                msg, image = self._pending.pop(stamp)
-                self.counts["unpaired"] += 1
-                self._process(msg, image, None)
+        self._process_pairs(self.pairer.flush())
+
+    def _process_pairs(self, pairs: list) -> None:
+        for (msg, image), stretch in pairs:
+            self._process(msg, image, stretch)
 
     def _on_calibrated(self, msg) -> None:
         if msg.contacts and msg.contacts[0].confidence >= MIN_CONFIDENCE:
@@ -271,8 +242,18 @@ class ClassifierNode(Node):
         c = self.classifier
         level = 0 if c.calibrated else 1
         message = "ok" if c.calibrated else "calibrating (keep the skin untouched)"
+        now = time.monotonic()
+        ages = {}
+        for topic, last in self.last_image.items():
+            silent_s = now - (last or self.started)
+            ages[f"last_image_age_s {topic}"] = f"{silent_s:.1f}" if last else "never"
+            if self.image_timeout_s and silent_s > self.image_timeout_s and level < 2:
+                level = 2
+                message = f"no image on {self.resolve_topic_name(topic)} for {silent_s:.0f} s"
         values = {
             **{k: str(v) for k, v in self.counts.items()},
+            "unpaired": str(self.pairer.unpaired),
+            **ages,
             "noise_pa": f"{c.pressure_noise_pa or 0.0:.3g}",
             "touch_active": str(c.active),
             "busy_s": f"{self._busy_s:.3f}",

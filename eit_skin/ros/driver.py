@@ -44,39 +44,13 @@ from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
-    ParameterTable,
     declare_read_only,
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.parameters import DRIVER
 from eit_skin.ros.topics import patch_topics
-from eit_skin.sim.faults import fault_help, parse_faults
-
-_PARAMETERS: ParameterTable = [
-    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
-    ("layer", "", "layer to serve; empty: every layer (simulator, replay) or the first (serial)"),
-    ("port", "", "serial device of the skin board, e.g. /dev/eit_skin_arm; empty: simulator"),
-    ("baud", 921600, "serial baud rate (ignored by USB CDC-ACM boards)"),
-    ("rate_hz", 50.0, "simulator frame rate, Hz"),
-    ("frame_id", "", "override of the patch config's frame_id"),
-    ("record_path", "", "record every published frame to this MCAP file"),
-    ("replay_path", "", "replay the EitFrames of this MCAP file instead of acquiring"),
-    ("replay_realtime", True, "replay with the recording's timing (false: as fast as possible)"),
-    ("wait_for_subscribers", 1, "simulator/replay: start once a frame topic has this many"),
-    ("scenario", "", "simulator touch script: built-in name or YAML path; empty: demo"),
-    ("loop", True, "simulator repeats its script (false: one pass, then no touch)"),
-    ("seed", 0, "simulator random seed"),
-    ("sim_joint_name", "elbow", "simulator: joint name of its posture on /joint_states"),
-    ("faults", "", f"simulator faults, comma separated {fault_help(',')}"),
-    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
-    (
-        "tf_parent_frame",
-        "base_link",
-        "parent of the patch frame in its static transform on /tf_static; empty: none "
-        "(the robot's URDF provides it)",
-    ),
-    ("tf_pose", [0.0] * 6, "patch frame in tf_parent_frame: x y z (m) roll pitch yaw (rad)"),
-]
+from eit_skin.sim.faults import parse_faults
 
 
 class DriverNode(Node):
@@ -84,15 +58,20 @@ class DriverNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_driver", **kwargs)
-        p = declare_read_only(self, _PARAMETERS)
+        p = declare_read_only(self, DRIVER)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         frame_id = str(p["frame_id"]) or self.patch.frame_id
         port, replay = str(p["port"]), str(p["replay_path"])
         if p["layer"]:
             layers = [self.patch.layer(str(p["layer"]))]
-        elif port:
-            layers = [self.patch.layers[0]]
+        elif port and len(self.patch.layers) > 1:
+            # a board serves one layer: guessing one would leave the others silent
+            raise ValueError(
+                f"port {port!r}: patch {self.patch.name!r} has layers "
+                f"{', '.join(self.patch.layer_names)}, one board each; set layer "
+                "(one eit_driver per board)"
+            )
         else:
             layers = list(self.patch.layers)
         self.factories = {
@@ -132,8 +111,16 @@ class DriverNode(Node):
                 1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
             )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
-        self.static_tf = self._publish_static_transform(
-            str(p["tf_parent_frame"]), frame_id, [float(v) for v in p["tf_pose"]]
+        mount = self.patch.mount
+        pose = p["tf_pose"] if p["tf_pose"] is not None else [*mount.xyz, *mount.rpy]
+        self.static_tf = (
+            self._publish_static_transform(
+                str(p["tf_parent_frame"]) or mount.parent_frame,
+                frame_id,
+                [float(v) for v in pose],
+            )
+            if p["publish_tf"]
+            else None
         )
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}), layers {list(self.factories)}, "
@@ -143,11 +130,9 @@ class DriverNode(Node):
     def _publish_static_transform(self, parent: str, child: str, pose: list[float]):
         """``parent -> child`` on /tf_static, latched like tf2_ros's static broadcaster.
 
-        Returns the publisher, or None when no transform is wanted or tf2_msgs is missing
-        (said once in the log; the skin runs on without TF).
+        Returns the publisher, or None when tf2_msgs is missing (said once in the log; the
+        skin runs on without TF).
         """
-        if not parent:
-            return None
         if len(pose) != 6:
             raise ValueError(f"tf_pose: expected x y z roll pitch yaw, got {pose}")
         try:

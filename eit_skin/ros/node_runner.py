@@ -13,23 +13,34 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from eit_skin.patch.model import PatchError
-
-#: (name, default, description) of a node parameter; the default fixes its type.
-ParameterTable = list[tuple[str, object, str]]
+from eit_skin.ros.parameters import UNSET_DOUBLES, ParameterTable
 
 
 def declare_read_only(node: Node, table: ParameterTable) -> dict[str, object]:
-    """Declare every parameter with a descriptor (read once at start) and return the values."""
+    """Declare every parameter with a descriptor (read once at start) and return the values.
+
+    A parameter whose default is :data:`~eit_skin.ros.parameters.UNSET_DOUBLES` is a double
+    array that stays unset (value None) unless given.
+    """
     for name, default, description in table:
-        node.declare_parameter(
-            name, default, ParameterDescriptor(description=description, read_only=True)
-        )
-    return {name: node.get_parameter(name).value for name, _, _ in table}
+        descriptor = ParameterDescriptor(description=description, read_only=True)
+        if default is UNSET_DOUBLES:
+            default = Parameter.Type.DOUBLE_ARRAY
+        node.declare_parameter(name, default, descriptor)
+    values: dict[str, object] = {}
+    for name, _, _ in table:
+        try:
+            values[name] = node.get_parameter(name).value
+        except ParameterUninitializedException:
+            values[name] = None
+    return values
 
 
 def diagnostic_status(

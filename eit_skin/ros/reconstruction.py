@@ -10,7 +10,8 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
   stretch: strain), NaN outside the sheet and in holes, stamped with the frame's
   acquisition time, row i / column j at ``(x[j], y[i])`` of the layer's image grid;
 * ``Q/image_color``: the same as rgb8 with a fixed colour scale (parameters), for rviz;
-* ``skin_marker``: a coloured TRIANGLE_LIST of the mesh on the patch's 3-D surface;
+* ``Q/skin_marker``: a coloured TRIANGLE_LIST of the layer on the patch's 3-D surface (one
+  topic per layer: stacked layers would hide each other in one display);
 * ``calibrated_contacts`` (only with the ``calibration`` parameter): per imaged frame of the
   calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
   located by the press calibration when the processor calls the frame touched, else empty
@@ -42,21 +43,17 @@ from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, default_cache_dir
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.pipeline.processor import (
-    DEFAULT_CONTACT_K,
-    DEFAULT_DRIFT_TIME_CONSTANT_S,
-    DEFAULT_FAULT_CHECK_PERIOD_S,
-    FAULT_WINDOW_FRAMES,
     LayerProcessor,
     stamp_to_s,
 )
 from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, PostureSync
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
-    ParameterTable,
     declare_read_only,
     diagnostic_status,
     run_node,
 )
+from eit_skin.ros.parameters import RECONSTRUCTION
 from eit_skin.ros.topics import patch_topics
 
 #: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
@@ -68,46 +65,6 @@ FRAME_QOS = QoSProfile(
 
 #: Cells along the long side of a layer's rviz marker (each costs Python objects per update).
 MARKER_PIXELS = 24
-
-_PARAMETERS: ParameterTable = [
-    ("patch_config", "arm", "patch YAML path, or a shipped patch name (arm, face, elbow)"),
-    ("cache_dir", "", "reconstruction matrix cache; empty: $EIT_SKIN_CACHE or ~/.cache/eit_skin"),
-    ("reference_frames", 0, "frames averaged into the reference; 0: the layer's solver setting"),
-    (
-        "drift_time_constant_s",
-        DEFAULT_DRIFT_TIME_CONSTANT_S,
-        "drift tracking time constant while untouched, s; 0: off",
-    ),
-    (
-        "contact_k",
-        DEFAULT_CONTACT_K,
-        "a change above contact_k x noise counts as contact (freezes drift)",
-    ),
-    ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
-    ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
-    (
-        "posture_wait_s",
-        0.5,
-        "longest a frame waits for the joint state of its acquisition time, s (posture only)",
-    ),
-    ("pressure_range_pa", 10000.0, "top of the pressure colour scale, Pa"),
-    ("stretch_range", 0.05, "top of the stretch colour scale, strain"),
-    ("marker_period_s", 0.5, "period of skin_marker updates, s; 0: no marker"),
-    (
-        "fault_check_period_s",
-        DEFAULT_FAULT_CHECK_PERIOD_S,
-        f"frame time between checks of the last {FAULT_WINDOW_FRAMES} frames for faulty "
-        "electrodes, s; 0: never",
-    ),
-    ("frame_timeout_s", 5.0, "no frame on a layer for this long: diagnostics ERROR, s; 0: off"),
-    ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
-    (
-        "calibration",
-        "",
-        "press calibration npz from `eit-skin calibrate` (its layer gets calibrated_contacts); "
-        "empty: off",
-    ),
-]
 
 
 @dataclass
@@ -133,6 +90,7 @@ class LayerState:
     last_reject: str = ""
     last_arrival: float | None = None  # time.monotonic() of the last frame, good or bad
     frames_topic: str = ""
+    marker_topic: str = ""
 
 
 class ReconstructionNode(Node):
@@ -140,7 +98,7 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_reconstruction", **kwargs)
-        p = declare_read_only(self, _PARAMETERS)
+        p = declare_read_only(self, RECONSTRUCTION)
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)
         # refused (CalibrationError, a ValueError) before any matrix is built
@@ -185,6 +143,7 @@ class ReconstructionNode(Node):
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
                 frames_topic=topic.frames,
+                marker_topic=topic.marker,
             )
             self.create_subscription(
                 _frame_type(),
@@ -214,9 +173,11 @@ class ReconstructionNode(Node):
         self.create_service(Trigger, topics.rezero, self._on_rezero)
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
-        self.marker_pub = None
         if float(p["marker_period_s"]) > 0:
-            self.marker_pub = self.create_publisher(Marker, topics.skin_marker, 1)
+            self.marker_pubs = {
+                name: self.create_publisher(Marker, state.marker_topic, 1)
+                for name, state in self.layers.items()
+            }
             self._marker_geometry = {
                 name: self._marker_mesh(state) for name, state in self.layers.items()
             }
@@ -374,20 +335,20 @@ class ReconstructionNode(Node):
         return points, rows * width + cols
 
     def _publish_markers(self) -> None:
-        for index, (name, state) in enumerate(self.layers.items()):
+        for name, state in self.layers.items():
             if state.last_image is None:
                 continue
             points, pixels = self._marker_geometry[name]
             rgb = state.scale.to_rgb(state.last_image.reshape(1, -1)[:, pixels])[0] / 255.0
             colours = [ColorRGBA(r=float(r), g=float(g), b=float(b), a=1.0) for r, g, b in rgb]
-            marker = Marker(ns=name, id=index, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
+            marker = Marker(ns=name, id=0, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
             marker.header.frame_id = self.patch.frame_id
             marker.header.stamp = self.get_clock().now().to_msg()
             marker.pose.orientation.w = 1.0
             marker.scale.x = marker.scale.y = marker.scale.z = 1.0
             marker.points = points
             marker.colors = [c for c in colours for _ in range(6)]  # two triangles per cell
-            self.marker_pub.publish(marker)
+            self.marker_pubs[name].publish(marker)
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:

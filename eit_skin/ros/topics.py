@@ -13,7 +13,7 @@ name                           type                        from
 ``<layer>/frames``             ``eit_skin_msgs/EitFrame``  driver, one per layer (layer name)
 ``<image>/image``              ``sensor_msgs/Image``       reconstruction, one per layer
 ``<image>/image_color``        ``sensor_msgs/Image``       reconstruction, one per layer
-``skin_marker``                ``visualization_msgs/Marker``  reconstruction
+``<image>/skin_marker``        ``visualization_msgs/Marker``  reconstruction, one per layer
 ``eit_reconstruction/rezero``  ``std_srvs/Trigger``        reconstruction (service)
 ``calibrated_contacts``        ``eit_skin_msgs/ContactArray``  reconstruction (``calibration`` set)
 ``touch_events``               ``eit_skin_msgs/TouchEvent``  classifier
@@ -52,11 +52,14 @@ class LayerTopics:
         frames: raw frames (``EitFrame``), named after the layer.
         image: physical image (``Image`` 32FC1), named after the layer's quantity.
         image_color: the same image rendered rgb8.
+        marker: the layer on the patch's 3-D surface (``Marker``); one topic per layer, so
+            stacked layers never draw over each other in one display.
     """
 
     frames: str
     image: str
     image_color: str
+    marker: str
 
 
 @dataclass(frozen=True)
@@ -66,7 +69,6 @@ class PatchTopics:
     Attributes:
         namespace: ``""`` (names relative to the node's namespace) or ``"/ns"``.
         layers: layer name -> its topics, in the patch's layer order.
-        skin_marker: rviz marker of the patch (``Marker``).
         rezero: the reconstruction's re-zero service (``std_srvs/Trigger``).
         calibrated_contacts: press-calibrated contacts of every imaged frame of the
             calibrated layer (``ContactArray``; docs/press-calibration.md).
@@ -78,7 +80,6 @@ class PatchTopics:
 
     namespace: str
     layers: dict[str, LayerTopics]
-    skin_marker: str
     rezero: str
     calibrated_contacts: str
     touch_events: str
@@ -115,13 +116,13 @@ def patch_topics(patch: Patch, namespace: str = "") -> PatchTopics:
             frames=frames_topic(layer, namespace),
             image=f"{prefix}{image}/image",
             image_color=f"{prefix}{image}/image_color",
+            marker=f"{prefix}{image}/skin_marker",
         )
         for layer, image in image_prefixes(patch).items()
     }
     return PatchTopics(
         namespace=prefix.rstrip("/") or ("/" if namespace else ""),
         layers=layers,
-        skin_marker=f"{prefix}skin_marker",
         rezero=f"{prefix}{RECONSTRUCTION_NODE}/rezero",
         calibrated_contacts=f"{prefix}calibrated_contacts",
         touch_events=f"{prefix}touch_events",

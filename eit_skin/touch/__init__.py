@@ -1,7 +1,9 @@
 """Touches from reconstructed images: contacts, shapes, and the push/rub/pinch/grab classifier.
 
 Modules: ``contacts`` (noise, segmentation, tracking, early detection), ``shapes`` (blob
-moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: events and labels).
+moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: events and labels),
+``pairing`` (:class:`StampPairer`: pressure and stretch images of the same moment, also from
+two boards).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ _EXPORTS: dict[str, str] = {
     "ContactGeometry": "shapes",
     "ContactSegmenter": "contacts",
     "SegmentationConfig": "contacts",
+    "StampPairer": "pairing",
     "TouchClassifier": "classifier",
     "TouchEvent": "classifier",
     "classifier_layers": "classifier",
@@ -30,6 +33,7 @@ __all__ = [
     "ContactGeometry",
     "ContactSegmenter",
     "SegmentationConfig",
+    "StampPairer",
     "TouchClassifier",
     "TouchEvent",
     "classifier_layers",
@@ -46,6 +50,7 @@ if TYPE_CHECKING:
         classifier_layers,
     )
     from eit_skin.touch.contacts import ContactSegmenter, SegmentationConfig
+    from eit_skin.touch.pairing import StampPairer
     from eit_skin.touch.shapes import (
         ContactGeometry,
         contact_geometry,

@@ -1,0 +1,40 @@
+"""Console scripts of the nodes: a Ctrl-C that comes while the node still imports is quiet.
+
+A node process spends its first second or more importing rclpy, numpy, scipy and the core.
+``ros2 launch`` forwards Ctrl-C at once, so a launch stopped early sent SIGINT into those
+imports and every node printed a KeyboardInterrupt traceback. Here SIGINT and SIGTERM are
+handled before anything heavy is imported: one that arrives during the imports ends the
+process with exit 0 and no output (nothing has started, nothing needs cleaning up);
+afterwards :func:`eit_skin.ros.node_runner.run_node` installs its own handling.
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+
+
+def _stop_while_importing(signum: int, frame: object) -> None:
+    raise SystemExit(0)
+
+
+def _run(module: str) -> int:
+    """``eit_skin.ros.<module>.main()`` with quiet signals until its own handling starts."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _stop_while_importing)
+    return importlib.import_module(f"eit_skin.ros.{module}").main()
+
+
+def driver() -> int:
+    """Console script ``eit_driver``."""
+    return _run("driver")
+
+
+def reconstruction() -> int:
+    """Console script ``eit_reconstruction``."""
+    return _run("reconstruction")
+
+
+def classifier() -> int:
+    """Console script ``eit_classifier``."""
+    return _run("classifier")
