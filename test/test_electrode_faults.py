@@ -3,11 +3,38 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.inverse.electrode_faults import bad_channels, excluded_channels, faulty_electrodes
+from eit_skin.frames import excluded_channels as flagged_channels
+from eit_skin.inverse.electrode_faults import (
+    bad_channels,
+    excluded_channels,
+    faulty_electrodes,
+    shared_fraction,
+    spoiled_channels,
+)
+from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
+from eit_skin.sim.drift import NO_DRIFT
+from eit_skin.sim.scenario import Scenario
+from eit_skin.sim.simulator import SkinSimulator
+from eit_skin.sim.stimuli import Push, peak_hertz_pressure
 
 pytestmark = pytest.mark.filterwarnings("error")
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
+SMALL = """\
+name: small
+frame_id: small_link
+layers:
+  - name: pressure
+    outline: {type: circle, radius: 0.040, center: [0.0, 0.0]}
+    electrodes: {count: 16, layout: even, width: 0.004, contact_impedance: 4.0}
+    current: 1.0e-4
+    material: {quantity: pressure, sheet_conductance: 6.92e-5, pressure_scale: 3.0e4}
+    protocol: {drive: adjacent, measure: adjacent}
+    mesh: {max_edge: 0.008, electrode_edge: 0.002}
+"""
+RATE_HZ = 20.0
+#: A 5 N fingertip of 6 mm radius: 66 kPa at its centre (the press of issue 17).
+PRESS_N, PRESS_RADIUS_M = 5.0, 0.006
 
 
 def frames_with(seed: int = 0, t: int = 20):
@@ -18,10 +45,39 @@ def frames_with(seed: int = 0, t: int = 20):
     return ref, frames
 
 
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    path = tmp_path_factory.mktemp("small") / "small.yaml"
+    path.write_text(SMALL)
+    return load_patch(path)
+
+
+def simulated(patch, faults=(), scenario="idle", n_frames: int = 12, start: int = 0):
+    """Frames ``[T, M]`` V as the pipeline sees them (flagged channels NaN) and the layer's
+    noise-free reference ``[M]`` V."""
+    sim = SkinSimulator(patch, scenario, RATE_HZ, seed=2, faults=list(faults), drift=NO_DRIFT)
+    frames = []
+    for k in range(start, start + n_frames):
+        f = sim.frame(k)["pressure"]
+        v = f.voltages_v.astype(np.float64)
+        v[flagged_channels(f.flags, v.size)] = np.nan
+        frames.append(v)
+    return np.array(frames), sim.reference("pressure"), sim.protocol("pressure")
+
+
 def test_healthy_frames_have_no_fault():
     ref, frames = frames_with()
     assert faulty_electrodes(frames, ref, PROTOCOL).size == 0
     assert not bad_channels(frames, ref).any()
+    assert not spoiled_channels(frames, ref).any()
+
+
+def test_a_neighbour_shares_half_of_an_electrodes_channels():
+    """Of an electrode's 52 channels (two drive pairs of 13, and 26 measurements with it in the
+    other drives) its neighbour touches 28: their common drive (13), their common measurement
+    pair (13) and one measurement each in the two drives next to it."""
+    assert PROTOCOL.touching([5]).sum() == 52
+    assert shared_fraction(PROTOCOL) == 28 / 52
 
 
 @pytest.mark.parametrize("electrode", [0, 7, 15])
@@ -32,6 +88,50 @@ def test_dead_electrode_found_alone(electrode):
     el, mask = excluded_channels(frames, ref, PROTOCOL)
     assert el.tolist() == [electrode]
     np.testing.assert_array_equal(mask, touch)
+
+
+@pytest.mark.parametrize("electrode", range(16))
+def test_simulated_dead_electrode_is_named_not_its_neighbours(small, electrode):
+    """The simulator's dead electrode (drives hit the rail, measurements float), and the same
+    electrode's channels zeroed (issue 17): exactly that electrode, in the frames of one check
+    and in a single zeroed frame."""
+    frames, ref, protocol = simulated(small, [f"dead-electrode:{electrode}"])
+    assert faulty_electrodes(frames, ref, protocol).tolist() == [electrode]
+    healthy, _, _ = simulated(small)
+    zeroed = healthy.copy()
+    zeroed[:, protocol.touching([electrode])] = 0.0
+    assert faulty_electrodes(zeroed, ref, protocol).tolist() == [electrode]
+    assert faulty_electrodes(zeroed[0], ref, protocol).tolist() == [electrode]
+
+
+@pytest.mark.parametrize("dead", [(3, 9), (0, 2), (1, 15), (4, 12)])
+def test_two_dead_electrodes_are_named_alone(small, dead):
+    """Two apart (the one between them cannot be judged: all its channels touch a dead one,
+    so it is not named), wrapping round 15 -> 0, and opposite."""
+    frames, ref, protocol = simulated(small, [f"dead-electrode:{e}" for e in dead])
+    el, mask = excluded_channels(frames, ref, protocol)
+    assert el.tolist() == sorted(dead)
+    assert (mask == protocol.touching(list(dead))).all()
+
+
+@pytest.mark.parametrize("electrode", [0, 5, 11])
+def test_a_strong_press_next_to_an_electrode_is_no_fault(small, electrode):
+    """66 kPa right at an electrode changes most of its channels a lot; it is a load, not a
+    fault: in the window of the press ramping in, and while it is held."""
+    angle = 2 * np.pi * electrode / 16  # electrodes evenly from angle 0
+    centre = (0.040 - 0.004 - PRESS_RADIUS_M) * np.array([np.cos(angle), np.sin(angle)])
+    push = Push(0.5, 2.0, tuple(centre), force_n=PRESS_N, radius_m=PRESS_RADIUS_M)
+    assert peak_hertz_pressure(PRESS_RADIUS_M, PRESS_N) == pytest.approx(66e3, rel=0.01)
+    scenario = Scenario("press", (push,), 3.0)
+    frames, ref, protocol = simulated(small, (), scenario, n_frames=40, start=5)
+    held = frames[-10:]
+    with np.errstate(divide="ignore"):
+        change = np.abs(np.median(held, axis=0) / ref - 1.0)
+    touch = protocol.touching([electrode])
+    assert np.median(change[touch]) > 0.05 and change.max() > 0.2  # a strong press there
+    assert faulty_electrodes(frames[:20], ref, protocol).size == 0  # ramping in
+    assert faulty_electrodes(held, ref, protocol).size == 0
+    assert faulty_electrodes(held[0], ref, protocol).size == 0
 
 
 def test_noisy_electrode_found_from_variance():

@@ -704,6 +704,18 @@ def test_stretch_material_follows_gauge_law_and_guards_r_minus_one():
         assert np.isnan(m.from_physical(np.array([np.nan]))).all()
 
 
+def test_physical_range_is_a_tenfold_conductance_change_either_way():
+    """The images' bound comes from the material law: sigma/sigma0 in [1/10, 10]."""
+    pressure = Material("pressure", 1e-4, pressure_scale_pa=3e4)
+    assert pressure.physical_range == pytest.approx((-0.9 * 3e4, 9.0 * 3e4))
+    stretch = Material("stretch", 1e-4, gauge_factor=2.0)
+    low, high = stretch.physical_range  # strain falls as r rises: the ends swap
+    assert (low, high) == pytest.approx(((0.1 - 1.0) / 2.0, (10.0 - 1.0) / 2.0))
+    for m in (pressure, stretch):
+        ratio = m.conductance(np.array(m.physical_range)) / m.sheet_conductance_s
+        np.testing.assert_allclose(np.sort(ratio), [0.1, 10.0])
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [

@@ -12,7 +12,7 @@ from eit_skin.calibration.localiser import (
     PressLocaliser,
     cross_validate,
 )
-from eit_skin.calibration.online import OnlineLocaliser
+from eit_skin.calibration.online import OnlineLocaliser, electrode_centres, fault_proximity
 from eit_skin.calibration.session import (
     PressSession,
     PressSessionError,
@@ -21,6 +21,8 @@ from eit_skin.calibration.session import (
 )
 from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
+from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.sim.press_session import simulate_press_session
 from test.patch_copies import shipped_patch_data, write_patch
 
@@ -126,6 +128,67 @@ def test_online_localiser_binds_to_its_layer_and_ignores_missing_channels(
     holed = online.locate(frame, session.references[k], excluded)
     assert np.isfinite(holed.xy_m).all() and np.isfinite(holed.depth_m)
     assert 0.0 <= holed.confidence <= 1.0
+
+
+def test_fault_proximity_is_distance_over_electrode_spacing():
+    centres = np.array([[0.0, 0.0], [0.01, 0.0], [0.03, 0.0]])  # spacings 10, 10, 20 mm
+    assert fault_proximity(np.array([0.0, 0.0]), centres, np.array([], np.int64)) == 1.0
+    assert fault_proximity(np.array([0.0, 0.0]), centres, np.array([0])) == 0.0
+    assert fault_proximity(np.array([0.0, 0.004]), centres, np.array([0])) == pytest.approx(0.4)
+    assert fault_proximity(np.array([0.03, 0.01]), centres, np.array([0, 2])) == pytest.approx(0.5)
+    assert fault_proximity(np.array([0.0, 0.05]), centres, np.array([0])) == 1.0
+
+
+def test_contacts_near_an_excluded_electrode_lose_confidence(fitted, session, elbow):
+    """Electrode e comes loose: once the processor's fault check leaves it out, a press next to
+    e (located without e's channels) gets its confidence scaled down by its distance over e's
+    spacing; a press far from e keeps the localiser's confidence."""
+    layer = elbow.layers[0]
+    imager = LayerImager.build(layer)
+    centres = electrode_centres(imager.mesh)
+    test = np.arange(100, len(session.press_xy))
+    gaps = np.linalg.norm(session.press_xy[test, None, :] - centres[None], axis=2)  # [K, E]
+    near = int(test[np.argmin(gaps.min(axis=1))])
+    e = int(np.argmin(np.linalg.norm(centres - session.press_xy[near], axis=1)))
+    far = int(test[np.argmax(gaps[:, e])])
+    online = OnlineLocaliser(fitted, elbow, "src")
+    protocol = imager.protocol
+    loose = protocol.touching([e])
+    rng = np.random.default_rng(5)
+    processor = LayerProcessor(imager, drift_time_constant_s=0.0, fault_check_period_s=1.0)
+    processor.set_reference(session.references[near], 0.0)  # no noise frames: all touched
+
+    def with_loose_electrode(k: int) -> np.ndarray:
+        frame = session.frames[k].copy()
+        frame[loose] = rng.normal(0.0, np.abs(frame).max(), int(loose.sum()))  # floating
+        return frame
+
+    images = {}
+
+    def contact(k: int, t: float):
+        frame = with_loose_electrode(k)
+        images[k] = processor.step(frame, t)
+        return online.contact(frame, None, images[k], processor), frame
+
+    first, _ = contact(near, 0.1)  # before the first check: nothing excluded yet
+    assert processor.faulty_electrodes.size == 0 and first is not None
+    for i in range(2, 12):
+        contact(near, 0.1 * i)
+    assert processor.faulty_electrodes.tolist() == [e]
+    for k, nearby in ((near, True), (far, False)):
+        got, frame = contact(k, 1.2)
+        alone = online.locate(frame, processor.reference(), loose)
+        np.testing.assert_array_equal(got.xy_m, alone.xy_m)
+        # the image of this frame (reconstructed without e's channels) puts the press near
+        # its true place; the localiser may not (here: 33 mm off, confidence 0 already)
+        peak = imager.mesh.centroids[np.argmax(np.abs(images[k].values))]
+        assert np.linalg.norm(peak - session.press_xy[k]) < 0.01
+        factor = fault_proximity(np.stack([got.xy_m, peak]), centres, np.array([e]))
+        assert got.confidence == pytest.approx(alone.confidence * factor)
+        if nearby:  # 13 mm from e, electrodes 20 mm apart
+            assert factor < 1.0
+        else:
+            assert factor == 1.0 and got.confidence == alone.confidence
 
 
 def session_arrays(session: PressSession) -> dict[str, np.ndarray]:

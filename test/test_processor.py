@@ -210,3 +210,33 @@ def test_unusable_frames_and_bad_input(small) -> None:
 def test_stamp_to_s_is_the_export_convention() -> None:
     stamps = np.array([1_700_000_000_123_456_789, 1_700_000_000_143_456_789], np.int64)
     assert [stamp_to_s(int(s)) for s in stamps] == (stamps / 1e9).tolist()
+
+
+def test_images_stay_in_the_materials_range_while_a_dead_electrode_is_not_yet_found(small) -> None:
+    """Issue 17: electrode 5 comes loose during a press (its channels float). Until the fault
+    check leaves them out, the relative change runs far past what the sheet can do; the image
+    stops at the material's bound. A normal press is the plain material conversion, untouched
+    by the bound."""
+    imager, v0, pressed = small
+    material = imager.layer.material
+    low, high = material.physical_range
+    assert (low, high) == pytest.approx((-0.9 * 3.0e4, 9.0 * 3.0e4))  # [1/10, 10] x sigma0
+    processor = captured(imager, v0, drift_time_constant_s=0.0, fault_check_period_s=1.0)
+    normal = processor.step(pressed, 0.05)
+    unclipped = imager.images(material.to_physical(normal.values).astype(np.float32))
+    np.testing.assert_array_equal(normal.image, unclipped)
+    touching = imager.protocol.touching([5])
+    rng = np.random.default_rng(7)
+    out = []
+    for k in range(30):
+        dead = pressed.copy()
+        dead[touching] = rng.normal(0.0, 0.5, int(touching.sum()))  # floating inputs, V
+        out.append(processor.step(dead, 0.1 + 0.05 * k))
+    before = [o for o in out if o.channels_used == imager.n_measurements]
+    after = [o for o in out if o.channels_used < imager.n_measurements]
+    assert before and after and processor.faulty_electrodes.tolist() == [5]
+    assert max(np.nanmax(o.values) for o in before) > 9.0  # the linear estimate ran away
+    for o in out:
+        assert low <= np.nanmin(o.image) and np.nanmax(o.image) <= high
+    # once left out, the press is imaged from the other channels like a press again
+    assert 0.3 * np.nanmax(normal.image) < np.nanmax(after[-1].image) < high

@@ -117,11 +117,12 @@ def diagnostics_of(probe: Probe) -> dict[str, str]:
     return {}
 
 
-def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, recording):
+def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, recording, capsys):
     records, truth = recording
     offline = reconstruct_offline(
         records, tmp_path, cache_dir, SETTINGS["drift_time_constant_s"][1]
     )
+    summary = capsys.readouterr().out  # what `eit-skin reconstruct` reports
     imaged = offline["imaged"]
     assert not imaged[:10].any() and imaged[10:].all()  # the capture, then every frame
 
@@ -176,8 +177,10 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
     ]
     assert different == []  # frames whose images differ
 
-    # what the frames made the pipeline do, in the node
+    # what the frames made the pipeline do, in the node: the same faulty electrode as the
+    # command reports, the dead one alone (not its neighbours 8 and 10)
     assert status["faulty_electrodes"] == "9" and status["frames_rejected"] == "0"
+    assert "left out electrodes [9];" in summary, summary
     drift_updates = int(status["drift_updates"])
     assert drift_updates > 50  # the reference followed the drift...
     t = (stamps - START_NS) * 1e-9

@@ -40,7 +40,8 @@ class Pty:
         os.close(self.slave)
 
 
-def poll_until(link: SerialLink, condition, timeout_s: float = 5.0) -> list:
+def poll_until(link: SerialLink, condition, timeout_s: float = 60.0) -> list:
+    """Poll until ``condition(received)``; ``timeout_s`` is a safety net for a loaded machine."""
     received = []
     deadline = time.monotonic() + timeout_s
     while not condition(received):
@@ -111,25 +112,30 @@ def test_thread_api_delivers_frames_and_state_changes(tmp_path):
     path = tmp_path / "eit_skin_leg"
     device = Pty(path)
     got, states = [], []
-    done = threading.Event()
+    changed = threading.Condition()  # the link's thread calls back; the test waits on it
 
     def on_frames(batch):
-        got.extend(r.frame for r in batch)
-        if len(got) >= 3:
-            done.set()
+        with changed:
+            got.extend(r.frame for r in batch)
+            changed.notify_all()
+
+    def on_state(state):
+        with changed:
+            states.append(state)
+            changed.notify_all()
+
+    def wait_for(predicate) -> None:
+        with changed:  # 60 s: a safety net for a loaded machine, not a bound on the link
+            assert changed.wait_for(predicate, timeout=60.0), (got, states)
 
     link = SerialLink(str(path), backoff_initial_s=0.01, backoff_max_s=0.05)
-    link.start(on_frames, states.append, poll_timeout_s=0.01)
-    deadline = time.monotonic() + 5.0
-    while not states and time.monotonic() < deadline:
-        time.sleep(0.005)
+    link.start(on_frames, on_state, poll_timeout_s=0.01)
+    wait_for(lambda: len(states) >= 1)
     sent = [frame(i) for i in range(3)]
     device.send(*sent)
-    assert done.wait(5.0)
+    wait_for(lambda: len(got) >= 3)
     device.unplug()
-    deadline = time.monotonic() + 5.0
-    while len(states) < 2 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_for(lambda: len(states) >= 2)
     link.stop()
     assert got == sent
     assert [s.state for s in states[:2]] == [LinkState.CONNECTED, LinkState.DISCONNECTED]

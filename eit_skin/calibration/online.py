@@ -14,6 +14,15 @@ imaged frame of the calibrated layer. It reuses what the layer's
 * **missing channels**: flagged channels of the frame, non-finite values and the channels of
   electrodes the processor found faulty count as "no change" (the localiser has no notion of
   a missing channel); a press the localiser cannot recognise then shows as a low confidence.
+* **excluded electrodes**: a press near an electrode the processor leaves out was located
+  without the channels that see it best (and may be put far away), so its confidence is
+  scaled by :func:`fault_proximity`: the distance to the nearest excluded electrode, of the
+  located press or of the image's peak (the processor's reconstruction without those
+  channels, whichever is nearer), over that electrode's spacing to its nearest neighbour,
+  capped at 1. This holds for as long as the
+  processor's fault checks leave the electrode out; a contact right at it gets confidence 0,
+  so the classifier keeps its own centroid there (below :data:`MIN_CONFIDENCE`), one
+  spacing or further away it is unchanged.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from eit_skin.calibration.localiser import CalibrationError, PressLocaliser
+from eit_skin.fem.mesh import Mesh
 from eit_skin.frames import excluded_channels
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.processor import LayerImages, LayerProcessor
@@ -48,6 +58,30 @@ class CalibratedContact:
     confidence: float
 
 
+def electrode_centres(mesh: Mesh) -> np.ndarray:
+    """``[n_electrodes, 2]`` centre of each electrode, m (mean of its boundary edges' nodes)."""
+    return np.stack([mesh.nodes[np.unique(edges)].mean(axis=0) for edges in mesh.electrode_edges])
+
+
+def fault_proximity(xy_m: np.ndarray, centres_m: np.ndarray, excluded: np.ndarray) -> float:
+    """Factor in [0, 1] on the confidence of a contact at ``xy_m`` ``[2]`` (or ``[K, 2]``) m.
+
+    ``min over excluded electrodes e (and points) of |xy - c_e| / spacing_e``, capped at 1,
+    where ``spacing_e`` is the distance from ``c_e`` to the nearest other electrode centre
+    (``centres_m`` ``[n_electrodes, 2]`` m); 1 when nothing is excluded. Scale-free: the
+    electrode layout sets the distance that counts as near.
+    """
+    excluded = np.asarray(excluded, dtype=np.int64)
+    if excluded.size == 0 or len(centres_m) < 2:
+        return 1.0
+    gaps = np.linalg.norm(centres_m[excluded, None, :] - centres_m[None, :, :], axis=2)
+    gaps[gaps == 0.0] = np.inf  # the electrode itself
+    spacing = gaps.min(axis=1)  # [n_excluded] m
+    points = np.atleast_2d(np.asarray(xy_m, dtype=np.float64))  # [K, 2]
+    distance = np.linalg.norm(points[:, None, :] - centres_m[excluded][None], axis=2)
+    return float(min(1.0, (distance / spacing[None, :]).min()))
+
+
 class OnlineLocaliser:
     """A press calibration bound to one layer of a patch, located one frame at a time.
 
@@ -70,6 +104,7 @@ class OnlineLocaliser:
         self.localiser = localiser
         self.layer_name = localiser.layer_name
         self.source = source
+        self._centres: np.ndarray | None = None  # [n_electrodes, 2] m, on first need
 
     @classmethod
     def load(cls, path: str | Path, patch: Patch) -> OnlineLocaliser:
@@ -112,11 +147,23 @@ class OnlineLocaliser:
             flags: optional uint8 ``[M]`` channel flags (empty / None: all OK).
             images: what ``processor.step`` returned for this frame.
             processor: the layer's processor (reference, faulty electrodes).
+
+        A contact near an electrode the processor leaves out has its confidence scaled by
+        :func:`fault_proximity` (module docstring).
         """
         if not images.touching:
             return None
         m = processor.n_measurements
-        excluded = processor.imager.protocol.touching(processor.faulty_electrodes)
+        faulty = processor.faulty_electrodes
+        excluded = processor.imager.protocol.touching(faulty)
         if flags is not None and np.size(flags):
             excluded = excluded | excluded_channels(flags, m)
-        return self.locate(frame_v, processor.reference(), excluded)
+        located = self.locate(frame_v, processor.reference(), excluded)
+        if not faulty.size:
+            return located
+        if self._centres is None:
+            self._centres = electrode_centres(processor.imager.mesh)  # the inverse mesh's
+        mesh = processor.imager.mesh
+        peak = mesh.centroids[int(np.nanargmax(np.abs(images.values)))]  # the image's contact
+        factor = fault_proximity(np.stack([located.xy_m, peak]), self._centres, faulty)
+        return CalibratedContact(located.xy_m, located.depth_m, located.confidence * factor)

@@ -4,17 +4,34 @@ Channel checks (per frame block ``[T, M]`` volts):
     * non-finite (NaN/Inf) in the reference or any frame;
     * saturated: ``|v| >= saturation_v`` (the ADC's full scale) in any frame.
 
-Electrode checks (robust statistics over electrodes, measurements grouped by
-:meth:`Protocol.touching`):
-    For electrode ``i`` the score is the median over the channels that touch it
-    (as drive or measurement electrode) of the per-channel noise level
-    ``std_t(v) / s_ref`` relative to the median over all channels. A disconnected
-    electrode makes every channel it touches large/erratic (floating input) or,
-    when it is driven, makes the whole injection nonsense, so those channels share a
-    large score; a good electrode's channels look like everyone else's. An electrode
-    is flagged when its score exceeds ``threshold`` times the median electrode score
-    (and the channels' mean relative deviation from the reference is also checked the
-    same way, which catches a dead electrode in a single frame).
+Electrode checks: which channels are spoiled, then which electrodes explain them.
+
+A channel is **spoiled** when it is bad (above), or when over the frames its voltage is no
+longer that of a loaded sheet, or when it is erratic:
+
+* **lost signal**: the median over the frames of ``q = v / v_ref`` (signed, ``v_ref``
+  floored like :func:`~eit_skin.inverse.one_step.reference_scale`) lies outside
+  ``[1/K, K]``, ``K`` = :data:`~eit_skin.patch.material.CONDUCTANCE_RATIO_LIMIT`: a
+  zeroed channel (``q = 0``), a floating input (median ``q`` near 0) or a sign flip.
+  A load, even one covering an electrode, scales a channel by a bounded factor
+  (the images' own range, :mod:`eit_skin.patch.material`);
+* **erratic** (two frames or more): its robust step noise, ``1.4826 * MAD`` of the
+  frame-to-frame changes of ``q``, exceeds ``threshold`` times the median over the other
+  channels, or ``1/K`` (a tenth of the signal from frame to frame: noise-free or quantised
+  data can have a median of 0). A press ramps over many frames, so it moves a minority of
+  steps, which the median ignores; a floating or loose input changes every step.
+
+A dead electrode ``e`` spoils **every** channel touching ``e`` (it drives or measures with
+``e``: :meth:`Protocol.touching`); a neighbour shares some of those channels, but its own
+channels not touching ``e`` are fine. So electrodes are named one at a time, each time the
+one with the most spoiled channels among those candidates whose channels **not touching an
+electrode named before** are spoiled in more than ``(1 + s) / 2`` of cases, ``s`` the largest
+fraction of one electrode's channels that another electrode shares (from the protocol:
+28/52 for adjacent drive and measurement, so 0.77), i.e. above the midpoint between what a
+dead neighbour spoils and all. The named electrode's channels are then explained, and the rest
+are looked at again. An electrode all of whose channels touch other named ones (between two
+dead electrodes) cannot be judged and is not named (also when it was named first: a last
+pass drops it); its channels are left out anyway.
 
 :class:`FaultTolerantReconstructor` wraps any method's reconstructor
 (:class:`~eit_skin.inverse.methods.Reconstructor`) and images with the measurements touching
@@ -30,10 +47,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eit_skin.inverse.one_step import reference_scale
+from eit_skin.patch.material import CONDUCTANCE_RATIO_LIMIT
 from eit_skin.patch.protocol import Protocol
 
 if TYPE_CHECKING:
     from eit_skin.inverse.methods import Reconstructor
+
+#: MAD -> standard deviation of a normal distribution.
+_MAD_TO_STD = 1.4826
 
 
 def bad_channels(
@@ -49,63 +70,94 @@ def bad_channels(
     return bad
 
 
+def spoiled_channels(
+    frames: np.ndarray,
+    reference: np.ndarray,
+    threshold: float = 10.0,
+    saturation_v: float | None = None,
+) -> np.ndarray:
+    """``[M]`` bool: channels bad, lost their signal or erratic over ``frames`` (module docstring).
+
+    Args:
+        frames: ``[T, M]`` (or ``[M]``) volts.
+        reference: ``[M]`` volts.
+        threshold: how many times the median channel step noise counts as erratic.
+        saturation_v: ADC full scale, volts; saturated channels count as bad.
+    """
+    v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
+    ref = np.asarray(reference, dtype=np.float64)
+    spoiled = bad_channels(v, ref, saturation_v)
+    with np.errstate(invalid="ignore"):
+        q = 1.0 + (v - ref) * np.sign(ref) / reference_scale(ref)  # [T, M], v / v_ref
+    q[:, spoiled] = 0.0
+    level = np.median(q, axis=0)
+    spoiled |= (level < 1.0 / CONDUCTANCE_RATIO_LIMIT) | (level > CONDUCTANCE_RATIO_LIMIT)
+    if v.shape[0] > 1:
+        steps = np.diff(q, axis=0)
+        noise = _MAD_TO_STD * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0)
+        typical = float(np.median(noise[~spoiled])) if (~spoiled).any() else 0.0
+        spoiled |= noise > 1.0 / CONDUCTANCE_RATIO_LIMIT
+        if typical > 0:
+            spoiled |= noise > threshold * typical
+    return spoiled
+
+
+def shared_fraction(protocol: Protocol) -> float:
+    """Largest fraction of one electrode's channels that touch another given electrode.
+
+    ``max over i != j of |touching(i) & touching(j)| / |touching(i)|``: 28/52 for adjacent drive
+    and measurement on 16 electrodes (a neighbour shares one drive pair, one measurement pair
+    and two more channels). 0 for fewer than two electrodes.
+    """
+    touch = np.stack([protocol.touching([i]) for i in range(protocol.n_electrodes)]).astype(float)
+    if touch.shape[0] < 2:
+        return 0.0
+    shared = touch @ touch.T  # [n_el, n_el] channels in common
+    own = np.maximum(np.diag(shared), 1.0)
+    np.fill_diagonal(shared, 0.0)
+    return float((shared / own[:, None]).max())
+
+
 def faulty_electrodes(
     frames: np.ndarray,
     reference: np.ndarray,
     protocol: Protocol,
     threshold: float = 10.0,
     saturation_v: float | None = None,
-    min_deviation: float = 0.2,
 ) -> np.ndarray:
-    """Indices (int64, sorted) of electrodes whose channels are outliers.
+    """Indices (int64, sorted) of the electrodes that explain the spoiled channels.
 
     Args:
         frames: ``[T, M]`` (or ``[M]``) volts.
         reference: ``[M]`` volts.
         protocol: the measurement protocol (which channels touch which electrode).
-        threshold: how many times the median electrode score counts as faulty.
+        threshold: how many times the median channel step noise counts as erratic.
         saturation_v: ADC full scale, volts; saturated channels count as bad.
-        min_deviation: a level outlier must also deviate from the reference by at least
-            this fraction (a touch changes channels by a few per cent, a dead electrode
-            by ~100 %).
+
+    The rule (module docstring) names a dead electrode, never its healthy neighbours, and
+    nothing for a load on a healthy sheet.
     """
-    v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
-    ref = np.asarray(reference, dtype=np.float64)
+    spoiled = spoiled_channels(frames, reference, threshold, saturation_v)
     n_el = protocol.n_electrodes
     touch = np.stack([protocol.touching([i]) for i in range(n_el)])  # [n_el, M]
-    chan_bad = bad_channels(v, ref, saturation_v)
-    scale = reference_scale(ref)
-    with np.errstate(invalid="ignore"):
-        dev = np.abs(v - ref) / scale  # [T, M]
-    dev = np.where(np.isfinite(dev), dev, np.inf)
-    # per-channel scores; inf for broken channels
-    level = np.median(dev, axis=0)
-    noise = np.std(np.where(np.isfinite(dev), dev, 0.0), axis=0) if v.shape[0] > 1 else None
-    level[chan_bad] = np.inf
+    majority = 0.5 * (1.0 + shared_fraction(protocol))
     faulty = np.zeros(n_el, dtype=bool)
-    scores = [(level, min_deviation)] + ([] if noise is None else [(noise, 0.0)])
-    # Peel off one electrode at a time: the worst electrode's channels are removed before
-    # the others are scored again, so its neighbours (which share half of its channels)
-    # are not flagged with it.
-    for _ in range(n_el - 1):
-        remaining = ~(touch[faulty].any(axis=0)) if faulty.any() else np.ones(v.shape[1], bool)
-        worst, worst_ratio = -1, 1.0
-        for score_per_channel, floor in scores:
-            s = np.where(np.isfinite(score_per_channel), score_per_channel, 1e30)
-            if not remaining.any():
-                break
-            med_all = max(float(np.median(s[remaining])), 1e-12)
-            for i in np.flatnonzero(~faulty):
-                sel = touch[i] & remaining
-                if not sel.any():
-                    continue
-                el_score = float(np.median(s[sel]))
-                ratio = el_score / med_all
-                if ratio > threshold and el_score > floor and ratio > worst_ratio:
-                    worst, worst_ratio = i, ratio
-        if worst < 0:
+    explained = np.zeros(spoiled.shape, dtype=bool)
+    while True:
+        remaining = touch & ~explained  # [n_el, M] channels still to judge
+        n_left = remaining.sum(axis=1)
+        n_spoiled = (remaining & spoiled).sum(axis=1)
+        candidate = ~faulty & (n_left > 0) & (n_spoiled > majority * n_left)
+        if not candidate.any():
             break
+        worst = int(np.argmax(np.where(candidate, n_spoiled, -1)))
         faulty[worst] = True
+        explained |= touch[worst]
+    for i in np.flatnonzero(faulty)[::-1]:  # drop one all of whose channels the others touch
+        others = faulty.copy()
+        others[i] = False
+        if others.any() and not (touch[i] & ~touch[others].any(axis=0)).any():
+            faulty[i] = False
     return np.flatnonzero(faulty).astype(np.int64)
 
 

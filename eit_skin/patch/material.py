@@ -14,6 +14,17 @@ quantity the layer senses:
 ``sheet_conductance_s`` is the conductance of one square of the sheet in
 siemens (``thickness / volume_resistivity``), the 2-D conductivity the forward
 model uses.
+
+Physical range. Difference imaging claims a load's conductance change only within
+:data:`CONDUCTANCE_RATIO_LIMIT`: ``1/K <= sigma / sigma0 <= K`` (``K = 10``), i.e.
+``r`` in :data:`RELATIVE_CHANGE_RANGE` ``= [1/K - 1, K - 1] = [-0.9, 9]``, symmetric in
+log-conductance. Beyond it the linearised reconstruction is no measurement of the sheet
+(a vanished conductance, or channels that lost their signal: a dead electrode) and the
+images are clipped to the ends (:meth:`Material.physical_range`): pressure
+``[-0.9, 9] * pressure_scale_pa``, strain ``[(1/K - 1) / g, (K - 1) / g]`` (the map is
+decreasing in ``r``). The same ``K`` tells a load from a lost channel in the electrode-fault
+check (:mod:`eit_skin.inverse.electrode_faults`): a tenfold conductance change of the whole
+sheet scales a channel's voltage by at most ``K`` either way.
 """
 
 from __future__ import annotations
@@ -23,6 +34,11 @@ from dataclasses import dataclass
 import numpy as np
 
 QUANTITIES = ("pressure", "stretch")
+CONDUCTANCE_RATIO_LIMIT = 10.0
+"""The largest factor ``K`` by which a load may change the sheet conductance, either way, that
+the images claim (module docstring)."""
+RELATIVE_CHANGE_RANGE = (1.0 / CONDUCTANCE_RATIO_LIMIT - 1.0, CONDUCTANCE_RATIO_LIMIT - 1.0)
+"""``(lowest, highest)`` relative conductivity change ``r`` an image may show: ``(-0.9, 9)``."""
 UNITS = {"pressure": "Pa", "stretch": "1"}
 
 
@@ -60,6 +76,15 @@ class Material:
     def unit(self) -> str:
         """SI unit of the physical quantity: ``"Pa"`` or ``"1"`` (strain)."""
         return UNITS[self.quantity]
+
+    @property
+    def physical_range(self) -> tuple[float, float]:
+        """``(lowest, highest)`` value of the layer's quantity (Pa or strain) an image may show.
+
+        The images of :data:`RELATIVE_CHANGE_RANGE` (module docstring), in increasing order.
+        """
+        ends = self.to_physical(np.array(RELATIVE_CHANGE_RANGE))
+        return float(ends.min()), float(ends.max())
 
     def to_physical(self, relative_change: np.ndarray | float) -> np.ndarray:
         """Physical quantity (Pa or strain) from ``r = dsigma/sigma0``; any shape, same shape out.

@@ -41,14 +41,12 @@ from eit_skin.inverse.methods import (
 )
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.npz import write_npz_atomic
+from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
 
 #: Bumped whenever the cached quantities change meaning.
 CACHE_VERSION = "2"
-
-#: Floor of the relative conductivity change before the physical conversion.
-MIN_RELATIVE_CHANGE = -0.9
 
 
 def default_cache_dir() -> Path:
@@ -320,11 +318,14 @@ class LayerImager:
         Pointwise, so it applies to element values ``[N]`` as well as to images; the node
         converts the ``N`` element values and then images them (fewer values than pixels).
 
-        Relative changes below :data:`MIN_RELATIVE_CHANGE` (a conductance that all but
-        vanished, beyond what the linearised reconstruction can claim) are clipped there,
-        so the physical image stays finite; NaN (outside the sheet) stays NaN.
+        Relative changes outside :data:`~eit_skin.patch.material.RELATIVE_CHANGE_RANGE` (a
+        conductance that all but vanished, or rose more than tenfold: beyond what the
+        linearised reconstruction can claim, e.g. the channels of a dead electrode before
+        the fault check left them out) are clipped to its ends, so the physical image stays
+        within :attr:`Material.physical_range <eit_skin.patch.material.Material.physical_range>`;
+        NaN (outside the sheet) stays NaN.
         """
-        clipped = np.maximum(relative_images, MIN_RELATIVE_CHANGE)
+        clipped = np.clip(relative_images, *RELATIVE_CHANGE_RANGE)
         return self.layer.material.to_physical(clipped).astype(np.float32)
 
 
