@@ -447,6 +447,33 @@ class ForwardModel:
         combination.sum_duplicates()
         return JacobianBasis(products=products, combination=combination)
 
+    def contact_jacobian(self, sigma) -> np.ndarray:
+        """``[M, n_el]`` sensitivity ``dV/dz_l`` (V per ohm*m) to each contact impedance.
+
+        Adjoint form: the contact term of electrode ``l`` is ``(1/z_l) int_{e_l} (U_l - u)
+        (W_l - w) ds``, so ``dV/dz_l = (current_a / z_l^2) int_{e_l} (U_l - u_k)(P_l - v_pq) ds``
+        for injection field ``u_k`` and the unit-current field ``v_pq`` of the measuring
+        pair; both are combinations of the unit-current basis of :meth:`solve`'s factorisation.
+        """
+        s = self._sigma_array(sigma)
+        basis = self._factorise(s).basis  # [n_nodes + n_el, n_el]
+        nodes = np.asarray(self._mesh.nodes, dtype=np.float64)
+        n_el = self._n_el
+        gram = np.empty((n_el, n_el, n_el))  # [l, a, b] int_{e_l} (W_a,l - w_a)(W_b,l - w_b) ds
+        for el, edge_arr in enumerate(self._mesh.electrode_edges):
+            ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
+            length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)[:, None]
+            drop = basis[self._n_nodes + el][None, :] - basis[: self._n_nodes]  # [n_nodes, n_el]
+            da, db = drop[ed[:, 0]], drop[ed[:, 1]]  # [edges, n_el]
+            gram[el] = (da * length / 3).T @ da + (db * length / 3).T @ db
+            cross = (da * length / 6).T @ db
+            gram[el] += cross + cross.T
+        k, p, q = self._protocol.measurements.T
+        # [l, n_inj, n_el]: current pattern of each injection through each electrode's form
+        through = np.einsum("ia,lab->lib", self._protocol.current_patterns, gram)
+        out = (through[:, k, p] - through[:, k, q]).T  # [M, n_el]
+        return out * (self._current_a / self._z**2)[None, :]
+
     def _lead_coefficients(self) -> sp.csr_matrix:
         """``[M, n_el * n_el]``: measurement ``m`` is ``sum I_k[a] (e_p - e_q)[b] w_a . w_b``.
 

@@ -307,6 +307,10 @@ class Protocol:
         frame_index: ``[M]`` int64 position of each measurement in the device's frame, or
             None: the device frame is the ``M`` measurements (compact layout).
         frame_size: numbers per device frame (``M`` for the compact layout).
+        complex_part: ``"real"`` or ``"magnitude"``: what :meth:`select` takes of complex
+            frames.
+        magnitude: the device reports magnitudes (``values: magnitude`` or
+            ``complex_part: magnitude``): each channel's sign is the homogeneous model's.
     """
 
     name: str
@@ -316,6 +320,8 @@ class Protocol:
     currents: np.ndarray | None = None
     frame_index: np.ndarray | None = None
     frame_size: int = 0
+    complex_part: str = "real"
+    magnitude: bool = False
     _selection: sp.csr_matrix | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -380,18 +386,42 @@ class Protocol:
         return out
 
     def select(self, frames: np.ndarray, source: str = "frames") -> np.ndarray:
-        """Device frames ``[..., frame_size]`` -> the protocol's measurements ``[..., M]``.
+        """Device frames ``[..., frame_size]`` -> the protocol's measurements float ``[..., M]``.
 
-        Raises ValueError naming ``source`` when the last axis is not ``frame_size`` long.
+        Complex frames give their real part or magnitude (``complex_part``); the full layout
+        keeps the entries of :attr:`frame_index`.
+
+        Raises ValueError naming ``source`` when the last axis is not ``frame_size`` long or
+        the values are not numbers.
         """
         v = np.asarray(frames)
+        if v.dtype.kind == "c":
+            v = np.abs(v) if self.complex_part == "magnitude" else v.real
+        if v.dtype.kind not in "fiu":
+            raise ValueError(f"{source}: must be real or complex numbers, got dtype {v.dtype}")
+        v = v.astype(np.float64, copy=False)
         if v.ndim == 0 or v.shape[-1] != self.frame_size:
             layout = "full" if self.frame_index is not None else "compact"
             raise ValueError(
-                f"{source}: expected {self.frame_size} numbers per frame ({layout} layout of "
-                f"protocol {self.name}), got shape {v.shape}"
+                f"{source}: got shape {v.shape}; the protocol expects {self.frame_size} "
+                f"numbers per frame ({layout} layout, {self.name})"
             )
         return v if self.frame_index is None else v[..., self.frame_index]
+
+    def device_frame(self, measurements: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`select` for an emulated board: ``[..., M]`` -> ``[..., W]``.
+
+        Entries the protocol does not use (the full layout's pairs on driven electrodes) are
+        0, as boards that report them blank do; a magnitude board's values are ``|V|``.
+        """
+        v = np.asarray(measurements, dtype=np.float64)
+        if self.magnitude:
+            v = np.abs(v)
+        if self.frame_index is None:
+            return v
+        out = np.zeros((*v.shape[:-1], self.frame_size))
+        out[..., self.frame_index] = v
+        return out
 
     @property
     def n_injections(self) -> int:
@@ -504,4 +534,6 @@ def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
         currents=currents,
         frame_index=frame_index,
         frame_size=len(inj) * n if frame_index is not None else 0,
+        complex_part=spec.complex_part,
+        magnitude=spec.values == "magnitude" or spec.complex_part == "magnitude",
     )
