@@ -99,18 +99,22 @@ def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
     """What the pipeline measures and chooses on a recording (``LayerImager.use_reference``)."""
     import numpy as np
 
-    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
 
     if not frames_path.is_file():
         raise ValueError(f"{frames_path}: no such file")
     imager = LayerImager.build(load_patch(path).layer(layer_name))
-    reference, frames, _ = load_frames_npz(frames_path, imager.n_measurements)
+    select = imager.protocol.select  # the device's layout, complex part
+    reader = FramesNpzReader(frames_path, convert=select)
+    reference, frames = reader.reference, reader.head(reader.n_frames)
     with np.load(frames_path) as raw:
         repeated = raw.get("reference_frames")
-    if repeated is not None and np.shape(repeated)[1:] != reference.shape:
-        raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
+    if repeated is not None:
+        repeated = select(repeated, f"{frames_path}: 'reference_frames'")
+        if repeated.ndim != 2:
+            raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
     return imager.use_reference(reference, repeated, frames).lines()
 
 

@@ -142,12 +142,10 @@ class ProtocolSpec:
                 raise ValueError(
                     "electrode_order: give electrode_order or first_electrode, not both"
                 )
-            order = _int_tuples(
-                [self.electrode_order],
-                len(self.electrode_order),
-                "electrode_order",
-                "a list of electrode numbers",
-            )[0]
+            order = tuple(self.electrode_order)
+            if not all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in order):
+                raise ValueError(f"electrode_order: expected electrode numbers, got {list(order)}")
+            order = tuple(int(x) for x in order)
             object.__setattr__(self, "electrode_order", order)
         for name in ("drive_skip", "measure_skip", "first_electrode"):
             value = getattr(self, name)
