@@ -15,12 +15,13 @@ SIGMA = 0.5  # sheet conductance, S
 ADJ16 = build_protocol(ProtocolSpec(), 16)
 
 
-def disk_cem_reference(radius, sigma, centres, width, z, injections, n_modes=256):
+def disk_cem_reference(radius, sigma, centres, width, z, injections, n_modes=256, currents=None):
     """Electrode potentials ``[n_inj, n_el]`` (summing to 0) of the CEM on a homogeneous disk.
 
     Galerkin in the exact harmonic basis ``1, r^n cos n theta, r^n sin n theta`` (n <= n_modes):
     energy ``sigma * pi * n`` per mode, contact terms by Gauss-Legendre quadrature on each arc,
-    1 A from source to sink, last electrode grounded, then shifted to a zero mean.
+    1 A from source to sink (or the current vectors ``currents`` [n_inj, n_el], A), last
+    electrode grounded, then shifted to a zero mean.
     """
     n_el = len(centres)
     n = np.arange(1, n_modes + 1)
@@ -40,6 +41,8 @@ def disk_cem_reference(radius, sigma, centres, width, z, injections, n_modes=256
     rhs = np.zeros((nb + n_el, len(injections)))
     for i, (s, k) in enumerate(injections):
         rhs[nb + s, i], rhs[nb + k, i] = 1.0, -1.0
+    if currents is not None:
+        rhs[nb:] = np.asarray(currents).T
     sol = np.zeros_like(rhs)
     sol[:-1] = np.linalg.solve(K[:-1, :-1], rhs[:-1])
     U = sol[nb:].T
@@ -66,6 +69,77 @@ def test_homogeneous_disk_matches_cem_series_and_converges():
     # measured: 0.100, 0.045, 0.014 (about h^1.5: the current density jumps at electrode edges)
     assert errors[0] > 1.8 * errors[1] > 1.8**2 * errors[2]
     assert errors[2] < 0.02
+
+
+def test_trigonometric_patterns_match_the_disk_cem_solution():
+    """32 electrodes, cos/sin(k theta) currents measured on every electrode pair (incl. driven)."""
+    n_el = 32
+    centres = 2 * np.pi * np.arange(n_el) / n_el
+    width = 0.1  # rad: 5 mm on a 5 cm disc, 51 % coverage
+    trig = build_protocol(ProtocolSpec(drive="trigonometric"), n_el)
+    assert trig.n_injections == n_el - 1 and trig.n_measurements == (n_el - 1) * n_el
+    np.testing.assert_allclose(trig.current_patterns.sum(axis=1), 0, atol=1e-12)
+    U_ref = 1e-3 * disk_cem_reference(
+        R, SIGMA, centres, width, Z, trig.injections, currents=trig.current_patterns
+    )
+    # the disc's rotational symmetry: pattern cos(k theta) gives U_l = lambda_k cos(k theta_l)
+    for k in (1, 5, 16):
+        pattern = np.cos(k * centres)
+        lam = U_ref[k - 1] @ pattern / (pattern @ pattern)
+        np.testing.assert_allclose(U_ref[k - 1], lam * pattern, atol=1e-9 * abs(lam))
+    # eigenvalues fall with k towards the contact term z / width (as 1/k plus contact, CEM)
+    lams = [U_ref[k - 1] @ np.cos(k * centres) / (n_el / 2) for k in (1, 2, 4, 8)]
+    assert np.all(np.diff(lams) < 0) and lams[-1] > 1e-3 * Z / (width * R)
+    errors = []
+    for h in (R / 8, R / 16):
+        model = ForwardModel(disk_mesh(R, n_el, width, h, electrode_h_m=h / 2), trig, Z, 1e-3)
+        sol = model.solve(SIGMA)
+        # Kirchhoff: the recovered electrode currents are the pattern (1 mA peak)
+        np.testing.assert_allclose(sol.electrode_currents, 1e-3 * trig.current_patterns, atol=1e-9)
+        np.testing.assert_allclose(sol.voltages, trig.measure(sol.electrode_potentials))
+        U = sol.electrode_potentials
+        errors.append(np.abs(U - U_ref).max(axis=1) / np.abs(U_ref).max(axis=1))
+    coarse_err, fine_err = errors
+    # measured: k = 1: 0.025 -> 0.014; k = 16: 0.27 -> 0.13 (the field of cos(k theta) decays
+    # as r^k, within R / k of the rim, so the error grows with k h); every pattern converges
+    assert np.all(coarse_err > 1.6 * fine_err)
+    low = np.r_[0:4, 16:20]  # cos and sin, k = 1..4
+    assert fine_err[0] < 0.02 and fine_err[low].max() < 0.06
+
+
+@pytest.mark.parametrize("kind", ["trigonometric", "three-electrode"])
+def test_current_pattern_jacobian_matches_finite_differences(kind):
+    if kind == "trigonometric":
+        protocol = build_protocol(ProtocolSpec(drive="trigonometric"), 16)
+    else:  # one source, two sinks of half the current; pairs on them left out
+        rows = np.zeros((16, 16))
+        rows[np.arange(16), np.arange(16)] = 1.0
+        rows[np.arange(16), (np.arange(16) + 5) % 16] = -0.5
+        rows[np.arange(16), (np.arange(16) + 11) % 16] = -0.5
+        protocol = build_protocol(ProtocolSpec(drive="currents", currents=rows.tolist()), 16)
+        assert protocol.n_measurements == 16 * 10  # 16 pairs minus 6 touching 3 electrodes
+    model = ForwardModel(disk_mesh(R, 16, W, R / 8), protocol, Z, 1e-3)
+    sigma = _random_sigma(model, 3)
+    J = model.jacobian(sigma)
+    basis = model.jacobian_basis(sigma)
+    np.testing.assert_allclose(basis.combination @ basis.products, J, rtol=1e-9, atol=1e-12)
+    d = np.random.default_rng(7).normal(size=model.n_elements)
+    step = 1e-4 * sigma * d
+    fd = (model.voltages(sigma + step) - model.voltages(sigma - step)) / 2
+    assert np.linalg.norm(fd - J @ step) < 1e-4 * np.linalg.norm(J @ step)
+
+
+def test_pair_drive_written_as_current_vectors_gives_the_same_model():
+    rows = np.zeros((16, 16))
+    rows[np.arange(16), np.arange(16)] = 1.0
+    rows[np.arange(16), (np.arange(16) + 1) % 16] = -1.0
+    as_currents = build_protocol(ProtocolSpec(drive="currents", currents=rows.tolist()), 16)
+    np.testing.assert_array_equal(as_currents.measurements, ADJ16.measurements)
+    mesh = disk_mesh(R, 16, W, R / 6)
+    sigma = SIGMA * np.linspace(0.5, 2, mesh.triangles.shape[0])
+    a, b = ForwardModel(mesh, ADJ16, Z), ForwardModel(mesh, as_currents, Z)
+    np.testing.assert_allclose(b.voltages(sigma), a.voltages(sigma), rtol=1e-10)
+    np.testing.assert_allclose(b.jacobian(sigma), a.jacobian(sigma), rtol=1e-8, atol=1e-14)
 
 
 def test_reciprocity_swapping_drive_and_measurement_pairs():

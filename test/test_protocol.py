@@ -159,3 +159,67 @@ def test_protocol_rejects_bad_arrays():
         Protocol("x", 4, np.array([[0, 0]]), np.array([[0, 1, 2]]))
     with pytest.raises(ValueError):
         Protocol("x", 4, np.array([[0, 1]]), np.array([[1, 2, 3]]))
+
+
+def test_clockwise_electrode_order_maps_board_to_config_numbering():
+    n = 16
+    clockwise = [0, *range(n - 1, 0, -1)]  # board b sits at config electrode -b mod n
+    p = build_protocol(ProtocolSpec(electrode_order=tuple(clockwise)), n)
+    canon = build_protocol(ProtocolSpec(), n)
+    # board injection k drives board k -> k+1, i.e. config -k -> -k-1
+    np.testing.assert_array_equal(p.injections[:, 0], (-np.arange(n)) % n)
+    np.testing.assert_array_equal(p.injections[:, 1], (-np.arange(n) - 1) % n)
+    np.testing.assert_array_equal(p.measurements[:, 1:], (-canon.measurements[:, 1:]) % n)
+    shuffled = tuple(np.random.default_rng(0).permutation(n).tolist())
+    q = build_protocol(ProtocolSpec(electrode_order=shuffled), n)
+    np.testing.assert_array_equal(q.injections, np.array(shuffled)[canon.injections])
+    with pytest.raises(ValueError, match="electrode_order: must list every electrode"):
+        build_protocol(ProtocolSpec(electrode_order=(0, 1, 2, 2)), 4)
+    with pytest.raises(ValueError, match="electrode_order: give electrode_order or first"):
+        ProtocolSpec(electrode_order=(0, 1, 2, 3), first_electrode=1)
+
+
+def test_full_layout_selects_the_pairs_off_the_driven_electrodes():
+    n = 16
+    p = build_protocol(ProtocolSpec(layout="full"), n)
+    canon = build_protocol(ProtocolSpec(), n)
+    np.testing.assert_array_equal(p.measurements, canon.measurements)
+    assert p.frame_size == 256 and p.frame_index.shape == (208,)
+    # device entry i * n + m is pair (m, m+1) of injection i
+    i, m = np.divmod(p.frame_index, n)
+    np.testing.assert_array_equal(i, canon.measurements[:, 0])
+    np.testing.assert_array_equal(m, canon.measurements[:, 1])
+    full = np.arange(256.0)
+    np.testing.assert_array_equal(p.select(full), p.frame_index)
+    np.testing.assert_array_equal(p.select(np.tile(full, (3, 1)))[2], p.frame_index)
+    with pytest.raises(ValueError, match="expects 256 numbers per frame \\(full layout"):
+        p.select(np.zeros(208))
+    # rotated full frames: each injection's n numbers start after the sink
+    r = build_protocol(ProtocolSpec(layout="full", order="rotated"), n)
+    i, j = np.divmod(r.frame_index, n)
+    np.testing.assert_array_equal((i + 2 + j) % n, r.measurements[:, 1])
+    # measuring on the driven electrodes too: all 256 used
+    a = build_protocol(ProtocolSpec(layout="full", measure_driven=True), n)
+    np.testing.assert_array_equal(a.frame_index, np.arange(256))
+    with pytest.raises(ValueError, match="layout: 'full' needs a measure pattern"):
+        ProtocolSpec(layout="full", measure="explicit", measurements=((0, 2, 3),))
+
+
+def test_current_vectors_are_validated_and_trigonometric_patterns_are_orthogonal():
+    t = build_protocol(ProtocolSpec(drive="trigonometric"), 16)
+    c = t.current_patterns
+    assert c.shape == (15, 16) and np.abs(c).max() == pytest.approx(1.0)
+    gram = c @ c.T
+    np.testing.assert_allclose(gram - np.diag(np.diag(gram)), 0, atol=1e-12)
+    assert t.n_measurements == 15 * 16  # every pair, driven ones included
+    # electrode 0 (theta 0) carries current in the 8 cos rows, none in the 7 sin rows, where
+    # only its 2 pairs touch it
+    assert t.touching([0]).sum() == 8 * 16 + 7 * 2
+    with pytest.raises(ValueError, match=r"currents\[1\]: currents must sum to zero"):
+        ProtocolSpec(drive="currents", currents=((1, -1, 0, 0), (1, 1, 0, 0)))
+    with pytest.raises(ValueError, match=r"currents\[0\]: expected 4 values"):
+        build_protocol(ProtocolSpec(drive="currents", currents=((1, -1, 0),)), 4)
+    with pytest.raises(ValueError, match="currents: only allowed with drive='currents'"):
+        ProtocolSpec(currents=((1, -1),))
+    with pytest.raises(ValueError, match=r"currents\[0\]: all zero"):
+        ProtocolSpec(drive="currents", currents=((0, 0, 0, 0),))

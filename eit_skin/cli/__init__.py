@@ -6,5 +6,6 @@ from a touch scenario), ``reconstruct`` and ``classify`` (offline, through the n
 pipeline), ``frames`` (MCAP <-> npz), ``fake_device`` (a board on a pseudo-terminal),
 ``calibrate_posture`` (references across a joint sweep), ``tune`` (choose the regularisation),
 ``run`` (the whole skin end to end), ``presses`` (record or simulate a labelled press
-session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact positions).
+session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact positions),
+``calibrate_device`` (fit sheet conductance and contact impedance to a no-load frame).
 """

@@ -124,11 +124,11 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
 
 def _reader(imager, path: Path, args: argparse.Namespace):
     """The block reader of one layer's frames file, checked against the layer and ``--rate``."""
-    from eit_skin.io.npz import FramesNpzReader
+    from eit_skin.cli.reconstruct import open_frames
 
     if not Path(path).is_file():
         raise ValueError(f"{path}: no such file")
-    reader = FramesNpzReader(path, imager.n_measurements, args.block_frames)
+    reader = open_frames(imager, Path(path), args.block_frames)
     if not reader.has_t and args.rate is None:
         raise ValueError(f"{path}: no 't' (frame times) in the file: give --rate")
     return reader
@@ -142,4 +142,5 @@ def _images(imager, reader, args: argparse.Namespace, runs: dict):
         return frame_times(t, len(frames), args.rate, 0.0, start)
 
     run = runs.setdefault(reader.path, FileRun())
-    return process_file(make_processor(imager, args), reader, times, args.reference, run)
+    processor = make_processor(imager, args, reader.has_references)
+    return process_file(processor, reader, times, args.reference, run)

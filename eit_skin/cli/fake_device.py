@@ -94,6 +94,7 @@ def _simulated_source(args: argparse.Namespace):
     """Frame source of one simulated layer (looped script) and the header fields it implies."""
     from eit_skin.hardware.sources import pattern_id
     from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.protocol import build_protocol
     from eit_skin.resources import config_path
     from eit_skin.sim.simulator import SkinSimulator
 
@@ -101,9 +102,10 @@ def _simulated_source(args: argparse.Namespace):
     layer = patch.layer(args.layer) if args.layer else patch.layers[0]
     simulator = SkinSimulator(patch, args.scenario, rate_hz=args.rate, seed=args.seed)
     n = simulator.n_frames
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
 
-    def source(index: int):
-        return simulator.frame(index % n)[layer.name].voltages_v
+    def source(index: int):  # in the board's conventions: layout, magnitudes
+        return protocol.device_frame(simulator.frame(index % n)[layer.name].voltages_v)
 
     fields = {
         "n_electrodes": layer.n_electrodes,

@@ -15,6 +15,10 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     # "name": ("module", "help"),  one line per command, kept alphabetical
     "calibrate": ("calibrate", "Fit a press localiser from labelled presses; k-fold figures."),
+    "calibrate-device": (
+        "calibrate_device",
+        "Fit sheet conductance and contact impedance to a device's no-load frame.",
+    ),
     "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),

@@ -20,6 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
@@ -58,14 +60,17 @@ def run(args: argparse.Namespace) -> int:
             f"area {layer.area_m2 * 1e4:.2f} cm^2"
         )
         print(f"    holes: {len(layer.holes)}")
+        z = np.atleast_1d(layer.contact_impedance_ohm_m)
+        contact = f"{z[0]:g}" if z.size == 1 else f"{z.min():g}..{z.max():g} (per electrode)"
         print(
             f"    electrodes: {layer.n_electrodes}, width {'/'.join(f'{w:g}' for w in widths)} "
-            f"mm, contact impedance {layer.contact_impedance_ohm_m:g} ohm*m, "
+            f"mm, contact impedance {contact} ohm*m, "
             f"current {layer.current_a * 1e3:g} mA"
         )
         print(
             f"    protocol: drive {spec.drive}, measure {spec.measure}, order {spec.order}, "
-            f"sign {spec.sign:+d}, first electrode {spec.first_electrode}: "
+            f"sign {spec.sign:+d}, first electrode {spec.first_electrode}, "
+            f"layout {spec.layout} ({protocol.frame_size} numbers), values {spec.values}: "
             f"{protocol.n_injections} injections, {protocol.n_measurements} measurements per frame"
         )
         print(

@@ -1,7 +1,14 @@
 """``eit-skin reconstruct``: offline frames file (npz) -> images (npz), the node's pipeline.
 
 IN.npz: ``reference`` float [M] volts, ``frames`` float [T, M] volts (protocol order, NaN: a
-missing value, as ``eit-skin frames export`` writes flagged channels), optional ``t`` [T] s.
+missing value, as ``eit-skin frames export`` writes flagged channels), optional ``t`` [T] s,
+optional ``references`` [T, M] volts (per-press references: frame ``k`` is imaged against
+``references[k]``, as pyEIT's ``solve(v1, v0)`` and EIDORS' ``inv_solve(imdl, vh, vi)`` with
+a reference per frame do; drift tracking is then off, ``--reference`` must be ``file`` and
+the first ``--reference-frames`` references give the noise level). A device's own frames are
+accepted as the patch's ``protocol`` names them: ``layout: full`` (every pair of every
+injection, ``W = n_inj x n`` numbers; the used entries are picked), complex values (real part
+or magnitude, ``complex_part``), magnitudes (``values: magnitude``: signs from the model).
 OUT.npz: ``images`` float32 [T, H, W] relative conductivity change (delta sigma / sigma0,
 positive = more conductive, NaN outside the sheet and in holes), ``physical`` float32
 [T, H, W] in the layer's unit (Pa for pressure, strain for stretch) exactly as
@@ -200,7 +207,6 @@ def report_skipped(command: str, path: Path, run: FileRun) -> None:
 
 
 def _reconstruct(args: argparse.Namespace) -> OfflineImages:
-    from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, with_method
     from eit_skin.resources import config_path
@@ -212,8 +218,15 @@ def _reconstruct(args: argparse.Namespace) -> OfflineImages:
     imager = LayerImager.build(layer, cache_dir=cache_dir(args))
     if not args.frames.exists():
         raise ValueError(f"{args.frames}: no such file")
-    reader = FramesNpzReader(args.frames, imager.n_measurements, args.block_frames)
+    reader = open_frames(imager, args.frames, args.block_frames)
     return run_offline(imager, reader, args.out, args)
+
+
+def open_frames(imager: LayerImager, path: Path, block_frames: int) -> FramesNpzReader:
+    """A frames file read in the layer's device conventions (layout, complex, magnitude)."""
+    from eit_skin.io.npz import FramesNpzReader
+
+    return FramesNpzReader(path, block_frames=block_frames, convert=imager.protocol.select)
 
 
 def cache_dir(args: argparse.Namespace) -> str | None:
@@ -244,16 +257,26 @@ def frame_times(
     return np.arange(start, start + n_frames) / float(rate_hz or fallback_hz)
 
 
-def make_processor(imager: LayerImager, args: argparse.Namespace) -> LayerProcessor:
-    """The layer's processor with the pipeline options of ``args``."""
+def make_processor(
+    imager: LayerImager, args: argparse.Namespace, per_press: bool = False
+) -> LayerProcessor:
+    """The layer's processor with the pipeline options of ``args``.
+
+    ``per_press``: the file has a reference per frame; no drift tracking.
+    """
     from eit_skin.pipeline.processor import LayerProcessor
 
     if args.reference_frames < 0:
         raise ValueError(f"--reference-frames: must be >= 0, got {args.reference_frames}")
+    if per_press and args.reference != "file":
+        raise ValueError(
+            f"--reference {args.reference}: the file has per-press 'references'; use "
+            "--reference file (each frame is imaged against its own reference)"
+        )
     return LayerProcessor(
         imager,
         args.reference_frames or None,
-        args.drift_time_constant,
+        0.0 if per_press else args.drift_time_constant,
         args.contact_k,
         fault_check_period_s=args.fault_check_period,
     )
@@ -273,15 +296,30 @@ def process_file(
     ``processor.reference_frames`` frames (those with any value) give the noise;
     ``"capture"``: it is not used. Frames without a usable channel once the reference is
     ready, and the electrodes found faulty, are noted in ``run``.
+
+    Per-press ``references`` (``reader.has_references``; the processor made with
+    ``per_press``): frame ``v_k`` with reference ``r_k`` is fed as the frame with the same
+    relative change against the file's reference ``r``:
+    ``r + (v_k - r_k) * s(r) / s(r_k)`` (``s``: :func:`~eit_skin.inverse.one_step.reference_scale`),
+    so every later step (flags, faults, units) is the node's.
     """
     import numpy as np
 
-    for start, frames, t_file in reader.blocks():
+    from eit_skin.inverse.one_step import reference_scale
+
+    for start, frames, t_file, refs in reader.blocks_with_references():
         block_times = times(start, frames, t_file)
         if start == 0 and mode == "file":
-            noise = reader.head(processor.reference_frames)
+            if refs is None:
+                noise = reader.head(processor.reference_frames)
+            else:
+                noise = refs[: processor.reference_frames]
             noise = noise[np.isfinite(noise).any(axis=1)]  # an all-NaN frame has no noise
             processor.set_reference(reader.reference, block_times[0], noise)
+        if refs is not None:
+            base = reader.reference
+            with np.errstate(invalid="ignore", divide="ignore"):
+                frames = base + (frames - refs) * (reference_scale(base) / reference_scale(refs))
         results = []
         for k, (frame, t) in enumerate(zip(frames, block_times, strict=True)):
             unusable = processor.frames_unusable
@@ -306,7 +344,7 @@ def run_offline(
 
     from eit_skin.io.npz import NpzStreamWriter
 
-    processor = make_processor(imager, args)
+    processor = make_processor(imager, args, reader.has_references)
     shape = (reader.n_frames, *imager.grid.shape)
     arrays = {
         "images": (shape, np.float32),
@@ -336,7 +374,10 @@ def run_offline(
                 raise ValueError(f"{args.frames}: {processor.reference_error}")
             writer.append(images=images, physical=physical, imaged=imaged, t=block_times)
             n_imaged += int(imaged.sum())
-    if args.reference == "file":
+    if reader.has_references:
+        n = min(processor.reference_frames, reader.n_frames)
+        how = f"a reference per frame from the file, noise from the first {n} references"
+    elif args.reference == "file":
         n = min(processor.reference_frames, reader.n_frames)
         how = f"reference from the file, noise from the first {n} frames"
     else:

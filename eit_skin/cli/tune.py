@@ -72,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        path, by_name = _patch_path(args.patch)
+        path, by_name = patch_path(args.patch)
         if args.write and by_name:
             raise ValueError(
                 f"{args.patch}: a shipped config is never written by name; "
@@ -99,22 +99,26 @@ def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
     """What the pipeline measures and chooses on a recording (``LayerImager.use_reference``)."""
     import numpy as np
 
-    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
 
     if not frames_path.is_file():
         raise ValueError(f"{frames_path}: no such file")
     imager = LayerImager.build(load_patch(path).layer(layer_name))
-    reference, frames, _ = load_frames_npz(frames_path, imager.n_measurements)
+    select = imager.protocol.select  # the device's layout, complex part
+    reader = FramesNpzReader(frames_path, convert=select)
+    reference, frames = reader.reference, reader.head(reader.n_frames)
     with np.load(frames_path) as raw:
         repeated = raw.get("reference_frames")
-    if repeated is not None and np.shape(repeated)[1:] != reference.shape:
-        raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
+    if repeated is not None:
+        repeated = select(repeated, f"{frames_path}: 'reference_frames'")
+        if repeated.ndim != 2:
+            raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
     return imager.use_reference(reference, repeated, frames).lines()
 
 
-def _patch_path(name_or_path: str) -> tuple[Path, bool]:
+def patch_path(name_or_path: str) -> tuple[Path, bool]:
     """``(path, resolved_by_name)``: an existing path as given, else a shipped config."""
     path = Path(name_or_path)
     if path.exists():
@@ -320,6 +324,22 @@ def set_solver_hyperparameter(
     Raises:
         ValueError: the text has no ``layers`` sequence or no such layer.
     """
+    number = f"{float(value):.{DIGITS}g}"
+    return set_layer_entry(text, layer_name, "solver", "hyperparameter", number, source)
+
+
+def set_layer_entry(
+    text: str, layer_name: str, section: str, key: str, value_text: str, source: str = "<text>"
+) -> str:
+    """``text`` (patch YAML) with ``layers[name == layer_name].<section>.<key>: value_text``.
+
+    Only that entry's text changes (added to the section, or the section added to the layer,
+    when missing), so comments and formatting elsewhere are kept.
+
+    Raises:
+        ValueError: the text has no ``layers`` sequence, no such layer, or the section is
+            not a mapping.
+    """
     import yaml
 
     root = yaml.compose(text, Loader=yaml.SafeLoader)
@@ -337,16 +357,15 @@ def set_solver_hyperparameter(
     )
     if layer is None:
         raise ValueError(f"{source}: no layer named {layer_name!r}")
-    number = f"{float(value):.{DIGITS}g}"
-    solver = _get(layer, "solver")
-    if solver is None:
-        return _insert_entry(text, layer, "solver", f"{{hyperparameter: {number}}}")
-    if not isinstance(solver, yaml.MappingNode):
-        raise ValueError(f"{source}: layers[{layer_name}].solver is not a mapping")
-    old = _get(solver, "hyperparameter")
+    mapping = _get(layer, section)
+    if mapping is None:
+        return _insert_entry(text, layer, section, f"{{{key}: {value_text}}}")
+    if not isinstance(mapping, yaml.MappingNode):
+        raise ValueError(f"{source}: layers[{layer_name}].{section} is not a mapping")
+    old = _get(mapping, key)
     if old is not None:
-        return text[: old.start_mark.index] + number + text[old.end_mark.index :]
-    return _insert_entry(text, solver, "hyperparameter", number)
+        return text[: old.start_mark.index] + value_text + text[old.end_mark.index :]
+    return _insert_entry(text, mapping, key, value_text)
 
 
 def _get(mapping: Any, key: str) -> Any:

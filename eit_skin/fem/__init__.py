@@ -3,7 +3,8 @@
 Modules: ``mesh`` (triangle meshes of a layer), ``forward`` (:class:`ForwardModel`: sparse CEM
 assembly, one factorisation for every injection, voltages and Jacobian), ``forward_update``
 (exact Woodbury updates for local changes), ``image_grid`` (element values -> ``[H, W]``
-pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic checks).
+pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic checks),
+``device_fit`` (calibrate sheet conductance and contact impedance to a no-load frame).
 """
 
 from __future__ import annotations
@@ -15,16 +16,27 @@ from eit_skin import lazy_exports
 #: Public name -> the module of this subpackage that defines it (imported on first use,
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
+    "DeviceFit": "device_fit",
     "ForwardModel": "forward",
     "ImageGrid": "image_grid",
     "LocalForwardUpdate": "forward_update",
     "Mesh": "mesh",
     "build_mesh": "mesh",
+    "fit_device": "device_fit",
 }
 
-__all__ = ["ForwardModel", "ImageGrid", "LocalForwardUpdate", "Mesh", "build_mesh"]
+__all__ = [
+    "DeviceFit",
+    "ForwardModel",
+    "ImageGrid",
+    "LocalForwardUpdate",
+    "Mesh",
+    "build_mesh",
+    "fit_device",
+]
 
 if TYPE_CHECKING:
+    from eit_skin.fem.device_fit import DeviceFit, fit_device
     from eit_skin.fem.forward import ForwardModel
     from eit_skin.fem.forward_update import LocalForwardUpdate
     from eit_skin.fem.image_grid import ImageGrid

@@ -366,8 +366,7 @@ class ForwardModel:
         """Potentials and voltages for sheet conductance ``sigma`` (S, scalar or [n_triangles])."""
         s = self._sigma_array(sigma)
         basis = self._factorise(s).basis
-        inj = self._protocol.injections
-        fields = self._current_a * (basis[:, inj[:, 0]] - basis[:, inj[:, 1]]).T  # [n_inj, N]
+        fields = self._current_a * (self._protocol.current_patterns @ basis.T)  # [n_inj, N]
         u = fields[:, : self._n_nodes]
         U = fields[:, self._n_nodes :]
         shift = U.mean(axis=1, keepdims=True)
@@ -394,25 +393,22 @@ class ForwardModel:
         # element gradients of each basis field, [n_el, 2, t] (rows contiguous per field)
         gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
         gw = np.ascontiguousarray(gw * np.sqrt(self._area))  # sum_d gu*gv carries the area
-        inj = self._protocol.injections
-        k, p, m = self._protocol.measurements.T
-        src, snk = inj[k, 0], inj[k, 1]
         n_el, n_t = self._n_el, self.n_elements
+        lead = self._lead_coefficients()  # [M, n_el * n_el] sparse
         if n_el**2 * n_t <= 20_000_000:
-            # all pairwise field products once ([n_el * n_el, t]), then four row gathers
+            # all pairwise field products once ([n_el * n_el, t]), then a sparse combination
             P = (gw[:, None, 0] * gw[None, :, 0] + gw[:, None, 1] * gw[None, :, 1]).reshape(
                 n_el * n_el, n_t
             )
-            out = P[src * n_el + p]
-            out -= P[src * n_el + m]
-            out -= P[snk * n_el + p]
-            out += P[snk * n_el + m]
+            out = np.asarray(lead @ P)
         else:  # many electrodes on a big mesh: bounded memory
+            k, p, m = self._protocol.measurements.T
+            patterns = self._protocol.current_patterns
             out = np.empty((k.size, n_t))
             chunk = max(1, 4_000_000 // n_t)
             for a in range(0, k.size, chunk):
                 sl = slice(a, a + chunk)
-                gu = gw[src[sl]] - gw[snk[sl]]  # [c, 2, t]
+                gu = np.einsum("cl,ldt->cdt", patterns[k[sl]], gw)  # [c, 2, t]
                 gv = gw[p[sl]] - gw[m[sl]]
                 out[sl] = np.einsum("cdt,cdt->ct", gu, gv)
         out *= -self._current_a
@@ -441,18 +437,67 @@ class ForwardModel:
         pair = np.full((n_el, n_el), -1, dtype=np.int64)
         pair[a_idx, b_idx] = np.arange(a_idx.size)
         pair[b_idx, a_idx] = np.arange(a_idx.size)
-        inj = self._protocol.injections
-        k, p, m = self._protocol.measurements.T
-        src, snk = inj[k, 0], inj[k, 1]
-        rows = np.tile(np.arange(k.size), 4)
-        cols = np.concatenate([pair[src, p], pair[src, m], pair[snk, p], pair[snk, m]])
-        vals = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]) * -self._current_a, k.size)
-        used = cols >= 0
+        lead = self._lead_coefficients().tocoo()  # entries (m, a * n_el + b)
+        a, b = np.divmod(lead.col, n_el)
+        used = (a < f) & (b < f)  # the ground field is zero
         combination = sp.csr_matrix(
-            (vals[used], (rows[used], cols[used])), shape=(k.size, a_idx.size)
+            (-self._current_a * lead.data[used], (lead.row[used], pair[a[used], b[used]])),
+            shape=(lead.shape[0], a_idx.size),
         )
         combination.sum_duplicates()
         return JacobianBasis(products=products, combination=combination)
+
+    def contact_jacobian(self, sigma) -> np.ndarray:
+        """``[M, n_el]`` sensitivity ``dV/dz_l`` (V per ohm*m) to each contact impedance.
+
+        Adjoint form: the contact term of electrode ``l`` is ``(1/z_l) int_{e_l} (U_l - u)
+        (W_l - w) ds``, so ``dV/dz_l = (current_a / z_l^2) int_{e_l} (U_l - u_k)(P_l - v_pq) ds``
+        for injection field ``u_k`` and the unit-current field ``v_pq`` of the measuring
+        pair; both are combinations of the unit-current basis of :meth:`solve`'s factorisation.
+        """
+        s = self._sigma_array(sigma)
+        basis = self._factorise(s).basis  # [n_nodes + n_el, n_el]
+        nodes = np.asarray(self._mesh.nodes, dtype=np.float64)
+        n_el = self._n_el
+        gram = np.empty((n_el, n_el, n_el))  # [l, a, b] int_{e_l} (W_a,l - w_a)(W_b,l - w_b) ds
+        for el, edge_arr in enumerate(self._mesh.electrode_edges):
+            ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
+            length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)[:, None]
+            drop = basis[self._n_nodes + el][None, :] - basis[: self._n_nodes]  # [n_nodes, n_el]
+            da, db = drop[ed[:, 0]], drop[ed[:, 1]]  # [edges, n_el]
+            gram[el] = (da * length / 3).T @ da + (db * length / 3).T @ db
+            cross = (da * length / 6).T @ db
+            gram[el] += cross + cross.T
+        k, p, q = self._protocol.measurements.T
+        # [l, n_inj, n_el]: current pattern of each injection through each electrode's form
+        through = np.einsum("ia,lab->lib", self._protocol.current_patterns, gram)
+        out = (through[:, k, p] - through[:, k, q]).T  # [M, n_el]
+        return out * (self._current_a / self._z**2)[None, :]
+
+    def _lead_coefficients(self) -> sp.csr_matrix:
+        """``[M, n_el * n_el]``: measurement ``m`` is ``sum I_k[a] (e_p - e_q)[b] w_a . w_b``.
+
+        ``I_k`` is the current pattern of the measurement's injection, ``(p, q)`` its pair; a
+        pair drive gives four entries per row, an ``n_el``-electrode pattern ``2 n_el``.
+        """
+        n_el = self._n_el
+        k, p, q = self._protocol.measurements.T
+        patterns = self._protocol.current_patterns  # [n_inj, n_el]
+        inj_rows, electrodes = np.nonzero(patterns)
+        counts = np.bincount(inj_rows, minlength=patterns.shape[0])
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        per = counts[k]  # nonzero currents of each measurement's injection
+        rows = np.repeat(np.arange(k.size), per)
+        offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
+        src = starts[k][rows] + offset  # index into the nonzero list
+        el = electrodes[src]
+        amp = patterns[inj_rows[src], el]
+        all_rows = np.concatenate([rows, rows])
+        cols = np.concatenate([el * n_el + p[rows], el * n_el + q[rows]])
+        vals = np.concatenate([amp, -amp])
+        lead = sp.csr_matrix((vals, (all_rows, cols)), shape=(k.size, n_el * n_el))
+        lead.sum_duplicates()
+        return lead
 
     def condition_estimate(self, sigma) -> float:
         """1-norm condition number estimate of the scaled, grounded system that is factorised."""

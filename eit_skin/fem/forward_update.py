@@ -121,6 +121,5 @@ class LocalForwardUpdate:
             self.direct_solves += 1
             return self.model.voltages(sigma)
         self.update_solves += 1
-        inj = self.model.protocol.injections
-        potentials = self.model.current_a * (r[:, inj[:, 0]] - r[:, inj[:, 1]]).T
+        potentials = self.model.current_a * (self.model.protocol.current_patterns @ r.T)
         return self.model.protocol.measure(potentials)

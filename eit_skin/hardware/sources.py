@@ -38,6 +38,10 @@ _PATTERN_IDS = {
     "opposite": PatternId.OPPOSITE,
     "skip": PatternId.SKIP,
     "explicit": PatternId.EXPLICIT,
+    # multi-electrode current patterns have no source -> sink offset: the wire calls them
+    # explicit (the patch's protocol says which)
+    "trigonometric": PatternId.EXPLICIT,
+    "currents": PatternId.EXPLICIT,
 }
 
 
@@ -59,7 +63,8 @@ def drive_offset(pattern: PatternId, param: int, n_electrodes: int) -> int | Non
 
 REJECT_REASONS = ("values", "electrodes", "pattern", "current")
 """Why a serial frame is not published (checked in this order, the first one counts):
-value count != the layer's M, electrode count != the layer's, a drive pattern other than the
+value count != the layer's device frame size (``M``, or ``n_inj x n`` for ``layout: full``),
+electrode count != the layer's, a drive pattern other than the
 layer's, current <= 0."""
 
 
@@ -133,10 +138,11 @@ class LayerFrameFactory:
         """
         layer, n = self.layer, self.layer.n_electrodes
         where = f"frame {frame.sequence}"
-        if frame.n_values != self.n_measurements:
+        if frame.n_values != self.protocol.frame_size:
+            layout = layer.protocol.layout
             return "values", (
                 f"{where}: {frame.n_values} values, layer {layer.name!r} expects "
-                f"{self.n_measurements}"
+                f"{self.protocol.frame_size} ({layout} layout)"
             )
         if frame.n_electrodes != n:
             return "electrodes", (
@@ -150,6 +156,20 @@ class LayerFrameFactory:
         if not frame.current_a > 0.0:
             return "current", f"{where}: current {frame.current_a:g} A, must be > 0"
         return None
+
+    def device_record(
+        self,
+        stamp_ns: int,
+        sequence: int,
+        voltages_v: np.ndarray,
+        flags: np.ndarray | None = None,
+        current_a: float | None = None,
+    ) -> FrameRecord:
+        """:meth:`record` of a board's frame: its layout's used entries (and flags) picked."""
+        values = self.protocol.select(voltages_v, f"frame {sequence}")
+        if flags is not None and np.size(flags) == self.protocol.frame_size:
+            flags = self.protocol.select(flags, f"frame {sequence} flags").astype(np.uint8)
+        return self.record(stamp_ns, sequence, values, flags, current_a)
 
     def record(
         self,
@@ -223,7 +243,7 @@ class SerialSource:
         )
         for item, stamp in zip(good, stamps, strict=True):
             frame = item.frame
-            record = self.factory.record(
+            record = self.factory.device_record(
                 stamp, frame.sequence, frame.voltages_v, frame.flags, frame.current_a
             )
             self.sink(record)

@@ -84,7 +84,8 @@ def describe_channel(protocol: Protocol, m: int) -> str:
     """``channel 17 (injection 1: 1->2, measure 4-5)``: where a channel comes from."""
     k, plus, minus = (int(x) for x in protocol.measurements[m])
     source, sink = (int(x) for x in protocol.injections[k])
-    return f"channel {m} (injection {k}: {source}->{sink}, measure {plus}-{minus})"
+    drive = f"{source}->{sink}" if protocol.pair_drive else "current pattern"
+    return f"channel {m} (injection {k}: {drive}, measure {plus}-{minus})"
 
 
 def check_reference(
@@ -154,7 +155,13 @@ class ChannelNoise:
 
 
 def reciprocal_partners(protocol: Protocol) -> tuple[np.ndarray, np.ndarray]:
-    """``([M] partner index or -1, [M] +-1 sign)``: ``v_m = sign * v_partner`` by reciprocity."""
+    """``([M] partner index or -1, [M] +-1 sign)``: ``v_m = sign * v_partner`` by reciprocity.
+
+    Only pair drives have reciprocal partners (a multi-electrode pattern is not a pair).
+    """
+    if not protocol.pair_drive:
+        m = protocol.n_measurements
+        return np.full(m, -1, dtype=np.int64), np.ones(m, dtype=np.int64)
     inj = protocol.injections
     meas = protocol.measurements
     drive = inj[meas[:, 0]]  # [M, 2] (source, sink)

@@ -3,8 +3,12 @@
 A frames file (the stable input of ``eit-skin reconstruct`` and ``eit-skin classify``) holds
 ``reference`` float [M] volts (NaN/Inf: a missing channel, left out by the pipeline's
 reference check), ``frames`` float [T, M] volts (T >= 1, NaN marks a
-missing value) and optionally ``t`` float [T] seconds. ``write_npz_atomic`` writes any npz
-complete or not at all (temporary file + rename).
+missing value) and optionally ``t`` float [T] seconds and ``references`` float [T, M] volts
+(a no-load frame per frame: each frame is imaged against its own, e.g. a press and the frame
+just before it). A device's own frames (the full layout, complex values:
+:meth:`eit_skin.patch.protocol.Protocol.select`) are read through a ``convert`` function
+(:class:`FramesNpzReader`). ``write_npz_atomic`` writes any npz complete or not at all
+(temporary file + rename).
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import os
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -123,7 +127,9 @@ def load_frames_npz(
 DEFAULT_BLOCK_FRAMES = 4096
 
 
-def _member_header(path: str, key: str, stream: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
+def _member_header(
+    path: str, key: str, stream: Any, complex_ok: bool = False
+) -> tuple[tuple[int, ...], bool, np.dtype]:
     """Shape, Fortran order and dtype of a ``.npy`` member opened at its start."""
     try:
         version = np.lib.format.read_magic(stream)
@@ -133,8 +139,9 @@ def _member_header(path: str, key: str, stream: Any) -> tuple[tuple[int, ...], b
             shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
     except ValueError as error:
         raise ValueError(f"{path}: '{key}' is not a .npy array ({error})") from error
-    if dtype.kind not in "fiu" or dtype.hasobject:
-        raise ValueError(f"{path}: '{key}' must be real numbers, got dtype {dtype}")
+    if dtype.kind not in ("fiuc" if complex_ok else "fiu") or dtype.hasobject:
+        what = "real or complex numbers" if complex_ok else "real numbers"
+        raise ValueError(f"{path}: '{key}' must be {what}, got dtype {dtype}")
     return tuple(shape), bool(fortran), dtype
 
 
@@ -150,9 +157,14 @@ class FramesNpzReader:
         path: the ``.npz`` frames file (format: module docstring).
         n_measurements: the M the protocol expects, or None.
         block_frames: frames per block of :meth:`blocks` (>= 1).
+        convert: device frames ``[..., W]`` (real or complex) and a ``"<file>: '<key>'"``
+            label -> float ``[..., M]`` (e.g. :meth:`~eit_skin.patch.protocol.Protocol.select`,
+            which raises naming the label when ``W`` is wrong); None: the file holds the
+            ``M`` real values themselves.
 
     Attributes:
         reference: float64 ``[M]`` V. n_frames: T. has_t: whether the file has ``t``.
+        has_references: whether the file has per-frame ``references`` [T, M].
     """
 
     def __init__(
@@ -160,6 +172,7 @@ class FramesNpzReader:
         path: str | Path,
         n_measurements: int | None = None,
         block_frames: int = DEFAULT_BLOCK_FRAMES,
+        convert: Callable[[np.ndarray, str], np.ndarray] | None = None,
     ) -> None:
         if block_frames < 1:
             raise ValueError(f"block_frames must be >= 1, got {block_frames}")
@@ -179,21 +192,46 @@ class FramesNpzReader:
                 with archive.open(members["reference"]) as stream:
                     reference = np.lib.format.read_array(stream, allow_pickle=False)
                 headers = {}
-                for key in ("frames", "t"):
+                for key in ("frames", "t", "references"):
                     if key in members:
                         with archive.open(members[key]) as stream:
-                            headers[key] = _member_header(where, key, stream)
+                            headers[key] = _member_header(
+                                where, key, stream, convert is not None and key != "t"
+                            )
         except FileNotFoundError:
             raise
         except (zipfile.BadZipFile, OSError, EOFError) as error:
             raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
         self._members = members
+        self._convert = convert
         shape, self._fortran, self._dtype = headers["frames"]
         t_shape = headers["t"][0] if "t" in headers else None
+        if convert is not None:
+            if np.ndim(reference) != 1 or np.size(reference) == 0:
+                raise ValueError(
+                    f"{where}: 'reference' must have shape [W] (one device frame), got "
+                    f"{np.shape(reference)}"
+                )
+            if np.asarray(reference).dtype.kind not in "fiuc":
+                raise ValueError(
+                    f"{where}: 'reference' must be real or complex numbers, got dtype "
+                    f"{np.asarray(reference).dtype}"
+                )
+            width = np.size(reference)
+            if len(shape) != 2 or shape[0] == 0 or shape[1] != width:
+                raise ValueError(
+                    f"{where}: 'frames' must have shape [T>=1, W={width}] like 'reference', "
+                    f"got {shape}"
+                )
+            reference = convert(reference, f"{where}: 'reference'")
+            n_measurements = None  # convert checked the device frame's width
         # the in-memory checks (same messages as load_frames_npz), frames' shape checked apart
         stand_in = np.zeros((1, max(np.size(reference), 1)))
         self.reference, _, _ = _check_frames(where, reference, stand_in, None, n_measurements)
         m = self.reference.size
+        self._width = int(shape[1]) if len(shape) == 2 else m
+        if convert is not None:
+            shape = (shape[0], m)
         if len(shape) != 2 or shape[0] == 0 or shape[1] != m:
             raise ValueError(
                 f"{where}: 'frames' must have shape [T>=1, M={m}] like 'reference', got {shape}"
@@ -206,6 +244,16 @@ class FramesNpzReader:
             )
         self.has_t = t_shape is not None
         self._t_dtype = headers["t"][2] if self.has_t else None
+        self.has_references = "references" in headers
+        if self.has_references:
+            r_shape, r_fortran, self._r_dtype = headers["references"]
+            if r_shape != (self.n_frames, self._width):
+                raise ValueError(
+                    f"{where}: 'references' must have the shape of 'frames' "
+                    f"[{self.n_frames}, {self._width}], got {r_shape}"
+                )
+            if r_fortran:
+                raise ValueError(f"{where}: 'references' must be C-ordered (np.ascontiguousarray)")
 
     def head(self, n: int) -> np.ndarray:
         """The first ``min(n, T)`` frames, float64 ``[n, M]`` V."""
@@ -219,26 +267,43 @@ class FramesNpzReader:
 
     def blocks(self) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
         """``(start, frames float64 [B, M] V, t float64 [B] s or None)`` over the file."""
+        for start, frames, t, _ in self.blocks_with_references():
+            yield start, frames, t
+
+    def blocks_with_references(
+        self,
+    ) -> Iterator[tuple[int, np.ndarray, np.ndarray | None, np.ndarray | None]]:
+        """As :meth:`blocks`, plus the block's ``references`` float64 ``[B, M]`` V (or None)."""
         where = str(self.path)
         try:
             with zipfile.ZipFile(self.path) as archive:
                 frames_stream = archive.open(self._members["frames"])
                 t_stream = archive.open(self._members["t"]) if self.has_t else None
-                with frames_stream, t_stream or contextlib.nullcontext():
-                    _member_header(where, "frames", frames_stream)
+                r_stream = (
+                    archive.open(self._members["references"]) if self.has_references else None
+                )
+                with (
+                    frames_stream,
+                    t_stream or contextlib.nullcontext(),
+                    r_stream or contextlib.nullcontext(),
+                ):
+                    _member_header(where, "frames", frames_stream, self._convert is not None)
                     if t_stream is not None:
                         _member_header(where, "t", t_stream)
+                    if r_stream is not None:
+                        _member_header(where, "references", r_stream, self._convert is not None)
                     whole = None
                     if self._fortran:
-                        shape = (self.n_frames, self.n_measurements)
+                        shape = (self.n_frames, self._width)
                         whole = self._rows(frames_stream, "frames", 0, shape, self._dtype, True)
                     for start in range(0, self.n_frames, self.block_frames):
                         n = min(self.block_frames, self.n_frames - start)
                         if whole is not None:
                             frames = whole[start : start + n]
                         else:
-                            shape = (n, self.n_measurements)
+                            shape = (n, self._width)
                             frames = self._rows(frames_stream, "frames", start, shape, self._dtype)
+                        frames = self._converted(frames, "frames")
                         t = None
                         if t_stream is not None:
                             t = self._rows(t_stream, "t", start, (n,), self._t_dtype)
@@ -247,9 +312,19 @@ class FramesNpzReader:
                                 raise ValueError(
                                     f"{where}: 't' must be finite, frame {bad} is {t[bad - start]}"
                                 )
-                        yield start, frames, t
+                        refs = None
+                        if r_stream is not None:
+                            shape = (n, self._width)
+                            refs = self._rows(r_stream, "references", start, shape, self._r_dtype)
+                            refs = self._converted(refs, "references")
+                        yield start, frames, t, refs
         except (zipfile.BadZipFile, OSError, EOFError) as error:
             raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
+
+    def _converted(self, rows: np.ndarray, key: str) -> np.ndarray:
+        if self._convert is None:
+            return rows
+        return np.asarray(self._convert(rows, f"{self.path}: '{key}'"), dtype=np.float64)
 
     def _rows(
         self,
@@ -271,7 +346,7 @@ class FramesNpzReader:
             )
         array = np.frombuffer(data, dtype=dtype, count=count)
         array = array.reshape(shape[::-1]).T if fortran else array.reshape(shape)
-        return array.astype(np.float64)
+        return array.astype(np.complex128 if dtype.kind == "c" else np.float64)
 
 
 class NpzStreamWriter:

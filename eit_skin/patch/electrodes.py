@@ -31,10 +31,27 @@ ELECTRODE_KEYS = (
 """Keys of a layer's ``electrodes`` mapping (the first two are required)."""
 
 
+def _contact_impedance(r: Reader, d: dict, path: str) -> float | tuple[float, ...]:
+    """One contact impedance (ohm*m) or one per electrode (a list, config numbering)."""
+    value = d["contact_impedance"]
+    if not isinstance(value, (list, tuple)):
+        return r.number(d, "contact_impedance", path, positive=True)
+    key = r.join(path, "contact_impedance")
+    values = []
+    for i, item in enumerate(r.sequence(value, key, min_len=1)):
+        number = r.as_float(item, r.join(key, i))
+        if not number > 0:
+            raise r.error(r.join(key, i), f"must be > 0 ohm*m, got {number:g}")
+        values.append(number)
+    return tuple(values)
+
+
 def read_electrodes(
     r: Reader, data: Any, path: str, outline_kind: str, outline: np.ndarray
 ) -> tuple[tuple[Electrode, ...], float]:
     """``(electrodes in CCW order, contact impedance ohm*m)`` of an ``electrodes`` mapping.
+
+    The contact impedance is a float, or a tuple of one per electrode (config numbering).
 
     Args:
         r: reader of the patch file.
@@ -46,7 +63,7 @@ def read_electrodes(
     d = r.mapping(data, path, required=ELECTRODE_KEYS[:2], optional=ELECTRODE_KEYS[2:])
     perimeter = float(geometry.arc_positions(outline)[-1])
     width = r.number(d, "width", path, positive=True)
-    contact = r.number(d, "contact_impedance", path, positive=True)
+    contact = _contact_impedance(r, d, path)
     default_layout = "explicit" if "positions" in d else "even"
     layout = r.string(d, "layout", path, default=default_layout, choices=("even", "explicit"))
     if layout == "even":
@@ -129,6 +146,12 @@ def read_electrodes(
                 center=center,
                 center_m=float(centers[k]),
             )
+        )
+    if isinstance(contact, tuple) and len(contact) != len(electrodes):
+        raise r.error(
+            r.join(path, "contact_impedance"),
+            f"{len(contact)} values for {len(electrodes)} electrodes (one per electrode, "
+            "in config numbering, or a single number)",
         )
     return tuple(electrodes), contact
 

@@ -198,11 +198,13 @@ def _protocol(r: Reader, data: Any, path: str, n_electrodes: int) -> ProtocolSpe
     d = r.mapping(data, path, optional=_PROTOCOL_KEYS)
     kwargs = {}
     for key, value in d.items():
-        if key in ("injections", "measurements") and value is not None:
+        if key in ("injections", "measurements", "currents") and value is not None:
             value = tuple(
                 tuple(row) if isinstance(row, (list, tuple)) else row
                 for row in r.sequence(value, r.join(path, key))
             )
+        elif key == "electrode_order" and value is not None:
+            value = tuple(r.sequence(value, r.join(path, key)))
         kwargs[key] = value
     try:
         spec = ProtocolSpec(**kwargs)

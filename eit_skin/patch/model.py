@@ -158,7 +158,9 @@ class Layer:
         outline: ``[n, 2]`` CCW polygon, m (circles discretised into regular polygons).
         holes: ``[k_i, 2]`` clockwise polygons, m, strictly inside the outline.
         electrodes: electrodes in counter-clockwise order.
-        contact_impedance_ohm_m: 2-D complete-electrode-model contact impedance, ohm*m.
+        contact_impedance_ohm_m: 2-D complete-electrode-model contact impedance, ohm*m: one
+            for all electrodes, or a tuple of one per electrode (e.g. from
+            ``eit-skin calibrate-device``).
         current_a: injected current amplitude, A.
         protocol: drive/measurement protocol.
         material: sheet material.
@@ -171,7 +173,7 @@ class Layer:
     outline: np.ndarray
     holes: tuple[np.ndarray, ...]
     electrodes: tuple[Electrode, ...]
-    contact_impedance_ohm_m: float
+    contact_impedance_ohm_m: float | tuple[float, ...]
     current_a: float
     protocol: ProtocolSpec
     material: Material

@@ -26,6 +26,34 @@ Generalisations (all in :class:`ProtocolSpec`):
 * ``order = "rotated"``: for each injection, measurement pairs start at the pair whose first
   electrode follows the sink (``m = sink+1, sink+2, ...`` wrapping), as many boards do.
   Ignored for explicit measurements, whose order is the listed one.
+* ``electrode_order``: an arbitrary board -> config map (clockwise boards, shuffled cables):
+  board electrode ``b`` is config electrode ``electrode_order[b]`` (a permutation of
+  ``0 .. n-1``); instead of ``first_electrode``. A clockwise board whose electrode 0 is config
+  electrode 0 has ``electrode_order = [0, n-1, n-2, ..., 1]``.
+
+Multi-electrode current patterns (``drive = "trigonometric" | "currents"``): every injection
+is a current vector over all electrodes (amperes per ``current_a``, summing to zero), stored
+in :attr:`Protocol.currents` ``[n_inj, n_el]``. ``"trigonometric"`` is the classic optimal
+pattern set of a disc (Isaacson; EIDORS' trigonometric patterns): with board electrode ``b`` at
+``theta_b = 2 pi b / n``, injections ``cos(k theta_b)`` for ``k = 1 .. n//2`` then
+``sin(k theta_b)`` for ``k = 1 .. (n-1)//2`` (``n - 1`` injections; the peak electrode current
+is ``current_a``). ``"currents"`` lists the vectors (board numbering) in ``currents``.
+
+Measurements on current-carrying electrodes (``measure_driven``): left out by default for
+pair drives and ``"currents"`` (as pyEIT and EIDORS' ``no_meas_current`` do: their values
+are dominated by the contact impedance), kept by default for ``"trigonometric"``, where every
+electrode carries current. ``measure_driven = true`` keeps them for any drive.
+
+Frame layout (``layout``): ``"compact"`` (default): the device sends exactly the protocol's
+``M`` numbers. ``"full"``: the device sends every pair of the measure pattern for every
+injection (``n_inj * n`` numbers, e.g. 16 x 16 = 256, in the pattern's order, including the
+pairs on driven electrodes); :attr:`Protocol.frame_index` picks the used entries
+(:meth:`Protocol.select`). Explicit measurements have no full layout.
+
+Values (``values``): ``"signed"`` (default) or ``"magnitude"``: the board reports ``|V|``;
+the sign of each channel is taken from the homogeneous model (``pipeline.builder``).
+Complex frames (``complex_part``): ``"real"`` (default) or ``"magnitude"`` of a complex
+value; ``"magnitude"`` also implies model signs, as a magnitude has none.
 """
 
 from __future__ import annotations
@@ -36,7 +64,14 @@ import numpy as np
 import scipy.sparse as sp
 
 PATTERNS = ("adjacent", "opposite", "skip", "explicit")
+DRIVE_PATTERNS = (*PATTERNS, "trigonometric", "currents")
 ORDERS = ("increasing", "rotated")
+LAYOUTS = ("compact", "full")
+VALUES = ("signed", "magnitude")
+COMPLEX_PARTS = ("real", "magnitude")
+
+#: Largest |sum| of a current vector, relative to its largest entry, accepted as zero.
+CURRENT_SUM_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -44,7 +79,7 @@ class ProtocolSpec:
     """Validated description of a drive/measurement protocol (see the module docstring).
 
     Attributes:
-        drive: ``"adjacent" | "opposite" | "skip" | "explicit"``.
+        drive: ``"adjacent" | "opposite" | "skip" | "explicit" | "trigonometric" | "currents"``.
         drive_skip: electrodes skipped between source and sink for ``drive="skip"``.
         measure: same choices as ``drive``, for the measurement pairs.
         measure_skip: electrodes skipped between plus and minus for ``measure="skip"``.
@@ -54,6 +89,14 @@ class ProtocolSpec:
         injections: explicit ``(source, sink)`` pairs (board numbering), for ``drive="explicit"``.
         measurements: explicit ``(injection index, plus, minus)`` triples (board numbering),
             for ``measure="explicit"``.
+        currents: current vectors ``[n_inj][n]`` (board numbering, multiples of the layer's
+            current, each summing to zero), for ``drive="currents"``.
+        electrode_order: board -> config electrode map (a permutation), or None.
+        measure_driven: keep measurements on current-carrying electrodes; None: only for
+            ``drive="trigonometric"``.
+        layout: ``"compact"`` or ``"full"`` device frame (see the module docstring).
+        values: ``"signed"`` or ``"magnitude"`` (signs from the model).
+        complex_part: ``"real"`` or ``"magnitude"`` of complex frames.
     """
 
     drive: str = "adjacent"
@@ -65,12 +108,45 @@ class ProtocolSpec:
     order: str = "increasing"
     injections: tuple[tuple[int, int], ...] | None = None
     measurements: tuple[tuple[int, int, int], ...] | None = None
+    currents: tuple[tuple[float, ...], ...] | None = None
+    electrode_order: tuple[int, ...] | None = None
+    measure_driven: bool | None = None
+    layout: str = "compact"
+    values: str = "signed"
+    complex_part: str = "real"
 
     def __post_init__(self) -> None:
-        for name in ("drive", "measure"):
+        for name, choices in (("drive", DRIVE_PATTERNS), ("measure", PATTERNS)):
             value = getattr(self, name)
-            if value not in PATTERNS:
-                raise ValueError(f"{name}: unknown pattern {value!r}; expected one of {PATTERNS}")
+            if value not in choices:
+                raise ValueError(f"{name}: unknown pattern {value!r}; expected one of {choices}")
+        for name, choices in (
+            ("layout", LAYOUTS),
+            ("values", VALUES),
+            ("complex_part", COMPLEX_PARTS),
+        ):
+            if getattr(self, name) not in choices:
+                raise ValueError(
+                    f"{name}: unknown {getattr(self, name)!r}; expected one of {choices}"
+                )
+        if self.measure_driven is not None and not isinstance(self.measure_driven, bool):
+            raise ValueError(f"measure_driven: expected true or false, got {self.measure_driven!r}")
+        if self.layout == "full" and self.measure == "explicit":
+            raise ValueError("layout: 'full' needs a measure pattern, not measure='explicit'")
+        if self.drive == "currents":
+            object.__setattr__(self, "currents", _current_vectors(self.currents))
+        elif self.currents is not None:
+            raise ValueError("currents: only allowed with drive='currents'")
+        if self.electrode_order is not None:
+            if self.first_electrode != 0:
+                raise ValueError(
+                    "electrode_order: give electrode_order or first_electrode, not both"
+                )
+            order = tuple(self.electrode_order)
+            if not all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in order):
+                raise ValueError(f"electrode_order: expected electrode numbers, got {list(order)}")
+            order = tuple(int(x) for x in order)
+            object.__setattr__(self, "electrode_order", order)
         for name in ("drive_skip", "measure_skip", "first_electrode"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
@@ -105,6 +181,17 @@ class ProtocolSpec:
             raise ValueError(f"n_electrodes: need at least 3 electrodes, got {n}")
         if self.first_electrode >= n:
             raise ValueError(f"first_electrode: {self.first_electrode} is not in 0..{n - 1}")
+        if self.electrode_order is not None and sorted(self.electrode_order) != list(range(n)):
+            raise ValueError(
+                f"electrode_order: must list every electrode 0..{n - 1} exactly once, got "
+                f"{list(self.electrode_order)}"
+            )
+        if self.drive == "currents":
+            for i, row in enumerate(self.currents):
+                if len(row) != n:
+                    raise ValueError(
+                        f"currents[{i}]: expected {n} values (one per electrode), got {len(row)}"
+                    )
         for name, pattern, skip in (
             ("drive", self.drive, self.drive_skip),
             ("measure", self.measure, self.measure_skip),
@@ -128,7 +215,8 @@ class ProtocolSpec:
                 if a == b:
                     raise ValueError(f"injections[{i}]: source and sink are the same electrode")
         if self.measure == "explicit":
-            n_inj = len(self.injections) if self.drive == "explicit" else n
+            n_inj = {"explicit": len(self.injections or ()), "currents": len(self.currents or ())}
+            n_inj = n_inj.get(self.drive, n - 1 if self.drive == "trigonometric" else n)
             for i, (k, p, m) in enumerate(self.measurements):
                 if not 0 <= k < n_inj:
                     raise ValueError(f"measurements[{i}]: injection {k} is not in 0..{n_inj - 1}")
@@ -153,6 +241,44 @@ def _int_tuples(value, width: int, name: str, what: str) -> tuple[tuple[int, ...
     return tuple(out)
 
 
+def _current_vectors(value) -> tuple[tuple[float, ...], ...]:
+    """``currents`` rows as float tuples, each finite, not all zero, summing to zero."""
+    if not value:
+        raise ValueError("currents: drive='currents' needs a non-empty list of current vectors")
+    out = []
+    for i, row in enumerate(value):
+        try:
+            items = tuple(float(x) for x in row if not isinstance(x, bool))
+        except (TypeError, ValueError):
+            raise ValueError(f"currents[{i}]: expected a list of numbers, got {row!r}") from None
+        if len(items) != len(row) or not all(np.isfinite(items)):
+            raise ValueError(f"currents[{i}]: expected finite numbers, got {row!r}")
+        peak = max(abs(x) for x in items) if items else 0.0
+        if peak == 0:
+            raise ValueError(f"currents[{i}]: all zero")
+        if abs(sum(items)) > CURRENT_SUM_TOLERANCE * peak:
+            raise ValueError(
+                f"currents[{i}]: currents must sum to zero (what enters must leave), "
+                f"sum is {sum(items):.3g}"
+            )
+        out.append(items)
+    return tuple(out)
+
+
+def trigonometric_currents(n: int) -> np.ndarray:
+    """``[n - 1, n]`` trigonometric current patterns (board numbering, peak 1).
+
+    Rows ``cos(k theta_b)`` for ``k = 1 .. n//2``, then ``sin(k theta_b)`` for
+    ``k = 1 .. (n-1)//2``, ``theta_b = 2 pi b / n``; every row sums to zero.
+    """
+    theta = 2 * np.pi * np.arange(n) / n
+    k_cos = np.arange(1, n // 2 + 1)
+    k_sin = np.arange(1, (n - 1) // 2 + 1)
+    rows = np.vstack([np.cos(np.outer(k_cos, theta)), np.sin(np.outer(k_sin, theta))])
+    rows[np.abs(rows) < 1e-12] = 0.0  # exact zeros where cos/sin vanish
+    return rows
+
+
 def _offset(pattern: str, skip: int, n: int) -> int:
     if pattern == "adjacent":
         return 1
@@ -168,15 +294,32 @@ class Protocol:
     Attributes:
         name: short description, e.g. ``"adjacent/adjacent"``.
         n_electrodes: number of electrodes.
-        injections: ``[n_inj, 2]`` int64 ``(source, sink)``: current enters at source.
+        injections: ``[n_inj, 2]`` int64 ``(source, sink)``: current enters at source. For
+            multi-electrode patterns: the electrodes of the largest inflow and outflow
+            (labels for messages; the physics is in ``currents``).
         measurements: ``[M, 3]`` int64 ``(injection index, plus, minus)``: value is
             ``V(plus) - V(minus)`` during that injection.
+        currents: ``[n_inj, n_el]`` current patterns (multiples of the layer's current,
+            each row summing to zero), or None for a pair drive (``+1`` at the source,
+            ``-1`` at the sink: :attr:`current_patterns`).
+        frame_index: ``[M]`` int64 position of each measurement in the device's frame, or
+            None: the device frame is the ``M`` measurements (compact layout).
+        frame_size: numbers per device frame (``M`` for the compact layout).
+        complex_part: ``"real"`` or ``"magnitude"``: what :meth:`select` takes of complex
+            frames.
+        magnitude: the device reports magnitudes (``values: magnitude`` or
+            ``complex_part: magnitude``): each channel's sign is the homogeneous model's.
     """
 
     name: str
     n_electrodes: int
     injections: np.ndarray
     measurements: np.ndarray
+    currents: np.ndarray | None = None
+    frame_index: np.ndarray | None = None
+    frame_size: int = 0
+    complex_part: str = "real"
+    magnitude: bool = False
     _selection: sp.csr_matrix | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -195,6 +338,24 @@ class Protocol:
             or np.any(meas[:, 1] == meas[:, 2])
         ):
             raise ValueError(f"protocol {self.name!r}: bad measurement triple")
+        if self.currents is not None:
+            cur = np.array(self.currents, dtype=np.float64)
+            if cur.shape != (len(inj), n) or not np.all(np.isfinite(cur)):
+                raise ValueError(
+                    f"protocol {self.name!r}: currents must be finite [{len(inj)}, {n}]"
+                )
+            cur.setflags(write=False)
+            object.__setattr__(self, "currents", cur)
+        size = int(self.frame_size) or len(meas)
+        if self.frame_index is not None:
+            idx = np.array(self.frame_index, dtype=np.int64)
+            if idx.shape != (len(meas),) or idx.min() < 0 or idx.max() >= size:
+                raise ValueError(f"protocol {self.name!r}: bad frame_index for {size} numbers")
+            idx.setflags(write=False)
+            object.__setattr__(self, "frame_index", idx)
+        elif size != len(meas):
+            raise ValueError(f"protocol {self.name!r}: frame_size {size} needs a frame_index")
+        object.__setattr__(self, "frame_size", size)
         inj.setflags(write=False)
         meas.setflags(write=False)
         object.__setattr__(self, "n_electrodes", n)
@@ -205,6 +366,60 @@ class Protocol:
         vals = np.tile([1.0, -1.0], len(meas))
         sel = sp.csr_matrix((vals, (rows, cols)), shape=(len(meas), len(inj) * n))
         object.__setattr__(self, "_selection", sel)
+
+    @property
+    def pair_drive(self) -> bool:
+        """True when every injection drives one source and one sink electrode."""
+        return self.currents is None
+
+    @property
+    def current_patterns(self) -> np.ndarray:
+        """``[n_inj, n_el]`` current into each electrode per injection, units of the current."""
+        if self.currents is not None:
+            return self.currents
+        out = np.zeros((self.n_injections, self.n_electrodes))
+        rows = np.arange(self.n_injections)
+        out[rows, self.injections[:, 0]] = 1.0
+        out[rows, self.injections[:, 1]] = -1.0
+        return out
+
+    def select(self, frames: np.ndarray, source: str = "frames") -> np.ndarray:
+        """Device frames ``[..., frame_size]`` -> the protocol's measurements float ``[..., M]``.
+
+        Complex frames give their real part or magnitude (``complex_part``); the full layout
+        keeps the entries of :attr:`frame_index`.
+
+        Raises ValueError naming ``source`` when the last axis is not ``frame_size`` long or
+        the values are not numbers.
+        """
+        v = np.asarray(frames)
+        if v.dtype.kind == "c":
+            v = np.abs(v) if self.complex_part == "magnitude" else v.real
+        if v.dtype.kind not in "fiu":
+            raise ValueError(f"{source}: must be real or complex numbers, got dtype {v.dtype}")
+        v = v.astype(np.float64, copy=False)
+        if v.ndim == 0 or v.shape[-1] != self.frame_size:
+            layout = "full" if self.frame_index is not None else "compact"
+            raise ValueError(
+                f"{source}: got shape {v.shape}; the protocol expects {self.frame_size} "
+                f"numbers per frame ({layout} layout, {self.name})"
+            )
+        return v if self.frame_index is None else v[..., self.frame_index]
+
+    def device_frame(self, measurements: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`select` for an emulated board: ``[..., M]`` -> ``[..., W]``.
+
+        Entries the protocol does not use (the full layout's pairs on driven electrodes) are
+        0, as boards that report them blank do; a magnitude board's values are ``|V|``.
+        """
+        v = np.asarray(measurements, dtype=np.float64)
+        if self.magnitude:
+            v = np.abs(v)
+        if self.frame_index is None:
+            return v
+        out = np.zeros((*v.shape[:-1], self.frame_size))
+        out[..., self.frame_index] = v
+        return out
 
     @property
     def n_injections(self) -> int:
@@ -238,45 +453,85 @@ class Protocol:
         bad = np.zeros(self.n_electrodes, dtype=bool)
         bad[el] = True
         k = self.measurements[:, 0]
-        return (
-            bad[self.injections[k, 0]]
-            | bad[self.injections[k, 1]]
-            | bad[self.measurements[:, 1]]
-            | bad[self.measurements[:, 2]]
-        )
+        driving = (self.current_patterns[:, bad] != 0).any(axis=1)  # [n_inj]
+        return driving[k] | bad[self.measurements[:, 1]] | bad[self.measurements[:, 2]]
 
 
 def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
     """Expand ``spec`` for ``n_electrodes`` electrodes into the frame's pairs (config numbering)."""
     spec.validate(n_electrodes)
     n = int(n_electrodes)
+    currents = None
     if spec.drive == "explicit":
         inj = np.array(spec.injections, dtype=np.int64)
+    elif spec.drive in ("trigonometric", "currents"):
+        currents = (
+            trigonometric_currents(n)
+            if spec.drive == "trigonometric"
+            else np.array(spec.currents, dtype=np.float64)
+        )
+        inj = np.stack([currents.argmax(axis=1), currents.argmin(axis=1)], axis=1)
     else:
         k = np.arange(n)
         inj = np.stack([k, (k + _offset(spec.drive, spec.drive_skip, n)) % n], axis=1)
+    carrying = (
+        currents != 0 if currents is not None else np.eye(n, dtype=bool)[inj].any(axis=1)
+    )  # [n_inj, n] electrodes carrying current
+    keep_driven = (
+        spec.drive == "trigonometric" if spec.measure_driven is None else spec.measure_driven
+    )
+    frame_index = None
     if spec.measure == "explicit":
         meas = np.array(spec.measurements, dtype=np.int64)
+        if not keep_driven:
+            on_driven = carrying[meas[:, 0], meas[:, 1]] | carrying[meas[:, 0], meas[:, 2]]
+            if on_driven.any() and spec.measure_driven is False:
+                i = int(np.flatnonzero(on_driven)[0])
+                raise ValueError(
+                    f"measurements[{i}]: measures on a current-carrying electrode, but "
+                    "measure_driven is false"
+                )
     else:
         d = _offset(spec.measure, spec.measure_skip, n)
-        rows = []
-        for i, (src, snk) in enumerate(inj):
+        rows, used = [], []
+        for i, (_src, snk) in enumerate(inj):
             start = (snk + 1) % n if spec.order == "rotated" else 0
             m = (start + np.arange(n)) % n
             pairs = np.stack([m, (m + d) % n], axis=1)
-            keep = ~np.isin(pairs, (src, snk)).any(axis=1)
-            pairs = pairs[keep]
-            rows.append(np.column_stack([np.full(len(pairs), i), pairs]))
+            keep = np.ones(n, dtype=bool) if keep_driven else ~carrying[i][pairs].any(axis=1)
+            rows.append(np.column_stack([np.full(int(keep.sum()), i), pairs[keep]]))
+            used.append(i * n + np.flatnonzero(keep))
         meas = np.concatenate(rows).astype(np.int64)
+        if spec.layout == "full":
+            frame_index = np.concatenate(used)
         # opposite with an even n visits every pair twice (m, m+n/2) and (m+n/2, m): keep both,
         # as boards do; the values are the negatives of each other.
     if spec.sign == -1:
         meas = meas[:, [0, 2, 1]]
     # board -> config numbering
-    inj = (inj + spec.first_electrode) % n
+    board_to_config = (
+        np.array(spec.electrode_order, dtype=np.int64)
+        if spec.electrode_order is not None
+        else (np.arange(n) + spec.first_electrode) % n
+    )
+    inj = board_to_config[inj]
     meas = meas.copy()
-    meas[:, 1:] = (meas[:, 1:] + spec.first_electrode) % n
+    meas[:, 1:] = board_to_config[meas[:, 1:]]
+    if currents is not None:
+        config_currents = np.empty_like(currents)
+        config_currents[:, board_to_config] = currents
+        currents = config_currents
     name = f"{spec.drive}/{spec.measure}"
     if meas.shape[0] == 0:
         raise ValueError(f"protocol {name}: no measurement pair avoids the drive electrodes")
-    return Protocol(name=name, n_electrodes=n, injections=inj, measurements=meas)
+    return Protocol(
+        name=name,
+        n_electrodes=n,
+        injections=inj,
+        measurements=meas,
+        currents=currents,
+        frame_index=frame_index,
+        frame_size=len(inj) * n if frame_index is not None else 0,
+        complex_part=spec.complex_part,
+        magnitude=spec.values == "magnitude" or spec.complex_part == "magnitude",
+    )

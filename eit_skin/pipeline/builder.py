@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -205,6 +205,9 @@ class LayerImager:
         model_voltages: ``[M]`` homogeneous model voltages (reference sign check), if known.
         reference_excluded: bool ``[M]`` channels left out because of the reference
             (:meth:`use_reference`); None before.
+        signs: ``[M]`` +-1 the frames and references are multiplied by before imaging: the
+            homogeneous model's signs for a device reporting magnitudes
+            (``protocol.values: magnitude``), else None.
     """
 
     layer: Layer
@@ -216,11 +219,23 @@ class LayerImager:
     reconstructor: Reconstructor = None  # type: ignore[assignment]  # None: ``matrix``
     model_voltages: np.ndarray | None = None
     reference_excluded: np.ndarray | None = None
+    signs: np.ndarray | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         if self.reconstructor is None:
             self.reconstructor = self.matrix
         self._unweighted = self.reconstructor
+        self.signs = None
+        if self.protocol.magnitude:
+            if self.model_voltages is None:
+                raise ValueError("values: magnitude needs the model voltages for the signs")
+            self.signs = np.where(np.asarray(self.model_voltages) < 0, -1.0, 1.0)
+
+    def _signed(self, values: np.ndarray | None) -> np.ndarray | None:
+        """``values`` [..., M] with the model's signs for a magnitude device (else as given)."""
+        if values is None or self.signs is None:
+            return values
+        return np.asarray(values, dtype=np.float64) * self.signs
 
     def use_reference(
         self,
@@ -241,6 +256,8 @@ class LayerImager:
         Raises:
             UnusableReferenceError: (a ValueError) the reference cannot be imaged against.
         """
+        reference = self._signed(reference)
+        reference_frames, frames = self._signed(reference_frames), self._signed(frames)
         check = check_reference(reference, self.protocol, self.model_voltages)
         self.reference_excluded = check.excluded
         base = self._unweighted
@@ -306,7 +323,9 @@ class LayerImager:
             excluded = flagged if excluded is None else excluded | flagged
         if excluded is not None and not excluded.any():
             excluded = None
-        return self.reconstructor.reconstruct(frames, reference, excluded=excluded)
+        return self.reconstructor.reconstruct(
+            self._signed(frames), self._signed(reference), excluded=excluded
+        )
 
     def images(self, element_values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""

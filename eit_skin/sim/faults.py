@@ -127,10 +127,10 @@ def apply_faults(
     if not faults:
         return volts, rails
     floating = np.zeros(volts.shape, dtype=bool)
-    inj = protocol.injections[protocol.measurements[:, 0]]
+    currents = protocol.current_patterns[protocol.measurements[:, 0]]  # [M, n_el]
     for f in faults:
         if f.kind == "dead-electrode":
-            driven = (inj == f.index).any(axis=1)
+            driven = currents[:, f.index] != 0
             rails |= driven
             floating |= protocol.touching([f.index]) & ~driven
         else:

@@ -1,0 +1,177 @@
+"""``eit-skin calibrate-device``: fit the layer's model to a device's no-load frame.
+
+Reads the no-load frame (``reference``, in the device's conventions as the patch's
+``protocol`` names them: layout, complex part, magnitudes) of a frames file and fits the
+homogeneous sheet conductance (S) and the contact impedance (ohm*m; per electrode where the
+protocol measures on current-carrying electrodes, else one common value; ``--per-electrode``
+overrides) on the layer's forward mesh (:func:`eit_skin.fem.device_fit.fit_device`). Prints
+the fitted values, the fit residual (rms, relative to the frame's rms, before and after) and
+the electrodes with bad contact. The gain (frame units per volt, ``--gain``, default 1: the
+frames are volts) cannot be fitted together with the conductance from one homogeneous frame;
+the gain the patch's own conductance implies is printed too.
+
+``--write`` stores ``material.sheet_conductance`` and ``electrodes.contact_impedance`` (a
+number, or a list of one per electrode) in the patch file, editing only those entries'
+text (comments kept), validated with ``load_patch`` before it atomically replaces the file;
+the reconstruction matrix is then built on the calibrated model, cached under the new
+content hash like any other patch change. Shipped configs are only written when given by path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+#: Significant digits of the stored values.
+DIGITS = 4
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    parser.add_argument(
+        "--frames", required=True, type=Path, metavar="IN.npz", help="its 'reference' is fitted"
+    )
+    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
+    parser.add_argument(
+        "--gain", type=float, default=1.0, help="frame units per volt (default 1: volts)"
+    )
+    parser.add_argument(
+        "--per-electrode",
+        choices=("auto", "yes", "no"),
+        default="auto",
+        help="one contact impedance per electrode (auto: when the protocol measures on "
+        "current-carrying electrodes)",
+    )
+    parser.add_argument(
+        "--write",
+        action="store_true",
+        help="store the fitted sheet_conductance and contact_impedance in the patch file",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from eit_skin.cli.tune import patch_path
+
+    try:
+        path, by_name = patch_path(args.patch)
+        if args.write and by_name:
+            raise ValueError(
+                f"{args.patch}: a shipped config is never written by name; "
+                "copy it and give the copy's path"
+            )
+        layer_name, fit = calibrate(path, args.layer, args.frames, args.gain, args.per_electrode)
+        for line in fit.lines():
+            print(line)
+        print(f"gain at the patch's conductance: {fit.gain_at(_patch_sigma(path, layer_name)):.4g}")
+        if args.write:
+            sigma_text, z_text = write_calibration(path, layer_name, fit)
+            print(
+                f"wrote sheet_conductance: {sigma_text}, contact_impedance: {z_text} to {path} "
+                f"(layer {layer_name})"
+            )
+        else:
+            print("not written (add --write to store it in the patch file)")
+    except (ValueError, KeyError, OSError) as exc:
+        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"eit-skin calibrate-device: error: {message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _patch_sigma(path: Path, layer_name: str) -> float:
+    from eit_skin.patch.loading import load_patch
+
+    return load_patch(path).layer(layer_name).material.sheet_conductance_s
+
+
+def calibrate(path: Path, layer_name: str | None, frames: Path, gain: float, per_electrode: str):
+    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``."""
+    from eit_skin.fem.device_fit import fit_device
+    from eit_skin.fem.mesh import build_mesh
+    from eit_skin.io.npz import FramesNpzReader
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.protocol import build_protocol
+
+    patch = load_patch(path)
+    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    if not frames.is_file():
+        raise ValueError(f"{frames}: no such file")
+    reader = FramesNpzReader(frames, convert=protocol.select)
+    fit = fit_device(
+        build_mesh(layer),
+        protocol,
+        reader.reference,
+        layer.material.sheet_conductance_s,
+        layer.contact_impedance_ohm_m,
+        layer.current_a,
+        gain=gain,
+        magnitude=protocol.magnitude,
+        per_electrode={"auto": None, "yes": True, "no": False}[per_electrode],
+    )
+    return layer.name, fit
+
+
+def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
+    """Store the fit's conductance and contact impedance in the patch file; their texts.
+
+    Only those two entries' text changes; the result must load as the same patch apart from
+    them (content hashes compared) before it atomically replaces the file.
+    """
+    from dataclasses import replace
+
+    import numpy as np
+
+    from eit_skin.cli.tune import set_layer_entry
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import PatchError
+    from eit_skin.patch.yaml_reader import read_yaml
+
+    before = load_patch(path)
+    layer = before.layer(layer_name)
+    raw = next(d for d in read_yaml(path, PatchError)["layers"] if d.get("name") == layer_name)
+    if "volume_resistivity" in raw.get("material", {}):
+        raise ValueError(
+            f"{path}: layers[{layer_name}].material gives volume_resistivity + thickness; "
+            "replace them by sheet_conductance to store a calibration"
+        )
+    sigma_text = f"{fit.sheet_conductance_s:.{DIGITS}g}"
+    z = np.asarray(fit.contact_impedance_ohm_m)
+    z_text = (
+        f"[{', '.join(f'{v:.{DIGITS}g}' for v in z)}]"
+        if fit.per_electrode
+        else f"{z[0]:.{DIGITS}g}"
+    )
+    text = path.read_text(encoding="utf-8")
+    text = set_layer_entry(text, layer_name, "material", "sheet_conductance", sigma_text, str(path))
+    text = set_layer_entry(text, layer_name, "electrodes", "contact_impedance", z_text, str(path))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".yaml", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        after = load_patch(tmp)
+        values = tuple(float(v) for v in z_text.strip("[]").split(","))
+        expected_layer = replace(
+            layer,
+            material=replace(layer.material, sheet_conductance_s=float(sigma_text)),
+            contact_impedance_ohm_m=values if fit.per_electrode else values[0],
+        )
+        expected = replace(
+            before,
+            layers=tuple(
+                expected_layer if lay.name == layer_name else lay for lay in before.layers
+            ),
+        )
+        if expected.content_hash != after.content_hash:
+            raise ValueError(
+                f"{path}: the edit changed more than the calibrated values; not written"
+            )
+        os.chmod(tmp, path.stat().st_mode & 0o7777)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return sigma_text, z_text

@@ -1,0 +1,228 @@
+"""Calibrate the forward model to a device: sheet conductance and contact impedance.
+
+A no-load (object-free) frame ``v`` [M] of the device is fitted by the homogeneous CEM model
+``gain * V(sigma, z)`` (:class:`~eit_skin.fem.forward.ForwardModel`): the sheet conductance
+``sigma`` (S) and the contact impedance ``z`` (ohm*m), one common value or one per electrode,
+by Levenberg-Marquardt on the logarithms (both stay positive), the residual relative to the
+frame's rms.
+
+What one frame can tell apart (the choices made here):
+
+* ``gain`` and ``sigma`` cannot both be fitted: ``V(c sigma, z / c) = V(sigma, z) / c``, so
+  ``gain / sigma`` and ``sigma z`` are all a homogeneous frame fixes. The gain is given
+  (default 1: the frames are volts) and ``sigma`` is fitted; a board in other units gives
+  its gain (volts per count), or reads the fitted ``sigma`` as ``sigma_true / gain``.
+  :attr:`DeviceFit.gain_at` gives the gain that the patch's own conductance implies.
+* A per-electrode ``z`` is fitted when the protocol measures on current-carrying electrodes
+  (``measure_driven``, trigonometric patterns, full frames with the driven pairs): there
+  ``z_l`` adds ``I z_l / width`` to the measured voltage. Without such measurements ``z_l``
+  only acts through the weak shunting of the electrodes, and one common ``z`` is fitted
+  (``per_electrode=True`` forces the per-electrode fit; its spread is then weakly
+  determined).
+* Bad contact: an electrode whose fitted ``z`` exceeds :data:`BAD_CONTACT_RATIO` times the
+  median, or whose channels' rms residual exceeds :data:`BAD_CONTACT_RATIO` times the median
+  over the electrodes (a scale-free rule: the same on any board and in any unit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.mesh import Mesh
+from eit_skin.patch.protocol import Protocol
+
+#: An electrode is reported as a bad contact above this multiple of the median (z or residual).
+BAD_CONTACT_RATIO = 3.0
+#: Levenberg-Marquardt stops when a step improves the residual by less than this fraction.
+RELATIVE_TOLERANCE = 1e-6
+#: Steps of the logarithm of a parameter are limited to this (a factor e^2 ~ 7.4 per step).
+MAX_LOG_STEP = 2.0
+
+
+@dataclass(frozen=True)
+class DeviceFit:
+    """Result of :func:`fit_device`.
+
+    Attributes:
+        sheet_conductance_s: fitted homogeneous sheet conductance, S (for the given gain).
+        contact_impedance_ohm_m: ``[n_el]`` fitted contact impedance, ohm*m.
+        gain: the gain the fit assumed (frame units per volt).
+        per_electrode: whether ``z`` was fitted per electrode (else one common value).
+        residual: rms of ``gain * V - v`` over the used channels / rms of ``v``.
+        initial_residual: the same before the fit (the patch's values, best scale).
+        electrode_residual: ``[n_el]`` rms relative residual of the channels touching each
+            electrode (drive or measure), same normalisation as ``residual``.
+        bad_contacts: electrodes flagged by the module's rule, increasing.
+        used: bool ``[M]`` channels fitted (finite, non-zero).
+        iterations: Levenberg-Marquardt iterations done.
+    """
+
+    sheet_conductance_s: float
+    contact_impedance_ohm_m: np.ndarray
+    gain: float
+    per_electrode: bool
+    residual: float
+    initial_residual: float
+    electrode_residual: np.ndarray
+    bad_contacts: tuple[int, ...]
+    used: np.ndarray
+    iterations: int
+
+    def gain_at(self, sheet_conductance_s: float) -> float:
+        """Gain (frame units per volt) that makes ``sheet_conductance_s`` S fit the frame."""
+        return self.gain * sheet_conductance_s / self.sheet_conductance_s
+
+    def lines(self) -> list[str]:
+        """Human-readable report, one fact per line."""
+        z = self.contact_impedance_ohm_m
+        zs = (
+            f"contact impedance per electrode: {', '.join(f'{v:.3g}' for v in z)} ohm*m"
+            if self.per_electrode
+            else f"contact impedance (common): {z[0]:.4g} ohm*m"
+        )
+        bad = ", ".join(map(str, self.bad_contacts)) or "none"
+        return [
+            f"sheet conductance: {self.sheet_conductance_s:.4g} S (gain {self.gain:g})",
+            zs,
+            f"fit residual: {self.residual:.3%} of the frame's rms "
+            f"(before: {self.initial_residual:.3%}), {self.iterations} iterations, "
+            f"{int(self.used.sum())} channels",
+            f"bad contact (> {BAD_CONTACT_RATIO:g} x median z or channel residual): {bad}",
+        ]
+
+
+def measures_driven(protocol: Protocol) -> bool:
+    """Whether any measurement uses an electrode that carries current in its injection."""
+    k, p, q = protocol.measurements.T
+    currents = protocol.current_patterns[k]
+    rows = np.arange(k.size)
+    return bool(np.any((currents[rows, p] != 0) | (currents[rows, q] != 0)))
+
+
+def fit_device(
+    mesh: Mesh,
+    protocol: Protocol,
+    reference: np.ndarray,
+    sheet_conductance_s: float,
+    contact_impedance_ohm_m: float | np.ndarray,
+    current_a: float,
+    *,
+    gain: float = 1.0,
+    magnitude: bool = False,
+    per_electrode: bool | None = None,
+    max_iterations: int = 40,
+) -> DeviceFit:
+    """Fit ``sigma`` and ``z`` to a no-load frame (see the module docstring).
+
+    Args:
+        mesh: the forward mesh of the sheet.
+        protocol: its protocol (``M`` channels).
+        reference: ``[M]`` no-load frame in frame units (``gain`` per volt).
+        sheet_conductance_s: starting sheet conductance, S (the patch's).
+        contact_impedance_ohm_m: starting ``z``, scalar or ``[n_el]``, ohm*m.
+        current_a: injected current amplitude, A.
+        gain: frame units per volt (> 0).
+        magnitude: the frame holds ``|V|`` (magnitude boards): the model's magnitudes are fitted.
+        per_electrode: one ``z`` per electrode; None: when :func:`measures_driven`.
+        max_iterations: Levenberg-Marquardt iterations at most.
+
+    Raises:
+        ValueError: a frame of the wrong shape, too few usable channels, or a frame whose
+            sign is opposite to the model's (wrong ``protocol.sign`` or numbering).
+    """
+    v = np.asarray(reference, dtype=np.float64)
+    n_el = mesh.n_electrodes
+    if v.shape != (protocol.n_measurements,):
+        raise ValueError(f"reference: expected [{protocol.n_measurements}] values, got {v.shape}")
+    if not (np.isfinite(gain) and gain > 0):
+        raise ValueError(f"gain: must be finite and > 0, got {gain}")
+    used = np.isfinite(v) & (v != 0)
+    if per_electrode is None:
+        per_electrode = measures_driven(protocol)
+    n_par = 1 + (n_el if per_electrode else 1)
+    if used.sum() < 2 * n_par:
+        raise ValueError(
+            f"reference: {int(used.sum())} usable channels for {n_par} parameters; "
+            "need twice as many"
+        )
+    z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,)).copy()
+    if not per_electrode:
+        z[:] = np.exp(np.mean(np.log(z)))
+    sigma = float(sheet_conductance_s)
+    rms = float(np.sqrt(np.mean(v[used] ** 2)))
+
+    def evaluate(sigma: float, z: np.ndarray, jacobian: bool):
+        model = ForwardModel(mesh, protocol, z, current_a)
+        V = model.voltages(sigma)
+        sign = np.sign(V) if magnitude else np.ones_like(V)
+        r = (gain * sign * V - v)[used] / rms
+        if not jacobian:
+            return r, None
+        dz = model.contact_jacobian(sigma) * z[None, :]  # dV / dlog z_l
+        dsigma = -V + dz.sum(axis=1)  # dV / dlog sigma (the scaling law)
+        cols = [dsigma[:, None], dz if per_electrode else dz.sum(axis=1, keepdims=True)]
+        return r, (gain * sign[:, None] * np.hstack(cols))[used] / rms
+
+    # best common scale first (sigma -> sigma / c, z -> z c keeps the shape): a wrong unit or
+    # conductance does not have to be walked off by the iteration
+    model = ForwardModel(mesh, protocol, z, current_a)
+    V = model.voltages(sigma)
+    shape = gain * (np.abs(V) if magnitude else V)
+    c = float(shape[used] @ v[used] / (shape[used] @ shape[used]))
+    if not c > 0:
+        raise ValueError(
+            "reference: its sign is opposite to the model's homogeneous voltages on most "
+            "channels (check protocol.sign, electrode numbering, or values: magnitude)"
+        )
+    sigma, z = sigma / c, z * c
+    r, J = evaluate(sigma, z, True)
+    initial = float(np.sqrt(np.mean(r**2)))
+    cost = float(r @ r)
+    damping = 1e-3
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
+        JtJ = J.T @ J
+        g = J.T @ r
+        improved = False
+        while damping < 1e12:
+            step = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
+            step *= min(1.0, MAX_LOG_STEP / max(np.abs(step).max(), 1e-300))
+            new_sigma = sigma * float(np.exp(step[0]))
+            new_z = z * np.exp(step[1:] if per_electrode else step[1])
+            r_new, _ = evaluate(new_sigma, new_z, False)
+            new_cost = float(r_new @ r_new)
+            if new_cost < cost:
+                improved = True
+                damping = max(damping / 3, 1e-9)
+                break
+            damping *= 4
+        if not improved:
+            break
+        gain_fraction = (cost - new_cost) / max(cost, 1e-300)
+        sigma, z, cost = new_sigma, new_z, new_cost
+        r, J = evaluate(sigma, z, True)
+        if gain_fraction < RELATIVE_TOLERANCE:
+            break
+    full = np.zeros(v.shape)
+    full[used] = r
+    touching = np.stack([protocol.touching([e]) & used for e in range(n_el)])  # [n_el, M]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        electrode_residual = np.sqrt((touching * full**2).sum(axis=1) / touching.sum(axis=1))
+    bad = electrode_residual > BAD_CONTACT_RATIO * np.nanmedian(electrode_residual)
+    if per_electrode:
+        bad |= z > BAD_CONTACT_RATIO * np.median(z)
+    return DeviceFit(
+        sheet_conductance_s=sigma,
+        contact_impedance_ohm_m=z,
+        gain=float(gain),
+        per_electrode=bool(per_electrode),
+        residual=float(np.sqrt(cost / used.sum())),
+        initial_residual=initial,
+        electrode_residual=electrode_residual,
+        bad_contacts=tuple(int(e) for e in np.flatnonzero(bad)),
+        used=used,
+        iterations=iterations,
+    )
