@@ -33,6 +33,7 @@ from eit_skin.inverse.channel_noise import (
     estimate_channel_noise,
 )
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
+from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
 from eit_skin.inverse.hyperparameter import choose_by_noise_figure
 from eit_skin.inverse.methods import (
     DEFAULT_NOISE_FIGURE,
@@ -239,7 +240,8 @@ class LayerImager:
         reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
         not weighted) and the hyperparameter is re-chosen for the layer's noise figure on that
         measured noise, unless ``solver.hyperparameter`` fixes it. One ``M x M``
-        factorisation per trial, no Jacobian.
+        factorisation per trial, no Jacobian. Gauss-Newton's warm start is reset: the next
+        frame's fit starts from ``sigma0``.
 
         Raises:
             UnusableReferenceError: (a ValueError) the reference cannot be imaged against.
@@ -247,6 +249,8 @@ class LayerImager:
         check = check_reference(reference, self.protocol, self.model_voltages)
         self.reference_excluded = check.excluded
         base = self._unweighted
+        if isinstance(base, GaussNewtonReconstructor):
+            base.reset()  # the last solution belongs to the old reference
         noise = estimate_channel_noise(reference, self.protocol, reference_frames, frames)
         if noise is None or not isinstance(base, ReconstructionMatrix):
             self.reconstructor = base
