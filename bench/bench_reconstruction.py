@@ -53,7 +53,7 @@ from eit_skin.inverse.gauss_newton import (
     gauss_newton_difference,
 )
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
-from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian, reference_scale
 from eit_skin.inverse.priors import make_prior
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
@@ -115,15 +115,37 @@ def merit(grid, values, phantoms):
 
 
 def greit_case(mesh, protocol, frames, v0, phantoms, grid):
-    """``(forward, matrix, build s, frame s, batched s per frame, merit)`` of the shipped
-    method (GREIT-trained matrix) on ``mesh``; frames ``[T, M]`` V, phantoms ``[(c, v)]``."""
+    """The shipped method (GREIT-trained matrix) on ``mesh``: build, times, error.
+
+    Frames ``[T, M]`` V, phantoms ``[(c, v)]``. Returns a dict: ``forward``, ``matrix``,
+    ``build_s``; ``frame_s`` / ``batched_s`` (per frame): frame -> image (pixels of ``grid``,
+    a unit factor, the clip at -0.9 of the pipeline, NaN outside: one float32 product,
+    :meth:`ReconstructionMatrix.images`); ``element_frame_s`` / ``element_batched_s``: frame
+    -> element values only (:meth:`ReconstructionMatrix.reconstruct`, pyEIT's output);
+    ``image_error``: max |float32 image - float64 chain| / max |image| over the frames;
+    ``merit``: :func:`merit` of the element values.
+    """
     t = time.perf_counter()
     fwd = ForwardModel(mesh, protocol, 1e-4)
     rm = ReconstructionMatrix.greit(imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE)
     build = time.perf_counter() - t
-    frame_t = median_time(lambda: rm.reconstruct(frames[0], v0), 50)
-    batch_t = median_time(lambda: rm.reconstruct(frames, v0), 10) / len(frames)
-    return fwd, rm, build, frame_t, batch_t, merit(grid, rm.reconstruct(frames, v0), phantoms)
+    unit, floor = 1.0e4, -0.9e4  # e.g. Pa per unit relative change, and the pipeline's clip
+    rm.images(frames[0], v0, grid, unit, floor)  # folds the pixel matrix once (cached)
+    exact = np.asarray(rm.matrix, dtype=np.float64) @ ((frames - v0) / reference_scale(v0)).T
+    exact = grid.to_image(np.maximum(unit * exact.T, floor))
+    fast = rm.images(frames, v0, grid, unit, floor)
+    return {
+        "forward": fwd,
+        "matrix": rm,
+        "build_s": build,
+        "frame_s": median_time(lambda: rm.images(frames[0], v0, grid, unit, floor), 50),
+        "batched_s": median_time(lambda: rm.images(frames, v0, grid, unit, floor), 10)
+        / len(frames),
+        "element_frame_s": median_time(lambda: rm.reconstruct(frames[0], v0), 50),
+        "element_batched_s": median_time(lambda: rm.reconstruct(frames, v0), 10) / len(frames),
+        "image_error": float(np.nanmax(np.abs(fast - exact)) / np.nanmax(np.abs(exact))),
+        "merit": merit(grid, rm.reconstruct(frames, v0), phantoms),
+    }
 
 
 def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
@@ -419,7 +441,7 @@ def moving_press(fine, v0, frames: int, rate_hz: float) -> list[tuple[np.ndarray
     rng = np.random.default_rng(5)
     out = []
     for k in range(frames):
-        t = k / rate_hz
+        t = (k + 1) / rate_hz  # the first frame already shows the press
         c = (np.array([-0.3, 0.4]) + np.array([0.45, -0.2]) * t / 0.4) * R
         sig = np.ones(fine.mesh.n_triangles)
         sig[np.linalg.norm(fine.mesh.centroids - c, axis=1) < 0.2 * R] = 1 + 19 * min(1, t / 0.1)
@@ -594,8 +616,13 @@ def main() -> None:
     for h in sizes:
         mesh = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(mesh, 64)
-        fwd, rm, build, frame_t, batch_t, ours = greit_case(
-            mesh, protocol, frames, v0, phantoms, grid
+        g = greit_case(mesh, protocol, frames, v0, phantoms, grid)
+        fwd, build, frame_t, batch_t, ours = (
+            g["forward"],
+            g["build_s"],
+            g["frame_s"],
+            g["batched_s"],
+            g["merit"],
         )
         t = time.perf_counter()
         fwd_l = ForwardModel(mesh, protocol, 1e-4)
@@ -630,6 +657,7 @@ def main() -> None:
         py = tuple(nan if x is None else x for x in py)
         row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_ms[0][0], gn_ms[0][1])
         row += (*ours, py_build, py_frame * 1000.0, *py, build_l, *lap, *gn_ms[1])
+        row += (g["element_frame_s"] * 1e3, g["element_batched_s"] * 1e3, g["image_error"])
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
     sweep = []
@@ -711,7 +739,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     ax[0].loglog(a[:, 0], a[:, 1], "o-", label="eit_skin build")
     ax[0].loglog(a[:, 0], a[:, 10], "s-", label="pyEIT JAC build")
     ax[0].loglog(a[:, 0], a[:, 4] / 1e3, "^-", label="eit_skin 5 GN iterations (NOSER, solver)")
-    ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame")
+    ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame->image")
     ax[0].loglog(a[:, 0], a[:, 11] / 1e3, "s:", label="pyEIT frame")
     ax[0].set_xlabel("triangles")
     ax[0].set_ylabel("seconds")
@@ -751,18 +779,26 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
         "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
         "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
         "median of 50 (30 for pyEIT) single-frame calls; batched: 30 frames in one call, "
-        "median of 10, per frame. Gauss-Newton: see its section below. "
+        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
+        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
+        "one product with the matrix rows of the elements under pixels, folded once); element "
+        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
+        "float32 image error: max deviation from the float64 chain over max |image|; "
+        "frame / pyEIT: frame->image time over pyEIT's element frame time. "
+        "Gauss-Newton: see its sections below. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
         "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
         "",
-        "| triangles | build s | frame ms | batched ms/frame | max PE | RES | RNG | SD "
-        "| Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
+        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
+        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
+        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
         "| pyEIT frame ms | pyEIT max PE | pyEIT RES | pyEIT RNG | pyEIT SD |",
-        "|" + "---|" * 18,
+        "|" + "---|" * 22,
     ]
     for r in rows:
         lines.append(
-            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[6]:.4f} | {r[7]:.3f} | "
+            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[11]:.2f} | "
+            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
             f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
             f"{r[10]:.2f} | {r[11]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | {r[15]:.2f} |"
         )

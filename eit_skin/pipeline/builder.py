@@ -307,13 +307,45 @@ class LayerImager:
         (one-step/GREIT: cached reduced matrices; Gauss-Newton: fitted without them, one
         fit per frame), as are the channels :meth:`use_reference` excluded.
         """
+        return self.reconstructor.reconstruct(frames, reference, excluded=self._excluded(flags))
+
+    def _excluded(self, flags: np.ndarray | None) -> np.ndarray | None:
+        """Channels left out: the reference's and the flagged ones; None when none."""
         excluded = self.reference_excluded
         if flags is not None and np.size(flags):
             flagged = excluded_channels(flags, self.n_measurements)
             excluded = flagged if excluded is None else excluded | flagged
         if excluded is not None and not excluded.any():
             excluded = None
-        return self.reconstructor.reconstruct(frames, reference, excluded=excluded)
+        return excluded
+
+    def frame_images(
+        self, frames: np.ndarray, reference: np.ndarray, flags: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Frames ``[M]``/``[T, M]`` V -> physical images ``[H, W]``/``[T, H, W]`` (float32).
+
+        ``images(physical(relative_change(...)))`` in one step: for a linear matrix and a
+        linear unit (pressure) the gridding, the unit and the clip at
+        :data:`MIN_RELATIVE_CHANGE` are folded into one ``[pixels' elements, M]`` float32
+        product (:meth:`~eit_skin.inverse.one_step.ReconstructionMatrix.images`); otherwise
+        (Gauss-Newton, stretch) the three steps are run.
+        """
+        rec, material = self.reconstructor, self.layer.material
+        if (
+            isinstance(rec, ReconstructionMatrix)
+            and material.quantity == "pressure"
+            and material.pressure_scale_pa > 0
+        ):
+            scale = material.pressure_scale_pa
+            return rec.images(
+                frames,
+                reference,
+                self.grid,
+                scale,
+                scale * MIN_RELATIVE_CHANGE,
+                self._excluded(flags),
+            )
+        return self.images(self.physical(self.relative_change(frames, reference, flags)))
 
     def images(self, element_values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""
