@@ -90,6 +90,11 @@ ONLINE_CONFIGS = [
 ]
 
 
+def loaded() -> bool:
+    """Whether other jobs load the machine: 1-min load average above half the CPUs."""
+    return hasattr(os, "getloadavg") and os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1)
+
+
 def median_time(fn, n):
     times = []
     for _ in range(n):
@@ -765,7 +770,8 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
         "# Reconstruction benchmark",
         "",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run), "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
+        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
         f"Python {platform.python_version()}, numpy "
         f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
         f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
