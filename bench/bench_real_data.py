@@ -24,8 +24,9 @@ one core); writes ``bench/real_data.md`` and one figure per set in ``bench/real_
   the expected sign at half of each image's extreme, position error against the documented
   targets, track direction consistency and circle residual where only a track is known.
 * Timings: build once per set (wall); per frame: median wall time of single-frame calls,
-  frame to image (eit_skin ``relative_change`` + ``images``; pyEIT ``solve`` + the same pixel
-  gather), on a machine shared with other jobs (load average in the report).
+  frame to image (eit_skin ``LayerImager.frame_images``: the physical image, one folded
+  product for the linear methods; pyEIT ``solve`` + the same pixel gather), on a machine
+  shared with other jobs (load average in the report).
 """
 
 from __future__ import annotations
@@ -115,9 +116,7 @@ def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
     report = imager.use_reference(data.reference, repeated, data.frames)
     build_s = time.perf_counter() - t
     images = imager.images(imager.relative_change(data.frames, data.reference))
-    frame_ms = median_frame_ms(
-        lambda v: imager.images(imager.relative_change(v, data.reference)), data.frames
-    )
+    frame_ms = median_frame_ms(lambda v: imager.frame_images(v, data.reference), data.frames)
     forward = ForwardModel(
         build_mesh(layer), imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
     )

@@ -1,7 +1,7 @@
 """Reconstruction speed against error: eit_skin vs pyEIT JAC on the same disk meshes and data.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]
-[--gn-only | --gn-node]``;
+[--gn-only | --gn-node | --online-only] [--json OUT.json]``;
 writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
 
 * Data: simulated once on a finer mesh (h = 1.2 mm, ~23k triangles) than any reconstruction
@@ -21,6 +21,10 @@ writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
   416 triangles: the coarsest inverse mesh of the sweep that meets PE <= 2 % R). Per frame:
   wall and CPU time (median of repeats) and the per-iteration split into forward solves
   (factorisation + potentials), Jacobian (field-pair products) and the rest.
+* Online Gauss-Newton (``--online-only`` runs just this part): accuracy per millisecond of
+  cold and warm-started variants on a press sequence at 100 Hz, against five cold
+  iterations per frame.
+* ``--json OUT.json``: one row per mesh (:data:`JSON_KEYS`; null where not measured).
 * Gauss-Newton in the node (``--gn-node`` runs just this part and rewrites only its section):
   the shipped arm, face and elbow layers switched to ``method: gauss_newton`` and imaged
   frame by frame through ``LayerImager.relative_change`` (the reconstruction node's call) on
@@ -42,9 +46,14 @@ from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.inverse.figures_of_merit import figures_of_merit
-from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton_difference
+from eit_skin.inverse.gauss_newton import (
+    GaussNewtonReconstructor,
+    GaussNewtonSolver,
+    WarmStart,
+    gauss_newton_difference,
+)
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
-from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
+from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian, reference_scale
 from eit_skin.inverse.priors import make_prior
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
@@ -63,6 +72,27 @@ GN_TARGET = np.array([-0.3, 0.4]) * R  # x20 conductance, radius 0.2 R
 GN_REPEATS = 9
 GN_NODE_PATCHES = ("arm", "face", "elbow")  # the shipped configs
 GN_NODE_RATE_HZ = 10.0  # demo scenario sampled at this rate: 164 frames per layer
+ONLINE_FRAMES = 40  # 0.4 s of a press at 100 Hz
+ONLINE_RATE_HZ = 100.0
+#: (label, warm start, step tolerance, relinearise distance, max iterations); the first row
+#: is the reference: five cold Gauss-Newton iterations per frame (the reconstructor before)
+ONLINE_CONFIGS = [
+    ("cold, 5 GN iterations", False, 0.0, 0.0, 5),
+    ("cold, 3 GN iterations", False, 0.0, 0.0, 3),
+    ("cold, 2 GN iterations", False, 0.0, 0.0, 2),
+    ("cold, 1 GN iteration (one-step + 1 solve)", False, 0.0, 0.0, 1),
+    ("warm, GN steps, step test 0.01", True, 0.01, 0.0, 5),
+    ("warm, quasi-Newton 0.3, step test 0.01", True, 0.01, 0.3, 5),
+    ("warm, quasi-Newton 0.5, step test 0.01 (default)", True, 0.01, 0.5, 5),
+    ("warm, quasi-Newton 0.5, step test 0.03", True, 0.03, 0.5, 5),
+    ("warm, quasi-Newton 1.0, step test 0.03", True, 0.03, 1.0, 5),
+    ("warm, fixed Jacobian, 1 step per frame", True, 0.0, 1e9, 1),
+]
+
+
+def loaded() -> bool:
+    """Whether other jobs load the machine: 1-min load average above half the CPUs."""
+    return hasattr(os, "getloadavg") and os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1)
 
 
 def median_time(fn, n):
@@ -87,6 +117,40 @@ def merit(grid, values, phantoms):
         float(np.mean([x.ringing for x in f])),
         max(x.shape_deformation for x in f),
     )
+
+
+def greit_case(mesh, protocol, frames, v0, phantoms, grid):
+    """The shipped method (GREIT-trained matrix) on ``mesh``: build, times, error.
+
+    Frames ``[T, M]`` V, phantoms ``[(c, v)]``. Returns a dict: ``forward``, ``matrix``,
+    ``build_s``; ``frame_s`` / ``batched_s`` (per frame): frame -> image (pixels of ``grid``,
+    a unit factor, the clip at -0.9 of the pipeline, NaN outside: one float32 product,
+    :meth:`ReconstructionMatrix.images`); ``element_frame_s`` / ``element_batched_s``: frame
+    -> element values only (:meth:`ReconstructionMatrix.reconstruct`, pyEIT's output);
+    ``image_error``: max |float32 image - float64 chain| / max |image| over the frames;
+    ``merit``: :func:`merit` of the element values.
+    """
+    t = time.perf_counter()
+    fwd = ForwardModel(mesh, protocol, 1e-4)
+    rm = ReconstructionMatrix.greit(imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE)
+    build = time.perf_counter() - t
+    unit, floor = 1.0e4, -0.9e4  # e.g. Pa per unit relative change, and the pipeline's clip
+    rm.images(frames[0], v0, grid, unit, floor)  # folds the pixel matrix once (cached)
+    exact = np.asarray(rm.matrix, dtype=np.float64) @ ((frames - v0) / reference_scale(v0)).T
+    exact = grid.to_image(np.maximum(unit * exact.T, floor))
+    fast = rm.images(frames, v0, grid, unit, floor)
+    return {
+        "forward": fwd,
+        "matrix": rm,
+        "build_s": build,
+        "frame_s": median_time(lambda: rm.images(frames[0], v0, grid, unit, floor), 50),
+        "batched_s": median_time(lambda: rm.images(frames, v0, grid, unit, floor), 10)
+        / len(frames),
+        "element_frame_s": median_time(lambda: rm.reconstruct(frames[0], v0), 50),
+        "element_batched_s": median_time(lambda: rm.reconstruct(frames, v0), 10) / len(frames),
+        "image_error": float(np.nanmax(np.abs(fast - exact)) / np.nanmax(np.abs(exact))),
+        "merit": merit(grid, rm.reconstruct(frames, v0), phantoms),
+    }
 
 
 def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
@@ -373,6 +437,131 @@ def gn_node_rows(rate_hz: float) -> tuple[list[dict], int]:
     return rows, cpu
 
 
+def moving_press(fine, v0, frames: int, rate_hz: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(centre m, frame [M] V)`` of a press at ``rate_hz`` on the data mesh, 1 % noise.
+
+    A 0.2 R disk is pressed in over 0.1 s (conductance x1 -> x20) while it slides 0.5 R in
+    0.4 s (a finger at ~6 cm/s on a 5 cm sheet) from (-0.3, 0.4) R.
+    """
+    rng = np.random.default_rng(5)
+    out = []
+    for k in range(frames):
+        t = (k + 1) / rate_hz  # the first frame already shows the press
+        c = (np.array([-0.3, 0.4]) + np.array([0.45, -0.2]) * t / 0.4) * R
+        sig = np.ones(fine.mesh.n_triangles)
+        sig[np.linalg.norm(fine.mesh.centroids - c, axis=1) < 0.2 * R] = 1 + 19 * min(1, t / 0.1)
+        v = fine.voltages(sig)
+        out.append((c, v + rng.normal(0, 0.01 * np.sqrt(np.mean((v - v0) ** 2)), v.size)))
+    return out
+
+
+def peak_and_centre(x: np.ndarray, mesh) -> tuple[float, np.ndarray]:
+    """Largest value and the area-weighted centre of gravity (m) of the quarter-max set."""
+    big = x >= 0.25 * x.max()
+    w = x[big] * mesh.areas[big]
+    return float(x.max()), (mesh.centroids[big] * w[:, None]).sum(axis=0) / w.sum()
+
+
+def online_gn_case(fwd, press, v0) -> list[dict]:
+    """Accuracy per millisecond of Gauss-Newton variants on the press sequence, one mesh.
+
+    The reconstructor's own solver (Laplace prior, ``h`` for the default noise figure,
+    416-triangle parameter mesh) runs every configuration of :data:`ONLINE_CONFIGS` over
+    the sequence; errors are against five cold iterations on the same frame: peak (relative)
+    and quarter-max centre (fraction of R), the max over the frames.
+    """
+    pmesh = disk_mesh(R, h_m=GN_PARAMETER_H)
+    rec = GaussNewtonReconstructor.build(fwd, 1.0, "laplace", parameter_mesh=pmesh)
+    solver = rec.solver
+    frames = [v for _, v in press]
+    ref = [solver.difference(v, v0, max_iterations=5).parameter_change for v in frames]
+    ref_pc = [peak_and_centre(x, pmesh) for x in ref]
+    out = []
+    for label, warm_on, step_tol, relin, iters in ONLINE_CONFIGS:
+        stats = []
+        for _ in range(3):  # the first pass warms caches; median of the per-frame times
+            warm = WarmStart() if warm_on else None
+            wall, cpu, res = [], [], []
+            for v in frames:
+                t, c = time.perf_counter(), time.process_time()
+                r = solver.difference(
+                    v,
+                    v0,
+                    None,
+                    iters,
+                    1e-3,
+                    1e-9,
+                    warm,
+                    step_tolerance=step_tol,
+                    relinearise=relin,
+                )
+                wall.append(time.perf_counter() - t)
+                cpu.append(time.process_time() - c)
+                res.append(r)
+            stats.append((np.array(wall), np.array(cpu), res))
+        wall = np.median([w for w, _, _ in stats[1:]], axis=0)
+        cpu = np.median([c for _, c, _ in stats[1:]], axis=0)
+        res = stats[-1][2]
+        pe, ce = [], []
+        for r, (peak, centre) in zip(res, ref_pc, strict=True):
+            p, c = peak_and_centre(r.parameter_change, pmesh)
+            pe.append(abs(p / peak - 1))
+            ce.append(float(np.linalg.norm(c - centre)) / R)
+        out.append(
+            {
+                "forward": fwd.mesh.n_triangles,
+                "parameters": pmesh.n_triangles,
+                "label": label,
+                "mean_ms": float(wall.mean()) * 1e3,
+                "median_ms": float(np.median(wall)) * 1e3,
+                "p95_ms": float(np.quantile(wall, 0.95)) * 1e3,
+                "cpu_ms": float(cpu.mean()) * 1e3,
+                "peak_error": float(max(pe)),
+                "centre_error": float(max(ce)),
+                "solves": float(np.mean([r.forward_solves for r in res])),
+                "linearisations": float(np.mean([r.linearisations for r in res])),
+                "default": "(default)" in label,
+            }
+        )
+        print(out[-1], flush=True)
+    return out
+
+
+def online_section(rows) -> list[str]:
+    """Markdown lines of the online Gauss-Newton section (accuracy per millisecond)."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        "## Online Gauss-Newton: accuracy per millisecond",
+        "",
+        f"A press sequence at {ONLINE_RATE_HZ:g} Hz ({ONLINE_FRAMES} frames: a 0.2 R disk "
+        "pressed in over 0.1 s to x20 while it slides 0.5 R in 0.4 s, 1 % noise, data mesh as "
+        "above) imaged frame by frame by `GaussNewtonSolver.difference` of the reconstructor "
+        "(`GaussNewtonReconstructor.build`: Laplace prior, `h` for the default noise figure "
+        "0.3, 416-triangle parameter mesh) in each configuration. Errors are against five cold "
+        "Gauss-Newton iterations on the same frame (what the reconstructor did per frame "
+        "before): peak = relative error of the largest value, centre = distance of the "
+        "quarter-max centre of gravity, fraction of R; max over the frames. Times per frame, "
+        "wall (mean / median / p95) and CPU (mean), median of two passes; solves = forward "
+        "factorisations, linearisations = Jacobians + normal matrices per frame (the one at "
+        f"sigma0 is precomputed). OPENBLAS_NUM_THREADS="
+        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; 1-min load average {load:.1f} "
+        f"on {os.cpu_count()} cores when written (loaded: other jobs shared the machine, wall "
+        "times are upper bounds). The reconstructor's default (warm start, step test 0.01, "
+        "linearisation kept within |d ln sigma| <= 0.5) is marked.",
+        "",
+        "| forward triangles | configuration | ms/frame wall: mean / median / p95 | CPU ms "
+        "| max peak error | max centre error / R | solves | linearisations |",
+        "|" + "---|" * 8,
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['forward']} | {r['label']} | {r['mean_ms']:.1f} / {r['median_ms']:.1f} / "
+            f"{r['p95_ms']:.1f} | {r['cpu_ms']:.1f} | {r['peak_error']:.3f} | "
+            f"{r['centre_error']:.3f} | {r['solves']:.2f} | {r['linearisations']:.2f} |"
+        )
+    return lines
+
+
 def large_contrast_case(fine):
     """Voltages ``[M]`` of the x20, 0.2 R target on the data mesh."""
     sig = np.ones(fine.mesh.n_triangles)
@@ -388,6 +577,10 @@ def main() -> None:
     ap.add_argument(
         "--gn-node", action="store_true", help="only the Gauss-Newton-in-the-node section"
     )
+    ap.add_argument(
+        "--online-only", action="store_true", help="only the online Gauss-Newton section"
+    )
+    ap.add_argument("--json", type=Path, help="also write the per-mesh rows to this JSON file")
     args = ap.parse_args()
     if args.gn_node:
         rows, cpu = gn_node_rows(GN_NODE_RATE_HZ)
@@ -397,6 +590,14 @@ def main() -> None:
     fine = ForwardModel(disk_mesh(R, h_m=0.0012), protocol, 1e-4)
     v0 = fine.voltages(1.0)
     large = large_contrast_case(fine)
+    sizes = SIZES[:3] if args.quick else SIZES
+    if args.online_only:
+        press = moving_press(fine, v0, ONLINE_FRAMES, ONLINE_RATE_HZ)
+        online = []
+        for h in sizes:
+            online += online_gn_case(ForwardModel(disk_mesh(R, h_m=h), protocol, 1e-4), press, v0)
+        replace_section(OUT / "REPORT.md", online_section(online))
+        return
     if args.gn_only:
         gn_rows = []
         for h in SIZES[:3] if args.quick else SIZES:
@@ -415,34 +616,53 @@ def main() -> None:
             phantoms.append((c, v))
     frames = np.stack([v for _, v in phantoms])
     print(f"data mesh {fine.mesh.n_triangles} triangles, {len(phantoms)} phantoms", flush=True)
-    sizes = SIZES[:3] if args.quick else SIZES
-    rows, gn_rows = [], []
+    press = moving_press(fine, v0, ONLINE_FRAMES, ONLINE_RATE_HZ)
+    rows, gn_rows, online, records = [], [], [], []
     for h in sizes:
         mesh = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(mesh, 64)
-        t = time.perf_counter()
-        fwd = ForwardModel(mesh, protocol, 1e-4)
-        rm = ReconstructionMatrix.greit(
-            imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE
+        g = greit_case(mesh, protocol, frames, v0, phantoms, grid)
+        fwd, build, frame_t, batch_t, ours = (
+            g["forward"],
+            g["build_s"],
+            g["frame_s"],
+            g["batched_s"],
+            g["merit"],
         )
-        build = time.perf_counter() - t
         t = time.perf_counter()
         fwd_l = ForwardModel(mesh, protocol, 1e-4)
         rm_l = ReconstructionMatrix.build(fwd_l, prior="laplace", noise_figure=NOISE_FIGURE)
         build_l = time.perf_counter() - t
-        frame_t = median_time(lambda rm=rm: rm.reconstruct(frames[0], v0), 50)
-        batch_t = median_time(lambda rm=rm: rm.reconstruct(frames, v0), 10) / len(frames)
-        ours = merit(grid, rm.reconstruct(frames, v0), phantoms)
         lap = merit(grid, rm_l.reconstruct(frames, v0), phantoms)
         gn = gn_case(fwd, large, v0)
         gn_rows += gn
         gn_ms = [(g["wall_ms"], g["iterations"]) for g in gn]  # the reusable solver, per frame
+        on = online_gn_case(fwd, press, v0)
+        online += on
         if mesh.n_triangles <= args.no_pyeit_above:
             py_build, py_frame, py = pyeit_case(mesh, protocol, frames, v0, phantoms, grid)
         else:
-            py_build, py_frame, py = float("nan"), float("nan"), (float("nan"),) * 4
+            py_build, py_frame, py = None, None, (None,) * 4
+        records.append(
+            json_row(
+                triangles=mesh.n_triangles,
+                build_s=build,
+                frame_ms=frame_t * 1e3,
+                batched_frame_ms=batch_t * 1e3,
+                gn_frame_ms=next(r["mean_ms"] for r in on if r["default"]),
+                max_pe_r=ours[0],
+                pyeit_build_s=py_build,
+                pyeit_frame_ms=None if py_frame is None else py_frame * 1e3,
+                pyeit_max_pe_r=py[0],
+            )
+        )
+        nan = float("nan")
+        py_build = nan if py_build is None else py_build
+        py_frame = nan if py_frame is None else py_frame
+        py = tuple(nan if x is None else x for x in py)
         row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_ms[0][0], gn_ms[0][1])
         row += (*ours, py_build, py_frame * 1000.0, *py, build_l, *lap, *gn_ms[1])
+        row += (g["element_frame_s"] * 1e3, g["element_batched_s"] * 1e3, g["image_error"])
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
     sweep = []
@@ -458,13 +678,62 @@ def main() -> None:
         row = (h / R, inv.n_triangles, build, *merit(grid, rm.reconstruct(frames, v0), phantoms))
         sweep.append(row)
         print("sweep", "  ".join(f"{x:.4g}" for x in row), flush=True)
+    if args.json is not None:
+        write_json(args.json, records)
     node = (*gn_node_rows(GN_NODE_RATE_HZ), GN_NODE_RATE_HZ)
     write_report(
-        rows, sweep, gn_rows, node, fwd.mesh.n_triangles, fine.mesh.n_triangles, args.quick
+        rows,
+        sweep,
+        gn_rows,
+        online,
+        node,
+        fwd.mesh.n_triangles,
+        fine.mesh.n_triangles,
+        args.quick,
     )
 
 
-def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
+#: Keys of one ``--json`` row: times in s / ms, position error as a fraction of R; null
+#: where not measured (pyEIT skipped above ``--no-pyeit-above``).
+JSON_KEYS = (
+    "triangles",
+    "build_s",
+    "frame_ms",
+    "batched_frame_ms",
+    "gn_frame_ms",
+    "max_pe_r",
+    "pyeit_build_s",
+    "pyeit_frame_ms",
+    "pyeit_max_pe_r",
+)
+
+
+def json_row(**values: float | int | None) -> dict:
+    """One mesh's row with exactly :data:`JSON_KEYS`; NaN and missing values become null.
+
+    ``triangles`` is an int, every other value a float or None.
+    """
+    unknown = set(values) - set(JSON_KEYS)
+    if unknown:
+        raise ValueError(f"unknown JSON keys {sorted(unknown)}")
+    row: dict = {}
+    for key in JSON_KEYS:
+        v = values.get(key)
+        if v is None or not np.isfinite(v):
+            row[key] = None
+        else:
+            row[key] = int(v) if key == "triangles" else float(v)
+    return row
+
+
+def write_json(path: Path, rows: list[dict]) -> None:
+    """Write the rows (:func:`json_row`) to ``path`` as one strict JSON list."""
+    import json
+
+    Path(path).write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n")
+
+
+def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -475,7 +744,7 @@ def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
     ax[0].loglog(a[:, 0], a[:, 1], "o-", label="eit_skin build")
     ax[0].loglog(a[:, 0], a[:, 10], "s-", label="pyEIT JAC build")
     ax[0].loglog(a[:, 0], a[:, 4] / 1e3, "^-", label="eit_skin 5 GN iterations (NOSER, solver)")
-    ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame")
+    ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame->image")
     ax[0].loglog(a[:, 0], a[:, 11] / 1e3, "s:", label="pyEIT frame")
     ax[0].set_xlabel("triangles")
     ax[0].set_ylabel("seconds")
@@ -501,7 +770,8 @@ def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
         "# Reconstruction benchmark",
         "",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run), "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
+        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
         f"Python {platform.python_version()}, numpy "
         f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
         f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
@@ -515,18 +785,26 @@ def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
         "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
         "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
         "median of 50 (30 for pyEIT) single-frame calls; batched: 30 frames in one call, "
-        "median of 10, per frame. Gauss-Newton: see its section below. "
+        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
+        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
+        "one product with the matrix rows of the elements under pixels, folded once); element "
+        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
+        "float32 image error: max deviation from the float64 chain over max |image|; "
+        "frame / pyEIT: frame->image time over pyEIT's element frame time. "
+        "Gauss-Newton: see its sections below. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
         "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
         "",
-        "| triangles | build s | frame ms | batched ms/frame | max PE | RES | RNG | SD "
-        "| Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
+        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
+        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
+        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
         "| pyEIT frame ms | pyEIT max PE | pyEIT RES | pyEIT RNG | pyEIT SD |",
-        "|" + "---|" * 18,
+        "|" + "---|" * 22,
     ]
     for r in rows:
         lines.append(
-            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[6]:.4f} | {r[7]:.3f} | "
+            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[11]:.2f} | "
+            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
             f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
             f"{r[10]:.2f} | {r[11]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | {r[15]:.2f} |"
         )
@@ -542,7 +820,7 @@ def write_report(rows, sweep, gn_rows, node, sweep_fwd, data_n, quick):
             f"| {r[0]:.3f} | {r[1]} | {r[2]:.3f} | {r[3]:.4f} | {r[4]:.3f} | {r[5]:.2f} | "
             f"{r[6]:.2f} |"
         )
-    lines += ["", *gn_section(gn_rows), "", *gn_node_section(*node)]
+    lines += ["", *gn_section(gn_rows), "", *online_section(online), "", *gn_node_section(*node)]
     lines += ["", "![speed and error](reconstruction.png)", ""]
     (OUT / "REPORT.md").write_text("\n".join(lines))
 

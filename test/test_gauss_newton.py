@@ -3,7 +3,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eit_skin.inverse.gauss_newton import GaussNewtonSolver, gauss_newton, gauss_newton_difference
+from eit_skin.inverse.gauss_newton import (
+    GaussNewtonReconstructor,
+    GaussNewtonSolver,
+    WarmStart,
+    gauss_newton,
+    gauss_newton_difference,
+)
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.inverse.priors import make_prior
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup
@@ -206,3 +212,73 @@ def test_difference_tolerance_is_relative_to_the_change(s, parameter_mesh):
     none = solver.difference(s.v0, s.v0, max_iterations=3)
     assert none.iterations == 0 and none.converged
     np.testing.assert_array_equal(none.parameter_change, 0.0)
+
+
+def _peak_and_centre(x: np.ndarray, mesh) -> tuple[float, np.ndarray]:
+    """Largest value and the area-weighted centre of gravity of the quarter-max set, m."""
+    big = x >= 0.25 * x.max()
+    w = x[big] * mesh.areas[big]
+    return float(x.max()), (mesh.centroids[big] * w[:, None]).sum(axis=0) / w.sum()
+
+
+def _moving_press(s, frames: int) -> list[np.ndarray]:
+    """A 0.2 R disk pressed in (x1 -> x20 over 5 frames) while it slides 0.25 R, 1 % noise."""
+    rng = np.random.default_rng(11)
+    out = []
+    for t in range(frames):
+        c = np.array([-0.3 + 0.025 * t, 0.4 - 0.012 * t]) * R
+        v = phantom(s, [(c[0], c[1], 0.2 * R, 1.0 + 19.0 * min(1.0, (t + 1) / 5))])
+        out.append(v + rng.normal(0.0, 0.01 * np.sqrt(np.mean((v - s.v0) ** 2)), v.size))
+    return out
+
+
+def test_online_fit_agrees_with_five_cold_iterations_on_a_moving_press(s, parameter_mesh):
+    """The reconstructor's online path (warm start, step test, kept linearisations) images a
+    sequence of large-contrast frames like five full Gauss-Newton iterations from sigma0,
+    frame by frame: peak and quarter-max centre within 5 % (of the peak, of R)."""
+    rec = GaussNewtonReconstructor.build(
+        s.coarse, 1.0, "laplace", parameter_mesh=parameter_mesh, max_iterations=5
+    )
+    frames = _moving_press(s, 12)
+    online = rec.reconstruct(np.stack(frames), s.v0)  # one time sequence, warm-started
+    warm, solves, cold_solves = WarmStart(), 0, 0
+    for frame, x in zip(frames, online, strict=True):
+        cold = rec.solver.difference(frame, s.v0, max_iterations=5)
+        cold_solves += cold.forward_solves
+        peak, centre = _peak_and_centre(cold.parameter_change, parameter_mesh)
+        assert peak > 2.0  # a large contrast, far from the linear regime
+        got_peak, got_centre = _peak_and_centre(x.astype(np.float64), parameter_mesh)
+        assert abs(got_peak / peak - 1.0) < 0.05
+        assert np.linalg.norm(got_centre - centre) < 0.05 * R
+        fast = rec.solver.difference(
+            frame,
+            s.v0,
+            max_iterations=5,
+            warm=warm,
+            step_tolerance=rec.step_tolerance,
+            relinearise=rec.relinearise,
+        )
+        np.testing.assert_allclose(fast.parameter_change, x, rtol=1e-5, atol=1e-6)
+        solves += fast.forward_solves
+    assert solves < 0.5 * cold_solves  # what makes it fast
+
+
+def test_converged_frame_stops_at_once_and_reset_starts_cold(s, parameter_mesh):
+    solver = GaussNewtonSolver(s.coarse, 1.0, "laplace", 0.03, parameter_mesh=parameter_mesh)
+    v = _moving_press(s, 5)[-1]
+    warm = WarmStart()
+    first = solver.difference(v, s.v0, max_iterations=10, warm=warm, step_tolerance=0.01)
+    assert first.converged and 1 <= first.iterations < 10
+    again = solver.difference(
+        v, s.v0, max_iterations=10, warm=warm, step_tolerance=0.01, relinearise=0.5
+    )
+    # the same frame again: the step test passes at the warm start, no forward solve
+    assert again.converged and again.iterations == 0 and again.forward_solves == 0
+    np.testing.assert_array_equal(again.parameter_change, first.parameter_change)
+    # other channels: the warm start does not apply, the fit starts from sigma0
+    dead = s.coarse.protocol.touching([3])
+    other = solver.difference(v, s.v0, dead, 10, warm=warm, step_tolerance=0.01)
+    cold = solver.difference(v, s.v0, dead, 10, step_tolerance=0.01)
+    np.testing.assert_array_equal(other.parameter_change, cold.parameter_change)
+    warm.reset()
+    assert warm.d is None

@@ -156,8 +156,19 @@ class ForwardModel:
         # grad phi_j = perp(edge opposite j) / (2 area), perp(x, y) = (-y, x)
         grads = np.stack([-edges[..., 1], edges[..., 0]], axis=1) / (2 * area)[:, None, None]
         self._tri = tri
-        self._area = area
-        self._grads = grads  # [t, 2, 3], 1/m
+        # sqrt(area) * gradient as one sparse operator [2 t, n_nodes]: rows (d, t), so a field
+        # block [n_nodes, k] maps to area-weighted element gradients in one sparse product
+        n_t = tri.shape[0]
+        grad_rows = np.broadcast_to(
+            (np.arange(2)[None, :, None] * n_t) + np.arange(n_t)[:, None, None], (n_t, 2, 3)
+        )
+        self._grad_op = sp.csr_matrix(
+            (
+                (grads * np.sqrt(area)[:, None, None]).ravel(),
+                (grad_rows.ravel(), np.broadcast_to(tri[:, None, :], (n_t, 2, 3)).ravel()),
+            ),
+            shape=(2 * n_t, n_nodes),
+        )
         local = area[:, None, None] * np.einsum("tdi,tdj->tij", grads, grads)  # [t, 3, 3]
 
         # --- electrode (contact) terms: constant --------------------------------------
@@ -390,9 +401,9 @@ class ForwardModel:
         """``[M, n_triangles]`` sensitivity ``dV/dsigma`` (V/S), adjoint method."""
         s = self._sigma_array(sigma)
         basis = self._factorise(s).basis[: self._n_nodes]  # [n_nodes, n_el]
-        # element gradients of each basis field, [n_el, 2, t] (rows contiguous per field)
-        gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
-        gw = np.ascontiguousarray(gw * np.sqrt(self._area))  # sum_d gu*gv carries the area
+        # element gradients of each basis field, [n_el, 2, t] (rows contiguous per field);
+        # sqrt(area) in both, so sum_d gu*gv carries the area
+        gw = self._field_gradients(basis)
         n_el, n_t = self._n_el, self.n_elements
         lead = self._lead_coefficients()  # [M, n_el * n_el] sparse
         if n_el**2 * n_t <= 20_000_000:
@@ -414,6 +425,11 @@ class ForwardModel:
         out *= -self._current_a
         return out
 
+    def _field_gradients(self, fields: np.ndarray) -> np.ndarray:
+        """``[k, 2, t]`` ``sqrt(area) grad u`` per element of node fields ``[n_nodes, k]``."""
+        g = self._grad_op @ fields  # [2 t, k], one sparse product
+        return np.ascontiguousarray(g.T).reshape(fields.shape[1], 2, self.n_elements)
+
     def jacobian_basis(self, sigma) -> JacobianBasis:
         """:meth:`jacobian` factored as ``combination @ products`` (see :class:`JacobianBasis`).
 
@@ -424,8 +440,7 @@ class ForwardModel:
         n_el, n_t = self._n_el, self.n_elements
         f = n_el - 1  # the ground electrode's field is identically zero
         basis = self._factorise(s).basis[: self._n_nodes, :f]  # [n_nodes, f]
-        gw = np.einsum("tdj,tjl->ldt", self._grads, basis[self._tri], optimize=True)
-        gw = gw * np.sqrt(self._area)  # [f, 2, t]
+        gw = self._field_gradients(basis)  # [f, 2, t]
         a_idx, b_idx = np.triu_indices(f)
         products = np.empty((a_idx.size, n_t))  # rows (a, a..f-1) for a = 0..f-1
         row = 0

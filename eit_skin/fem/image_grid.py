@@ -179,3 +179,101 @@ class ImageGrid:
         owner = np.full(m.shape[0], m.shape[1], dtype=np.intp)
         owner[counts == 1] = m.indices
         return owner
+
+
+@dataclass(frozen=True, eq=False)
+class PixelMatrix:
+    """A linear element operator folded onto an image grid: input -> image in one product.
+
+    Only the rows of the ``K <= min(N, H*W)`` elements that lie under a pixel are kept, each
+    multiplied by a constant unit ``scale`` (pascals per unit of the element value, say), in
+    float32, C-contiguous; an image is one ``[K, M] @ [M]`` product, a clip to
+    ``[floor, ceiling]`` and
+    one gather onto the ``H*W`` pixels (NaN outside the sheet and in holes). ``T`` inputs
+    are one matrix-matrix product.
+
+    Attributes:
+        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``.
+        elements: ``[K]`` int64 the element of each row (ascending).
+        owner: ``[H*W]`` intp row of each pixel, ``K`` where no element is (NaN).
+        shape: ``(H, W)``.
+        scale: the unit factor folded into ``matrix``.
+        floor: lower bound of the output (after ``scale``); ``-inf``: none.
+        ceiling: upper bound of the output (after ``scale``); ``inf``: none.
+    """
+
+    matrix: np.ndarray
+    elements: np.ndarray
+    owner: np.ndarray
+    shape: tuple[int, int]
+    scale: float = 1.0
+    floor: float = -np.inf
+    ceiling: float = np.inf
+
+    @classmethod
+    def build(
+        cls,
+        grid: ImageGrid,
+        element_matrix: np.ndarray,
+        scale: float = 1.0,
+        floor: float = -np.inf,
+        ceiling: float = np.inf,
+    ) -> PixelMatrix:
+        """Fold ``element_matrix`` ``[N, M]`` (N = the grid's elements) onto ``grid``."""
+        a = np.asarray(element_matrix)
+        n = grid.matrix.shape[1]
+        if a.ndim != 2 or a.shape[0] != n:
+            raise ValueError(f"element_matrix must be [{n}, M], got {a.shape}")
+        if not np.isfinite(scale) or scale == 0:
+            raise ValueError(f"scale must be finite and non-zero, got {scale}")
+        element = grid._owner  # [H*W], N where no element is
+        elements, owner = np.unique(element[element < n], return_inverse=True)
+        pixel_row = np.full(element.size, elements.size, dtype=np.intp)
+        pixel_row[element < n] = owner.ravel()
+        matrix = np.ascontiguousarray(a[elements] * scale, dtype=np.float32)
+        if not floor <= ceiling:
+            raise ValueError(f"floor {floor} is above ceiling {ceiling}")
+        return cls(
+            matrix,
+            elements.astype(np.int64),
+            pixel_row,
+            grid.shape,
+            float(scale),
+            float(floor),
+            float(ceiling),
+        )
+
+    def _clip(self, y: np.ndarray) -> None:
+        """Clip ``y`` in place to ``[floor, ceiling]`` (nothing when both are infinite)."""
+        if self.floor > -np.inf or self.ceiling < np.inf:
+            np.clip(y, self.floor, self.ceiling, out=y)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """Input ``[M]`` or ``[T, M]`` -> float32 image ``[H, W]`` or ``[T, H, W]``."""
+        x32 = np.asarray(x, dtype=np.float32)
+        k = self.matrix.shape[0]
+        if x32.ndim == 1:
+            y = np.empty(k + 1, dtype=np.float32)
+            y[k] = np.nan
+            np.matmul(self.matrix, x32, out=y[:k])
+            self._clip(y[:k])
+            return y.take(self.owner).reshape(self.shape)
+        y = np.empty((x32.shape[0], k + 1), dtype=np.float32)
+        y[:, k] = np.nan
+        np.matmul(x32, self.matrix.T, out=y[:, :k])
+        self._clip(y[:, :k])
+        return y.take(self.owner, axis=1).reshape(-1, *self.shape)
+
+    def from_elements(self, values: np.ndarray) -> np.ndarray:
+        """Element values ``[N]``/``[T, N]`` -> the same images, without the product.
+
+        For inputs the product cannot take (a frame with left-out channels): ``values`` are
+        what the element operator gives, before ``scale``.
+        """
+        v = np.asarray(values, dtype=np.float32)
+        k = self.matrix.shape[0]
+        y = np.empty((*v.shape[:-1], k + 1), dtype=np.float32)
+        y[..., k] = np.nan
+        np.multiply(v[..., self.elements], np.float32(self.scale), out=y[..., :k])
+        self._clip(y[..., :k])
+        return y.take(self.owner, axis=-1).reshape(*v.shape[:-1], *self.shape)

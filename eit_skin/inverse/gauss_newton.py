@@ -37,7 +37,7 @@ same prior and ``h`` the first Gauss-Newton step *is* the one-step image on thos
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -57,6 +57,12 @@ from eit_skin.inverse.one_step import (
 from eit_skin.inverse.priors import Prior, make_prior
 
 DEFAULT_MAX_LOG_CONTRAST = float(np.log(1e5))
+#: Online convergence test: stop when the next step changes no ``ln sigma`` by more than this
+#: (1 % of any element's conductance), well inside the 5 % agreement asked of the online path.
+DEFAULT_STEP_TOLERANCE = 0.01
+#: Online quasi-Newton: keep a linearisation until the solution moved this far from it (max
+#: ``|ln sigma|`` change, i.e. a factor e^0.5 = 1.65 of some element's conductance).
+DEFAULT_RELINEARISE = 0.5
 _LINE_SEARCH_HALVINGS = 12
 
 
@@ -75,6 +81,8 @@ class GaussNewtonResult:
         converged: True when the residual tolerance was met.
         parameter_change: ``[N_p]`` ``sigma / sigma0 - 1`` per parameter-mesh element.
         forward_solves: forward solves at new conductances (line-search trials included).
+        linearisations: Jacobians (and normal matrices) computed; the one at ``sigma0`` is
+            prepared once and not counted.
     """
 
     sigma: np.ndarray
@@ -84,6 +92,49 @@ class GaussNewtonResult:
     converged: bool
     parameter_change: np.ndarray
     forward_solves: int
+    linearisations: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class _Linearisation:
+    """One linearisation of the data term: where, ``G^T``, ``P^-1 G^T``, Cholesky factor.
+
+    Attributes:
+        d: ``[N_p]`` log-conductance change it was taken at.
+        gt: ``[N_p, P]`` ``(G diag(sigma) C)^T``.
+        z: ``[N_p, P]`` ``P^-1 G^T``.
+        factor: Cholesky factor of ``J P^-1 J^T + lambda^2 I`` on the fit's channels.
+    """
+
+    d: np.ndarray
+    gt: np.ndarray
+    z: np.ndarray
+    factor: tuple[np.ndarray, bool]
+
+
+@dataclass(eq=False)
+class WarmStart:
+    """The last fit's end point, where the next frame's fit starts (online Gauss-Newton).
+
+    Filled by :meth:`GaussNewtonSolver.difference` when passed; empty (``d is None``) it
+    gives a cold start from ``sigma0``. Valid for one channel set: a fit on other channels
+    starts cold and replaces it.
+
+    Attributes:
+        channels: bytes of the used channel indices (``b""``: all channels).
+        d: ``[N_p]`` log-conductance change of the last solution, or ``None``.
+        voltages: ``[M]`` model volts at ``d`` (no forward solve to restart there).
+        linearisation: the last linearisation kept (quasi-Newton steps reuse it), or None.
+    """
+
+    channels: bytes = b""
+    d: np.ndarray | None = None
+    voltages: np.ndarray | None = None
+    linearisation: _Linearisation | None = None
+
+    def reset(self) -> None:
+        """Forget the last solution: the next fit starts from ``sigma0``."""
+        self.channels, self.d, self.voltages, self.linearisation = b"", None, None, None
 
 
 class GaussNewtonSolver:
@@ -212,6 +263,9 @@ class GaussNewtonSolver:
         stagnation: float,
         excluded: np.ndarray | None,
         relative_to_change: bool,
+        warm: WarmStart | None = None,
+        step_tolerance: float = 0.0,
+        relinearise: float = 0.0,
     ) -> GaussNewtonResult:
         fwd = self.forward
         v_target = np.asarray(v_target, dtype=np.float64)
@@ -224,47 +278,66 @@ class GaussNewtonSolver:
         target = v_target[rows] / w
         if not np.isfinite(target).all():
             raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
-        d = np.zeros(self.n_parameters)
-        sig = self.sigma0
-        resid = target - self.v0[rows] / w
-        scale = resid if relative_to_change else target
-        norm = float(np.linalg.norm(scale)) or 1.0
+        change = target - self.v0[rows] / w
+        norm = float(np.linalg.norm(change if relative_to_change else target)) or 1.0
+        key = b"" if channels.keep is None else channels.keep.tobytes()
+        if warm is not None and warm.channels == key and warm.d is not None:
+            d, model_v, lin = warm.d, warm.voltages, warm.linearisation
+            sig = self._fine_sigma(d)
+            resid = target - model_v[rows] / w
+        else:
+            gt, z, _ = self._first
+            d, sig, resid = np.zeros(self.n_parameters), self.sigma0, change
+            model_v, lin = self.v0, _Linearisation(d, gt, z, channels.first_factor)
         history = [float(np.linalg.norm(resid)) / norm]
         phi = float(resid @ resid)  # data term at d
         converged = history[0] <= tolerance
-        solves, it = 0, 0
+        solves, it, linearisations = 0, 0, 0
         while not converged and it < max_iterations:
-            if it == 0:
-                gt, z, _ = self._first
-                chol = channels.first_factor
-            else:
-                products, _ = _jacobian_factors(fwd, sig)  # the cached factorisation of sig
-                gt = _parameter_jacobian(products, sig, self._to_params)
-                z, k = self._normal_matrix(gt, cw)
-                chol = _cholesky(k, lam2)
-            u = sla.cho_solve(chol, resid + cw @ (d @ gt), check_finite=False)
-            step = z @ (cw.T @ u) - d
+            stale = lin is not None and (
+                (relinearise <= 0.0 and lin.d is not d)
+                or float(np.max(np.abs(d - lin.d), initial=0.0)) > relinearise
+            )
+            if lin is None or stale:
+                lin = self._linearise(d, sig, channels)
+                linearisations += 1
+            u = sla.cho_solve(lin.factor, resid + cw @ (d @ lin.gt), check_finite=False)
+            step = lin.z @ (cw.T @ u) - d
+            if step_tolerance > 0.0 and float(np.max(np.abs(step))) <= step_tolerance:
+                converged = True  # the next step would change no conductance noticeably
+                break
             it += 1
             objective = phi + lam2 * p.quadratic(d)
             alpha, improved = 1.0, False
             for _ in range(_LINE_SEARCH_HALVINGS):
                 trial = np.clip(d + alpha * step, -self.max_log_contrast, self.max_log_contrast)
                 sig_trial = self._fine_sigma(trial)
-                r_trial = target - fwd.voltages(sig_trial)[rows] / w
+                v_trial = fwd.voltages(sig_trial)
+                r_trial = target - v_trial[rows] / w
                 solves += 1
                 phi_trial = float(r_trial @ r_trial) + lam2 * p.quadratic(trial)
                 if np.isfinite(phi_trial) and phi_trial < objective:
                     improved = True
                     break
+                if lin.d is not d:  # a kept linearisation failed: take a fresh one here
+                    break
                 alpha *= 0.5
             if not improved:
+                if lin.d is not d:
+                    lin = None
+                    it -= 1
+                    continue
                 break
-            d, sig, resid = trial, sig_trial, r_trial
+            if alpha < 1.0 and relinearise > 0.0:
+                lin = None  # the model needed damping: do not keep it
+            d, sig, resid, model_v = trial, sig_trial, r_trial, v_trial
             phi = float(resid @ resid)
             history.append(float(np.linalg.norm(resid)) / norm)
             converged = history[-1] <= tolerance
             if objective - phi_trial <= stagnation * objective:  # no progress left
                 break
+        if warm is not None:
+            warm.channels, warm.d, warm.voltages, warm.linearisation = key, d, model_v, lin
         return GaussNewtonResult(
             sigma=sig,
             relative_change=sig / self.sigma0 - 1.0,
@@ -273,7 +346,15 @@ class GaussNewtonSolver:
             converged=converged,
             parameter_change=np.expm1(d),
             forward_solves=solves,
+            linearisations=linearisations,
         )
+
+    def _linearise(self, d: np.ndarray, sig: np.ndarray, channels: _ChannelSet) -> _Linearisation:
+        """Jacobian, prior solves and Cholesky factor at ``d`` (forward mesh ``sig``)."""
+        products, _ = _jacobian_factors(self.forward, sig)  # cached factorisation of sig
+        gt = _parameter_jacobian(products, sig, self._to_params)
+        z, k = self._normal_matrix(gt, channels.cw)
+        return _Linearisation(d, gt, z, _cholesky(k, channels.lam2))
 
     def difference(
         self,
@@ -283,6 +364,9 @@ class GaussNewtonSolver:
         max_iterations: int = 10,
         tolerance: float = 1e-3,
         stagnation: float = 1e-9,
+        warm: WarmStart | None = None,
+        step_tolerance: float = 0.0,
+        relinearise: float = 0.0,
     ) -> GaussNewtonResult:
         """Difference imaging: fit ``F(sigma0) + s(F(sigma0)) (v - v_ref) / s_ref``.
 
@@ -293,6 +377,20 @@ class GaussNewtonSolver:
         one-step matrix does). ``tolerance`` is relative to the measured change: the fit
         stops when ``||r|| <= tolerance * ||r_0||`` (``r_0`` the data change itself), so a
         small touch is imaged as fully as a large one, and no change gives no iteration.
+
+        Online options (the defaults give the plain cold Gauss-Newton fit):
+
+        * ``warm``: start from the last fit's solution and model voltages (no forward solve
+          to get there) and store this fit's end point in it; a different channel set starts
+          cold from ``sigma0``.
+        * ``step_tolerance``: convergence test on the Gauss-Newton step: stop, without a
+          forward solve, when the next step would change no element's ``ln sigma`` by more
+          than this (0.01: 1 % of its conductance).
+        * ``relinearise``: keep a linearisation (Jacobian, prior solves, Cholesky factor)
+          for the following steps (quasi-Newton with a fixed Jacobian) until the solution
+          has moved more than this from where it was taken (max ``|ln sigma|`` change), the
+          full step fails to lower the objective or needed damping; 0: a new
+          linearisation at every step (Gauss-Newton).
         """
         dv = relative_difference(frame, reference)
         bad = ~np.isfinite(dv)
@@ -300,7 +398,15 @@ class GaussNewtonSolver:
             bad = bad | np.asarray(excluded, dtype=bool)
         target = self.v0 + reference_scale(self.v0) * np.where(bad, 0.0, dv)
         return self._fit(
-            target, max_iterations, tolerance, stagnation, bad if bad.any() else None, True
+            target,
+            max_iterations,
+            tolerance,
+            stagnation,
+            bad if bad.any() else None,
+            True,
+            warm,
+            step_tolerance,
+            relinearise,
         )
 
 
@@ -430,6 +536,15 @@ class GaussNewtonReconstructor:
     :class:`GaussNewtonSolver` on every frame. Values are ``sigma / sigma0 - 1`` per element
     of the imaging (parameter) mesh, the one-step output convention.
 
+    Online (frame by frame, as the node and ``eit-skin reconstruct`` call it) every fit starts
+    where the previous frame's ended (:class:`WarmStart`, kept here; :meth:`reset` on a new
+    reference), stops on the step-size convergence test and reuses a linearisation while
+    the solution stays near it (quasi-Newton steps, one forward solve each): a frame like
+    the last costs no forward solve, a moving touch one or two. Frames arrive at 50-100 Hz,
+    so the previous solution is close; where it is not, the fit simply takes more steps
+    (at most ``max_iterations``). ``step_tolerance = 0`` and ``relinearise = 0`` with
+    :meth:`reset` before every frame give the plain cold Gauss-Newton fit.
+
     Attributes:
         solver: the prepared solver; its unknowns live on the imaging mesh.
         linearised: the one-step matrix of its first step (same Jacobian, prior and ``h``):
@@ -437,12 +552,19 @@ class GaussNewtonReconstructor:
             need a matrix (e.g. the single-contact spread of :mod:`eit_skin.touch.shapes`).
         max_iterations: Gauss-Newton steps per frame (>= 1).
         tolerance: stop when the residual is this fraction of the measured change.
+        step_tolerance: convergence test, max ``|ln sigma|`` change of the next step
+            (:meth:`GaussNewtonSolver.difference`).
+        relinearise: max ``|ln sigma|`` distance before a kept linearisation is renewed.
+        warm: the last frame's end point (mutable state of an otherwise fixed operator).
     """
 
     solver: GaussNewtonSolver
     linearised: ReconstructionMatrix
     max_iterations: int = DEFAULT_MAX_ITERATIONS
     tolerance: float = 1e-3
+    step_tolerance: float = DEFAULT_STEP_TOLERANCE
+    relinearise: float = DEFAULT_RELINEARISE
+    warm: WarmStart = field(default_factory=WarmStart, compare=False)
 
     method: ClassVar[str] = "gauss_newton"
 
@@ -499,6 +621,10 @@ class GaussNewtonReconstructor:
     def hyperparameter(self) -> float:
         return self.solver.hyperparameter
 
+    def reset(self) -> None:
+        """Forget the last frame's solution (a new reference): the next fit starts cold."""
+        self.warm.reset()
+
     @property
     def n_channels(self) -> int:
         return int(self.solver.v0.size)
@@ -518,6 +644,8 @@ class GaussNewtonReconstructor:
         excluded: np.ndarray | None = None,
     ) -> np.ndarray:
         """Frames (volts) -> relative conductivity change per element, one fit per frame.
+
+        Frames are taken as a time sequence: each fit starts from the previous one's end.
 
         Args:
             frames: ``[M]`` or ``[T, M]`` volts, in the protocol's measurement order.
@@ -540,6 +668,13 @@ class GaussNewtonReconstructor:
         out = np.empty((v2.shape[0], self.n_elements), dtype=np.float32)
         for t, frame in enumerate(v2):
             out[t] = self.solver.difference(
-                frame, ref, mask, max_iterations=self.max_iterations, tolerance=self.tolerance
+                frame,
+                ref,
+                mask,
+                max_iterations=self.max_iterations,
+                tolerance=self.tolerance,
+                warm=self.warm,
+                step_tolerance=self.step_tolerance,
+                relinearise=self.relinearise,
             ).parameter_change
         return out[0] if v.ndim == 1 else out

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from eit_skin.fem.image_grid import locate_points
+from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
@@ -404,6 +404,56 @@ class ReconstructionMatrix:
             m = np.ascontiguousarray(self.matrix, dtype=np.float32)
             self._cache["float32"] = m
         return m
+
+    def pixel_matrix(
+        self,
+        grid: ImageGrid,
+        scale: float = 1.0,
+        floor: float = -np.inf,
+        ceiling: float = np.inf,
+    ) -> PixelMatrix:
+        """This matrix on ``grid``: unit ``scale``, clip to ``[floor, ceiling]`` (cached)."""
+        if self.channels.size != self.n_channels:
+            raise ValueError("pixel_matrix: the matrix must use every channel")
+        key = ("pixels", id(grid), float(scale), float(floor), float(ceiling))
+        hit = self._cache.get(key)
+        if hit is None or hit[0] is not grid:
+            pixels = PixelMatrix.build(grid, self.matrix, scale, floor, ceiling)
+            hit = self._cache[key] = (grid, pixels)
+        return hit[1]
+
+    def images(
+        self,
+        frames: np.ndarray,
+        reference: np.ndarray,
+        grid: ImageGrid,
+        scale: float = 1.0,
+        floor: float = -np.inf,
+        excluded: np.ndarray | None = None,
+        ceiling: float = np.inf,
+    ) -> np.ndarray:
+        """Frames (volts) -> float32 images ``[H, W]``/``[T, H, W]``, NaN outside the sheet.
+
+        Pixel value: ``scale`` times the relative change, clipped to ``[floor, ceiling]``.
+        Frames with every channel usable are one product with :meth:`pixel_matrix`
+        (``[K, M]``, the ``K`` elements under pixels); others go through :meth:`reconstruct`
+        (left-out channels) and the same gather. Same values as ``scale *`` :meth:`reconstruct`
+        gridded, to float32 rounding.
+        """
+        pixels = self.pixel_matrix(grid, scale, floor, ceiling)
+        if excluded is None and self.channels.size == self.n_channels:
+            ref = np.asarray(reference, dtype=np.float64)
+            if ref.shape == (self.n_channels,):
+                key = ref.tobytes()
+                cached = self._cache.get("reference_scale")
+                if cached is None or cached[0] != key:
+                    cached = self._cache["reference_scale"] = (key, reference_scale(ref))
+                with np.errstate(invalid="ignore"):
+                    dv = np.subtract(frames, ref)
+                    dv /= cached[1]
+                if dv.shape[-1] == self.n_channels and np.isfinite(dv).all():
+                    return pixels.apply(dv)
+        return pixels.from_elements(self.reconstruct(frames, reference, excluded))
 
     def reconstruct(
         self,

@@ -33,6 +33,7 @@ from eit_skin.inverse.channel_noise import (
     estimate_channel_noise,
 )
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
+from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
 from eit_skin.inverse.methods import (
     DEFAULT_NOISE_FIGURE,
     METHODS,
@@ -251,7 +252,8 @@ class LayerImager:
         reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
         not weighted) and the hyperparameter is re-chosen for the layer's noise figure on that
         measured noise, unless ``solver.hyperparameter`` fixes it. One ``M x M``
-        factorisation per trial, no Jacobian.
+        factorisation per trial, no Jacobian. Gauss-Newton's warm start is reset: the next
+        frame's fit starts from ``sigma0``.
 
         Raises:
             UnusableReferenceError: (a ValueError) the reference cannot be imaged against.
@@ -261,6 +263,8 @@ class LayerImager:
         check = check_reference(reference, self.protocol, self.model_voltages)
         self.reference_excluded = check.excluded
         base = self._unweighted
+        if isinstance(base, GaussNewtonReconstructor):
+            base.reset()  # the last solution belongs to the old reference
         noise = estimate_channel_noise(reference, self.protocol, reference_frames, frames)
         if noise is None or not isinstance(base, ReconstructionMatrix):
             self.reconstructor = base
@@ -317,15 +321,50 @@ class LayerImager:
         (one-step/GREIT: cached reduced matrices; Gauss-Newton: fitted without them, one
         fit per frame), as are the channels :meth:`use_reference` excluded.
         """
+        return self.reconstructor.reconstruct(
+            self._signed(frames), self._signed(reference), excluded=self._excluded(flags)
+        )
+
+    def _excluded(self, flags: np.ndarray | None) -> np.ndarray | None:
+        """Channels left out: the reference's and the flagged ones; None when none."""
         excluded = self.reference_excluded
         if flags is not None and np.size(flags):
             flagged = excluded_channels(flags, self.n_measurements)
             excluded = flagged if excluded is None else excluded | flagged
         if excluded is not None and not excluded.any():
             excluded = None
-        return self.reconstructor.reconstruct(
-            self._signed(frames), self._signed(reference), excluded=excluded
-        )
+        return excluded
+
+    def frame_images(
+        self, frames: np.ndarray, reference: np.ndarray, flags: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Frames ``[M]``/``[T, M]`` V -> physical images ``[H, W]``/``[T, H, W]`` (float32).
+
+        ``images(physical(relative_change(...)))`` in one step: for a linear matrix and a
+        linear unit (pressure) the gridding, the unit and the clip at
+        :data:`~eit_skin.patch.material.RELATIVE_CHANGE_RANGE` are folded into one
+        ``[pixels' elements, M]`` float32
+        product (:meth:`~eit_skin.inverse.one_step.ReconstructionMatrix.images`); otherwise
+        (Gauss-Newton, stretch) the three steps are run.
+        """
+        rec, material = self.reconstructor, self.layer.material
+        if (
+            isinstance(rec, ReconstructionMatrix)
+            and material.quantity == "pressure"
+            and material.pressure_scale_pa > 0
+        ):
+            scale = material.pressure_scale_pa
+            low, high = RELATIVE_CHANGE_RANGE
+            return rec.images(
+                self._signed(frames),
+                self._signed(reference),
+                self.grid,
+                scale,
+                scale * low,
+                self._excluded(flags),
+                ceiling=scale * high,
+            )
+        return self.images(self.physical(self.relative_change(frames, reference, flags)))
 
     def images(self, element_values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""
