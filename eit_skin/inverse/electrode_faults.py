@@ -15,11 +15,13 @@ longer that of a loaded sheet, or when it is erratic:
   zeroed channel (``q = 0``), a floating input (median ``q`` near 0) or a sign flip.
   A load, even one covering an electrode, scales a channel by a bounded factor
   (the images' own range, :mod:`eit_skin.patch.material`);
-* **erratic** (two frames or more): its robust step noise, ``1.4826 * MAD`` of the
-  frame-to-frame changes of ``q``, exceeds ``threshold`` times the median over the other
-  channels, or ``1/K`` (a tenth of the signal from frame to frame: noise-free or quantised
-  data can have a median of 0). A press ramps over many frames, so it moves a minority of
-  steps, which the median ignores; a floating or loose input changes every step.
+* **erratic** (two frames or more): its robust roughness, ``1.4826 * MAD`` of the second
+  differences in time of ``q`` (first differences for two frames), exceeds ``threshold``
+  times the median over the other channels, or ``1/K`` (a tenth of the signal: noise-free
+  or quantised data can have a median of 0). A press or a joint bend moves channels
+  smoothly (a ramp has no second difference, and its bends are a minority of frames, which
+  the median ignores, also when frames are dropped); a floating or loose input jumps every
+  frame.
 
 A dead electrode ``e`` spoils **every** channel touching ``e`` (it drives or measures with
 ``e``: :meth:`Protocol.touching`); a neighbour shares some of those channels, but its own
@@ -81,7 +83,7 @@ def spoiled_channels(
     Args:
         frames: ``[T, M]`` (or ``[M]``) volts.
         reference: ``[M]`` volts.
-        threshold: how many times the median channel step noise counts as erratic.
+        threshold: how many times the median channel roughness counts as erratic.
         saturation_v: ADC full scale, volts; saturated channels count as bad.
     """
     v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
@@ -93,7 +95,7 @@ def spoiled_channels(
     level = np.median(q, axis=0)
     spoiled |= (level < 1.0 / CONDUCTANCE_RATIO_LIMIT) | (level > CONDUCTANCE_RATIO_LIMIT)
     if v.shape[0] > 1:
-        steps = np.diff(q, axis=0)
+        steps = np.diff(q, n=min(2, v.shape[0] - 1), axis=0)  # [T-2, M]: a ramp's are 0
         noise = _MAD_TO_STD * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0)
         typical = float(np.median(noise[~spoiled])) if (~spoiled).any() else 0.0
         spoiled |= noise > 1.0 / CONDUCTANCE_RATIO_LIMIT
@@ -131,7 +133,7 @@ def faulty_electrodes(
         frames: ``[T, M]`` (or ``[M]``) volts.
         reference: ``[M]`` volts.
         protocol: the measurement protocol (which channels touch which electrode).
-        threshold: how many times the median channel step noise counts as erratic.
+        threshold: how many times the median channel roughness counts as erratic.
         saturation_v: ADC full scale, volts; saturated channels count as bad.
 
     The rule (module docstring) names a dead electrode, never its healthy neighbours, and
