@@ -242,3 +242,24 @@ def test_per_electrode_contact_impedance_is_checked():
     data["layers"][0]["electrodes"]["contact_impedance"] = [0.01] * 15 + [-1]
     with pytest.raises(PatchError, match=r"contact_impedance\[15\]: must be > 0"):
         patch_from_dict(data, source="p.yaml")
+
+
+def test_simulated_magnitude_board_reports_magnitudes_and_images_like_a_signed_one():
+    from eit_skin.pipeline.builder import LayerImager
+    from eit_skin.sim.simulator import SkinSimulator
+
+    signed = patch_from_dict(_patch())
+    magnitude = patch_from_dict(_patch({"values": "magnitude"}))
+    frames = {}
+    for name, patch in (("signed", signed), ("magnitude", magnitude)):
+        sim = SkinSimulator(patch, "idle", rate_hz=20.0, seed=4)
+        frames[name] = sim.run(n_frames=3).layers["skin"].frames
+    assert (frames["signed"] < 0).any() and (frames["magnitude"] >= 0).all()
+    np.testing.assert_allclose(frames["magnitude"], np.abs(frames["signed"]))
+    # the magnitude layer's imager restores the signs: the reference check passes
+    imager = LayerImager.build(magnitude.layers[0], cache_dir=None)
+    report = imager.use_reference(frames["magnitude"][0])
+    assert not report.check.excluded.any()
+    # and full-layout frames recorded after the driver (M numbers) are read as they are
+    full = build_protocol(patch_from_dict(_patch({"layout": "full"})).layers[0].protocol, 16)
+    np.testing.assert_array_equal(full.select(frames["signed"]), frames["signed"])

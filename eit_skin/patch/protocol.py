@@ -387,10 +387,11 @@ class Protocol:
         """Device frames ``[..., frame_size]`` -> the protocol's measurements float ``[..., M]``.
 
         Complex frames give their real part or magnitude (``complex_part``); the full layout
-        keeps the entries of :attr:`frame_index`.
+        keeps the entries of :attr:`frame_index`. Frames already in protocol order (``M``
+        numbers, e.g. recorded from the driver's output) pass unchanged.
 
-        Raises ValueError naming ``source`` when the last axis is not ``frame_size`` long or
-        the values are not numbers.
+        Raises ValueError naming ``source`` when the last axis is neither ``frame_size`` nor
+        ``M`` long, or the values are not numbers.
         """
         v = np.asarray(frames)
         if v.dtype.kind == "c":
@@ -398,11 +399,18 @@ class Protocol:
         if v.dtype.kind not in "fiu":
             raise ValueError(f"{source}: must be real or complex numbers, got dtype {v.dtype}")
         v = v.astype(np.float64, copy=False)
+        if v.ndim > 0 and v.shape[-1] == self.n_measurements:
+            return v
         if v.ndim == 0 or v.shape[-1] != self.frame_size:
             layout = "full" if self.frame_index is not None else "compact"
             raise ValueError(
                 f"{source}: got shape {v.shape}; the protocol expects {self.frame_size} "
                 f"numbers per frame ({layout} layout, {self.name})"
+                + (
+                    f" or {self.n_measurements} in protocol order"
+                    if self.frame_index is not None
+                    else ""
+                )
             )
         return v if self.frame_index is None else v[..., self.frame_index]
 
