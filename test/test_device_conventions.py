@@ -263,3 +263,26 @@ def test_simulated_magnitude_board_reports_magnitudes_and_images_like_a_signed_o
     # and full-layout frames recorded after the driver (M numbers) are read as they are
     full = build_protocol(patch_from_dict(_patch({"layout": "full"})).layers[0].protocol, 16)
     np.testing.assert_array_equal(full.select(frames["signed"]), frames["signed"])
+
+
+def test_driver_picks_the_used_entries_of_a_full_frame_and_rejects_other_sizes():
+    from eit_skin.hardware.sources import LayerFrameFactory
+    from eit_skin.hardware.wire import DeviceFrame, PatternId
+
+    patch = patch_from_dict(_patch({"layout": "full"}))
+    layer = patch.layers[0]
+    factory = LayerFrameFactory(patch, layer, "skin_link")
+    protocol = factory.protocol
+    values = np.arange(256, dtype=np.float64) + 1.0
+    flags = np.zeros(256, dtype=np.uint8)
+    flags[protocol.frame_index[7]] = 1  # the 8th used channel is flagged on the wire
+
+    def frame(v, f=None):
+        return DeviceFrame(1, 0, 16, PatternId.ADJACENT, 1e-3, v, f)
+
+    assert factory.reject(frame(values, flags)) is None
+    record = factory.device_record(0, 1, values, flags)
+    np.testing.assert_array_equal(record.voltages, protocol.frame_index + 1.0)
+    assert record.channel_flags.shape == (208,) and np.flatnonzero(record.channel_flags) == [7]
+    reason, text = factory.reject(frame(values[:208]))
+    assert reason == "values" and "expects 256 (full layout)" in text
