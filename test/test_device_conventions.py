@@ -286,3 +286,23 @@ def test_driver_picks_the_used_entries_of_a_full_frame_and_rejects_other_sizes()
     assert record.channel_flags.shape == (208,) and np.flatnonzero(record.channel_flags) == [7]
     reason, text = factory.reject(frame(values[:208]))
     assert reason == "values" and "expects 256 (full layout)" in text
+
+
+def test_convention_keys_enter_the_content_hash_only_when_set():
+    def digest(protocol):
+        return patch_from_dict(_patch(protocol)).layers[0].content_hash
+
+    plain = digest({})
+    assert digest({"layout": "compact", "values": "signed", "complex_part": "real"}) == plain
+    changed = [
+        digest(p)
+        for p in (
+            {"layout": "full"},
+            {"values": "magnitude"},
+            {"complex_part": "magnitude"},
+            {"measure_driven": True},
+            {"electrode_order": [0, *range(15, 0, -1)]},
+            {"drive": "trigonometric"},
+        )
+    ]
+    assert plain not in changed and len(set(changed)) == len(changed)

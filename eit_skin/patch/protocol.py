@@ -59,6 +59,7 @@ value; ``"magnitude"`` also implies model signs, as a magnitude has none.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -114,6 +115,17 @@ class ProtocolSpec:
     layout: str = "compact"
     values: str = "signed"
     complex_part: str = "real"
+
+    #: Keys added after patches were hashed: left out of the content hash at their default,
+    #: so caches and press calibrations of existing patches stay valid.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = (
+        "currents",
+        "electrode_order",
+        "measure_driven",
+        "layout",
+        "values",
+        "complex_part",
+    )
 
     def __post_init__(self) -> None:
         for name, choices in (("drive", DRIVE_PATTERNS), ("measure", PATTERNS)):
