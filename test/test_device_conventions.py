@@ -242,3 +242,67 @@ def test_per_electrode_contact_impedance_is_checked():
     data["layers"][0]["electrodes"]["contact_impedance"] = [0.01] * 15 + [-1]
     with pytest.raises(PatchError, match=r"contact_impedance\[15\]: must be > 0"):
         patch_from_dict(data, source="p.yaml")
+
+
+def test_simulated_magnitude_board_reports_magnitudes_and_images_like_a_signed_one():
+    from eit_skin.pipeline.builder import LayerImager
+    from eit_skin.sim.simulator import SkinSimulator
+
+    signed = patch_from_dict(_patch())
+    magnitude = patch_from_dict(_patch({"values": "magnitude"}))
+    frames = {}
+    for name, patch in (("signed", signed), ("magnitude", magnitude)):
+        sim = SkinSimulator(patch, "idle", rate_hz=20.0, seed=4)
+        frames[name] = sim.run(n_frames=3).layers["skin"].frames
+    assert (frames["signed"] < 0).any() and (frames["magnitude"] >= 0).all()
+    np.testing.assert_allclose(frames["magnitude"], np.abs(frames["signed"]))
+    # the magnitude layer's imager restores the signs: the reference check passes
+    imager = LayerImager.build(magnitude.layers[0], cache_dir=None)
+    report = imager.use_reference(frames["magnitude"][0])
+    assert not report.check.excluded.any()
+    # and full-layout frames recorded after the driver (M numbers) are read as they are
+    full = build_protocol(patch_from_dict(_patch({"layout": "full"})).layers[0].protocol, 16)
+    np.testing.assert_array_equal(full.select(frames["signed"]), frames["signed"])
+
+
+def test_driver_picks_the_used_entries_of_a_full_frame_and_rejects_other_sizes():
+    from eit_skin.hardware.sources import LayerFrameFactory
+    from eit_skin.hardware.wire import DeviceFrame, PatternId
+
+    patch = patch_from_dict(_patch({"layout": "full"}))
+    layer = patch.layers[0]
+    factory = LayerFrameFactory(patch, layer, "skin_link")
+    protocol = factory.protocol
+    values = np.arange(256, dtype=np.float64) + 1.0
+    flags = np.zeros(256, dtype=np.uint8)
+    flags[protocol.frame_index[7]] = 1  # the 8th used channel is flagged on the wire
+
+    def frame(v, f=None):
+        return DeviceFrame(1, 0, 16, PatternId.ADJACENT, 1e-3, v, f)
+
+    assert factory.reject(frame(values, flags)) is None
+    record = factory.device_record(0, 1, values, flags)
+    np.testing.assert_array_equal(record.voltages, protocol.frame_index + 1.0)
+    assert record.channel_flags.shape == (208,) and np.flatnonzero(record.channel_flags) == [7]
+    reason, text = factory.reject(frame(values[:208]))
+    assert reason == "values" and "expects 256 (full layout)" in text
+
+
+def test_convention_keys_enter_the_content_hash_only_when_set():
+    def digest(protocol):
+        return patch_from_dict(_patch(protocol)).layers[0].content_hash
+
+    plain = digest({})
+    assert digest({"layout": "compact", "values": "signed", "complex_part": "real"}) == plain
+    changed = [
+        digest(p)
+        for p in (
+            {"layout": "full"},
+            {"values": "magnitude"},
+            {"complex_part": "magnitude"},
+            {"measure_driven": True},
+            {"electrode_order": [0, *range(15, 0, -1)]},
+            {"drive": "trigonometric"},
+        )
+    ]
+    assert plain not in changed and len(set(changed)) == len(changed)

@@ -64,7 +64,9 @@ def test_recovers_per_electrode_contact_impedance_and_flags_the_bad_contact(fit_
     err = np.abs(fit.contact_impedance_ohm_m / z_true - 1)
     assert err.max() < 0.05, err
     assert fit.sheet_conductance_s == pytest.approx(SIGMA, rel=0.02)
-    assert fit.bad_contacts == (5,)
+    assert fit.bad_contacts == (5,) and fit.contact_determined.all()
+    # z sigma / width: the contact against the sheet under the electrode (width 10 mm)
+    np.testing.assert_allclose(fit.contact_ratio, z_true * SIGMA / (W * R), rtol=0.06)
     assert fit.residual < 0.003 < fit.initial_residual  # noise is 0.1 % of the rms
     assert any("bad contact" in line and ": 5" in line for line in fit.lines())
 
@@ -78,6 +80,21 @@ def test_recovers_a_common_contact_impedance_from_adjacent_frames(fit_mesh):
     np.testing.assert_allclose(fit.contact_impedance_ohm_m, Z, rtol=0.10)
     assert fit.sheet_conductance_s == pytest.approx(SIGMA, rel=0.02)
     assert fit.bad_contacts == ()
+
+
+def test_contact_impedances_the_frame_does_not_determine_are_kept_and_reported():
+    """Adjacent data of contact-dominated electrodes (z sigma / width = 50), 1 % noise: a
+    per-electrode fit (forced) cannot pin every z; those keep their start and are named."""
+    mesh = disk_mesh(R, 16, W, R / 8)
+    v = ForwardModel(mesh, ADJ, 100 * Z, 1e-3).voltages(SIGMA)
+    v = v * (1 + 1e-2 * np.random.default_rng(0).standard_normal(v.size))
+    fit = fit_device(mesh, ADJ, v, SIGMA, Z, 1e-3, per_electrode=True)
+    undetermined = np.flatnonzero(~fit.contact_determined)
+    assert 0 < undetermined.size < 16
+    kept = fit.contact_impedance_ohm_m[undetermined]
+    np.testing.assert_allclose(kept, kept[0])  # the common start value, untouched
+    assert "not determined by this frame" in fit.lines()[1]
+    assert str(int(undetermined[0])) in fit.lines()[1]
 
 
 def test_gain_and_sigma_trade_off_and_sign_errors_are_refused():

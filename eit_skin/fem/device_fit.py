@@ -19,6 +19,10 @@ What one frame can tell apart (the choices made here):
   only acts through the weak shunting of the electrodes, and one common ``z`` is fitted
   (``per_electrode=True`` forces the per-electrode fit; its spread is then weakly
   determined).
+* Where the data do not determine a ``z`` (its linearised log standard error at the fit's
+  residual exceeds :data:`UNDETERMINED_LOG_STD`: on real tanks measured without the driven
+  electrodes, the common ``z`` runs off to "no shunting" for a fraction of a percent of
+  residual), it keeps its starting value and the rest is refitted; the report says so.
 * Bad contact: an electrode whose fitted ``z`` exceeds :data:`BAD_CONTACT_RATIO` times the
   median, or whose channels' rms residual exceeds :data:`BAD_CONTACT_RATIO` times the median
   over the electrodes (a scale-free rule: the same on any board and in any unit).
@@ -40,6 +44,8 @@ BAD_CONTACT_RATIO = 3.0
 RELATIVE_TOLERANCE = 1e-6
 #: Steps of the logarithm of a parameter are limited to this (a factor e^2 ~ 7.4 per step).
 MAX_LOG_STEP = 2.0
+#: A contact impedance whose log standard error exceeds this (a factor e) is not determined.
+UNDETERMINED_LOG_STD = 1.0
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,11 @@ class DeviceFit:
         bad_contacts: electrodes flagged by the module's rule, increasing.
         used: bool ``[M]`` channels fitted (finite, non-zero).
         iterations: Levenberg-Marquardt iterations done.
+        contact_determined: bool ``[n_el]``: whether the frame determines each electrode's
+            ``z`` (else it is the starting value, scaled with the conductance).
+        contact_ratio: ``[n_el]`` ``z sigma / width``, dimensionless: the contact's resistance
+            ``z / width`` against the sheet's ``1 / sigma``; >> 1: contact-dominated
+            (uniform current under the electrode, the gap model), << 1: a shunting electrode.
     """
 
     sheet_conductance_s: float
@@ -70,6 +81,8 @@ class DeviceFit:
     bad_contacts: tuple[int, ...]
     used: np.ndarray
     iterations: int
+    contact_determined: np.ndarray
+    contact_ratio: np.ndarray
 
     def gain_at(self, sheet_conductance_s: float) -> float:
         """Gain (frame units per volt) that makes ``sheet_conductance_s`` S fit the frame."""
@@ -83,10 +96,23 @@ class DeviceFit:
             if self.per_electrode
             else f"contact impedance (common): {z[0]:.4g} ohm*m"
         )
+        if not self.contact_determined.all():
+            which = (
+                ", ".join(map(str, np.flatnonzero(~self.contact_determined)))
+                if self.per_electrode
+                else "all"
+            )
+            zs += (
+                f" (not determined by this frame, kept at the patch's value x the conductance's "
+                f"scale: electrodes {which})"
+            )
         bad = ", ".join(map(str, self.bad_contacts)) or "none"
+        ratio = float(np.median(self.contact_ratio))
+        kind = "contact-dominated" if ratio > 1 else "shunting electrodes"
         return [
             f"sheet conductance: {self.sheet_conductance_s:.4g} S (gain {self.gain:g})",
             zs,
+            f"z sigma / width: median {ratio:.3g} ({kind})",
             f"fit residual: {self.residual:.3%} of the frame's rms "
             f"(before: {self.initial_residual:.3%}), {self.iterations} iterations, "
             f"{int(self.used.sum())} channels",
@@ -180,32 +206,54 @@ def fit_device(
     sigma, z = sigma / c, z * c
     r, J = evaluate(sigma, z, True)
     initial = float(np.sqrt(np.mean(r**2)))
-    cost = float(r @ r)
-    damping = 1e-3
-    iterations = 0
-    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
-        JtJ = J.T @ J
-        g = J.T @ r
-        improved = False
-        while damping < 1e12:
-            step = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
-            step *= min(1.0, MAX_LOG_STEP / max(np.abs(step).max(), 1e-300))
-            new_sigma = sigma * float(np.exp(step[0]))
-            new_z = z * np.exp(step[1:] if per_electrode else step[1])
-            r_new, _ = evaluate(new_sigma, new_z, False)
-            new_cost = float(r_new @ r_new)
-            if new_cost < cost:
-                improved = True
-                damping = max(damping / 3, 1e-9)
+
+    def levenberg_marquardt(sigma, z, r, J, free):
+        """Minimise over the ``free`` log-parameters; ``(sigma, z, r, J, iterations)``."""
+        cost = float(r @ r)
+        damping = 1e-3
+        done = 0
+        for done in range(1, max_iterations + 1):  # noqa: B007 (returned)
+            Jf = J[:, free]
+            JtJ = Jf.T @ Jf
+            g = Jf.T @ r
+            improved = False
+            while damping < 1e12:
+                step_f = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
+                step_f *= min(1.0, MAX_LOG_STEP / max(np.abs(step_f).max(), 1e-300))
+                step = np.zeros(n_par)
+                step[free] = step_f
+                new_sigma = sigma * float(np.exp(step[0]))
+                new_z = z * np.exp(step[1:] if per_electrode else step[1])
+                r_new, _ = evaluate(new_sigma, new_z, False)
+                new_cost = float(r_new @ r_new)
+                if new_cost < cost:
+                    improved = True
+                    damping = max(damping / 3, 1e-9)
+                    break
+                damping *= 4
+            if not improved:
                 break
-            damping *= 4
-        if not improved:
-            break
-        gain_fraction = (cost - new_cost) / max(cost, 1e-300)
-        sigma, z, cost = new_sigma, new_z, new_cost
-        r, J = evaluate(sigma, z, True)
-        if gain_fraction < RELATIVE_TOLERANCE:
-            break
+            fraction = (cost - new_cost) / max(cost, 1e-300)
+            sigma, z, cost = new_sigma, new_z, new_cost
+            r, J = evaluate(sigma, z, True)
+            if fraction < RELATIVE_TOLERANCE:
+                break
+        return sigma, z, r, J, done
+
+    start = (sigma, z.copy(), r, J)
+    free = np.ones(n_par, dtype=bool)
+    sigma, z, r, J, iterations = levenberg_marquardt(sigma, z, r, J, free)
+    # where the data allow: a contact impedance the frame barely depends on (its log
+    # standard error above UNDETERMINED_LOG_STD at the fit's own residual) wanders off to
+    # where it no longer matters; such values are kept at their start and the rest refitted
+    determined = _log_std(J, r)[1:] <= UNDETERMINED_LOG_STD
+    if not determined.all():
+        free[1:] = determined
+        sigma, z0, r, J = start
+        z = z0.copy()
+        sigma, z, r, J, more = levenberg_marquardt(sigma, z, r, J, free)
+        iterations += more
+    cost = float(r @ r)
     full = np.zeros(v.shape)
     full[used] = r
     touching = np.stack([protocol.touching([e]) & used for e in range(n_el)])  # [n_el, M]
@@ -225,4 +273,24 @@ def fit_device(
         bad_contacts=tuple(int(e) for e in np.flatnonzero(bad)),
         used=used,
         iterations=iterations,
+        contact_determined=np.broadcast_to(determined, (n_el,)).copy(),
+        contact_ratio=z * sigma / _electrode_lengths(mesh),
     )
+
+
+def _electrode_lengths(mesh: Mesh) -> np.ndarray:
+    """``[n_el]`` length of each electrode along the boundary, m."""
+    nodes = np.asarray(mesh.nodes, dtype=np.float64)
+    return np.array(
+        [
+            np.linalg.norm(np.diff(nodes[np.asarray(e).reshape(-1, 2)], axis=1), axis=2).sum()
+            for e in mesh.electrode_edges
+        ]
+    )
+
+
+def _log_std(J: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Linearised standard error of each log-parameter at residual ``r`` (pseudo-inverse)."""
+    dof = max(r.size - J.shape[1], 1)
+    cov = np.linalg.pinv(J.T @ J) * float(r @ r) / dof
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))

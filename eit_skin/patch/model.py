@@ -268,8 +268,12 @@ def _canonical(obj: Any) -> Any:
     """JSON-able canonical form: floats as exact ``repr`` strings, arrays as nested lists."""
     if is_dataclass(obj):
         out = {"__type__": type(obj).__name__}
+        later = getattr(type(obj), "HASH_ONLY_IF_SET", ())
         for f in fields(obj):
-            out[f.name] = _canonical(getattr(obj, f.name))
+            value = getattr(obj, f.name)
+            if f.name in later and value == f.default:
+                continue  # a key added later, at its default: the hash it had before
+            out[f.name] = _canonical(value)
         return out
     if isinstance(obj, np.ndarray):
         return {"shape": list(obj.shape), "values": [repr(float(v)) for v in obj.ravel()]}

@@ -59,6 +59,7 @@ value; ``"magnitude"`` also implies model signs, as a magnitude has none.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -114,6 +115,17 @@ class ProtocolSpec:
     layout: str = "compact"
     values: str = "signed"
     complex_part: str = "real"
+
+    #: Keys added after patches were hashed: left out of the content hash at their default,
+    #: so caches and press calibrations of existing patches stay valid.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = (
+        "currents",
+        "electrode_order",
+        "measure_driven",
+        "layout",
+        "values",
+        "complex_part",
+    )
 
     def __post_init__(self) -> None:
         for name, choices in (("drive", DRIVE_PATTERNS), ("measure", PATTERNS)):
@@ -387,10 +399,11 @@ class Protocol:
         """Device frames ``[..., frame_size]`` -> the protocol's measurements float ``[..., M]``.
 
         Complex frames give their real part or magnitude (``complex_part``); the full layout
-        keeps the entries of :attr:`frame_index`.
+        keeps the entries of :attr:`frame_index`. Frames already in protocol order (``M``
+        numbers, e.g. recorded from the driver's output) pass unchanged.
 
-        Raises ValueError naming ``source`` when the last axis is not ``frame_size`` long or
-        the values are not numbers.
+        Raises ValueError naming ``source`` when the last axis is neither ``frame_size`` nor
+        ``M`` long, or the values are not numbers.
         """
         v = np.asarray(frames)
         if v.dtype.kind == "c":
@@ -398,11 +411,18 @@ class Protocol:
         if v.dtype.kind not in "fiu":
             raise ValueError(f"{source}: must be real or complex numbers, got dtype {v.dtype}")
         v = v.astype(np.float64, copy=False)
+        if v.ndim > 0 and v.shape[-1] == self.n_measurements:
+            return v
         if v.ndim == 0 or v.shape[-1] != self.frame_size:
             layout = "full" if self.frame_index is not None else "compact"
             raise ValueError(
                 f"{source}: got shape {v.shape}; the protocol expects {self.frame_size} "
                 f"numbers per frame ({layout} layout, {self.name})"
+                + (
+                    f" or {self.n_measurements} in protocol order"
+                    if self.frame_index is not None
+                    else ""
+                )
             )
         return v if self.frame_index is None else v[..., self.frame_index]
 

@@ -267,6 +267,8 @@ class SkinSimulator:
         if rails is not None:
             values[rails] = adc.rail_v(positive=True)
             flags[rails] |= FLAG_SATURATED
+        if self._layers[name].protocol.magnitude:  # a board reporting |V| (values: magnitude)
+            values = np.abs(values)
         return SimFrame(values, flags, t)
 
     def run(self, n_frames: int | None = None, duration_s: float | None = None):
