@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import time
@@ -16,7 +17,7 @@ from visualization_msgs.msg import Marker
 
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.pipeline.reference import ReferenceTracker
+from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.probe import Probe, start_node, stop_node
@@ -248,36 +249,60 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
         "  - {at: 11.0, angle: 2.2}\n"
     )
     out = tmp_path / "posture.npz"
+    # The sweep is recorded whole however slowly a loaded machine plays it: the driver holds
+    # its script until the probe and the calibration listen, and the calibration is stopped
+    # (Ctrl-C keeps what it recorded) once the probe has seen the script's last frame.
+    sweep_probe = Probe()
+    sweep_probe.subscribe(EitFrame, "/elbow/pressure/frames")
     driver = start_node(
         "eit_driver",
         "/elbow",
-        {"patch_config": "elbow", "scenario": str(sweep), "loop": False},
+        {
+            "patch_config": "elbow",
+            "scenario": str(sweep),
+            "loop": False,
+            "wait_for_subscribers": 2,
+        },
         tmp_path / "sweep_driver.log",
     )
+    calibration = subprocess.Popen(
+        [
+            str(find_executable("eit-skin")),
+            "calibrate-posture",
+            "--patch",
+            "elbow",
+            "--joint",
+            "elbow",
+            "--duration",
+            "600",  # safety net: stopped by SIGINT once the sweep is over
+            "--bin-deg",
+            "8",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
-        calibration = subprocess.run(
-            [
-                str(find_executable("eit-skin")),
-                "calibrate-posture",
-                "--patch",
-                "elbow",
-                "--joint",
-                "elbow",
-                "--duration",
-                "20",
-                "--bin-deg",
-                "8",
-                "--out",
-                str(out),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=300,  # safety net: it ends 20 s after its first frame
-        )
+        end = int(12.0 * RATE_HZ)  # the sweep's last frame
+        assert sweep_probe.spin_until(
+            lambda: any(
+                m.sequence >= end + 5 for _, m in sweep_probe.messages["/elbow/pressure/frames"]
+            ),
+            300,
+        ), (tmp_path / "sweep_driver.log").read_text()
+        calibration.send_signal(signal.SIGINT)
+        stdout, _ = calibration.communicate(timeout=120)
     finally:
+        if calibration.poll() is None:
+            calibration.kill()
         assert stop_node(driver) == 0
-    assert calibration.returncode == 0, calibration.stdout + calibration.stderr
-    assert "references at" in calibration.stdout
+        sweep_probe.close()
+    assert calibration.returncode == 0, stdout
+    assert "references at" in stdout
+    table = PostureReferences.load(str(out), "pressure")
+    assert table.angles_rad.max() > 2.2 - np.radians(16), stdout  # the whole sweep, 0..2.2 rad
 
     scenario = resolve_scenario("elbow_bend", patch, 0, None)
     push = scenario.truth(RATE_HZ)[0]

@@ -6,7 +6,9 @@ scenario). Every frame of every layer is paired with the angle of ``--joint``
 (``/joint_states``) interpolated at the frame's acquisition stamp; frames are averaged per
 angle bin and written to ``--out``, the file the reconstruction node's
 ``posture_references`` parameter takes. The ``--duration`` counts from the first frame, so a
-driver that is slow to start does not shorten the sweep.
+driver that is slow to start does not shorten the sweep; Ctrl-C (or SIGTERM) ends the
+recording early and still writes what was recorded, so a sweep of unknown length can be
+recorded with a long ``--duration`` and stopped when the joint has been through its range.
 """
 
 from __future__ import annotations
@@ -44,12 +46,14 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from eit_skin_msgs.msg import EitFrame
     from rclpy.qos import qos_profile_sensor_data
+    from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import JointState
 
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
     from eit_skin.pipeline.reference import JointAngleHistory, bin_posture_frames
     from eit_skin.resources import config_path
+    from eit_skin.ros.node_runner import StopSignals
     from eit_skin.ros.topics import patch_topics
 
     try:
@@ -59,50 +63,58 @@ def run(args: argparse.Namespace) -> int:
         return 2
     namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
     topics = patch_topics(patch, namespace)
-    rclpy.init()
-    node = rclpy.create_node("eit_posture_calibration")
-    history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
-    samples: dict[str, list[tuple[int, np.ndarray]]] = {layer: [] for layer in patch.layer_names}
+    stop = StopSignals()  # a signal ends the recording; what was recorded is still written
+    stop.spinning = True
+    with stop.installed():
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        node = rclpy.create_node("eit_posture_calibration")
+        history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
+        samples: dict[str, list[tuple[int, np.ndarray]]] = {
+            layer: [] for layer in patch.layer_names
+        }
 
-    def stamp_ns(msg) -> int:
-        return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        def stamp_ns(msg) -> int:
+            return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
-    def on_joint(msg: JointState) -> None:
-        if args.joint in msg.name:
-            history.add(stamp_ns(msg), float(msg.position[list(msg.name).index(args.joint)]))
+        def on_joint(msg: JointState) -> None:
+            if args.joint in msg.name:
+                history.add(stamp_ns(msg), float(msg.position[list(msg.name).index(args.joint)]))
 
-    def on_frame(layer: str, msg: EitFrame) -> None:
-        frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
-        samples[layer].append((stamp_ns(msg), frame))
+        def on_frame(layer: str, msg: EitFrame) -> None:
+            frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
+            samples[layer].append((stamp_ns(msg), frame))
 
-    node.create_subscription(JointState, topics.joint_states, on_joint, 50)
-    for layer in patch.layer_names:
-        node.create_subscription(
-            EitFrame,
-            topics.layers[layer].frames,
-            lambda msg, name=layer: on_frame(name, msg),
-            qos_profile_sensor_data,
+        node.create_subscription(JointState, topics.joint_states, on_joint, 50)
+        for layer in patch.layer_names:
+            node.create_subscription(
+                EitFrame,
+                topics.layers[layer].frames,
+                lambda msg, name=layer: on_frame(name, msg),
+                qos_profile_sensor_data,
+            )
+        print(
+            f"recording {args.duration:.0f} s: move joint {args.joint!r} slowly through its "
+            "range without touching the skin (Ctrl-C ends it early)",
+            flush=True,
         )
-    print(
-        f"recording {args.duration:.0f} s: move joint {args.joint!r} slowly through its range "
-        "without touching the skin",
-        flush=True,
-    )
-    started = time.monotonic()
-    first: float | None = None  # monotonic time of the first frame
-    try:
-        while True:
-            rclpy.spin_once(node, timeout_sec=0.1)
-            now = time.monotonic()
-            if first is None and any(samples.values()):
-                first = now
-            if first is not None and now - first >= args.duration:
-                break
-            if first is None and now - started >= args.wait:
-                break
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
+        started = time.monotonic()
+        first: float | None = None  # monotonic time of the first frame
+        try:
+            while not stop.requested.is_set():
+                rclpy.spin_once(node, timeout_sec=0.1)
+                now = time.monotonic()
+                if first is None and any(samples.values()):
+                    first = now
+                if first is not None and now - first >= args.duration:
+                    break
+                if first is None and now - started >= args.wait:
+                    break
+        finally:
+            stop.ignore()
+            node.destroy_node()
+            rclpy.shutdown()
+    if stop.requested.is_set():
+        print("stopped by a signal: writing what was recorded", flush=True)
     code = 0
     for layer, items in samples.items():
         if not items:
