@@ -161,7 +161,12 @@ def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
     node = start_node(
         "eit_driver",
         "/arm",
-        {"patch_config": "arm", "port": str(link), "diagnostics_period_s": 0.2},
+        {
+            "patch_config": "arm",
+            "layer": "pressure",
+            "port": str(link),
+            "diagnostics_period_s": 0.2,
+        },
         tmp_path / "driver.log",
     )
     try:
@@ -211,7 +216,12 @@ def test_frames_not_of_the_layer_are_counted_per_reason_never_published(
     node = start_node(
         "eit_driver",
         "/arm",
-        {"patch_config": "arm", "port": str(link), "diagnostics_period_s": 0.2},
+        {
+            "patch_config": "arm",
+            "layer": "pressure",
+            "port": str(link),
+            "diagnostics_period_s": 0.2,
+        },
         tmp_path / "driver.log",
     )
     expected = {"values": 3, "electrodes": 3, "pattern": 3, "current": 6, "published": 6}
@@ -247,7 +257,7 @@ def test_every_fault_in_the_faults_help_parses(probe: Probe, tmp_path) -> None:
     node = start_node(
         "eit_driver",
         "/arm",
-        {"patch_config": "arm", "port": str(tmp_path / "absent")},
+        {"patch_config": "arm", "layer": "pressure", "port": str(tmp_path / "absent")},
         tmp_path / "driver.log",
     )
     try:
