@@ -58,7 +58,8 @@ from eit_skin.inverse.priors import Prior, make_prior
 
 DEFAULT_MAX_LOG_CONTRAST = float(np.log(1e5))
 #: Online convergence test: stop when the next step changes no ``ln sigma`` by more than this
-#: (1 % of any element's conductance), well inside the 5 % agreement asked of the online path.
+#: fraction of the image's largest ``|ln sigma|`` (1 % of its peak, for any contrast), well
+#: inside the 5 % agreement asked of the online path.
 DEFAULT_STEP_TOLERANCE = 0.01
 #: Online quasi-Newton: keep a linearisation until the solution moved this far from it (max
 #: ``|ln sigma|`` change, i.e. a factor e^0.5 = 1.65 of some element's conductance).
@@ -281,7 +282,8 @@ class GaussNewtonSolver:
         change = target - self.v0[rows] / w
         norm = float(np.linalg.norm(change if relative_to_change else target)) or 1.0
         key = b"" if channels.keep is None else channels.keep.tobytes()
-        if warm is not None and warm.channels == key and warm.d is not None:
+        moved = bool(np.any(change)) if relative_to_change else True
+        if warm is not None and warm.channels == key and warm.d is not None and moved:
             d, model_v, lin = warm.d, warm.voltages, warm.linearisation
             sig = self._fine_sigma(d)
             resid = target - model_v[rows] / w
@@ -303,8 +305,10 @@ class GaussNewtonSolver:
                 linearisations += 1
             u = sla.cho_solve(lin.factor, resid + cw @ (d @ lin.gt), check_finite=False)
             step = lin.z @ (cw.T @ u) - d
-            if step_tolerance > 0.0 and float(np.max(np.abs(step))) <= step_tolerance:
-                converged = True  # the next step would change no conductance noticeably
+            if step_tolerance > 0.0 and float(np.max(np.abs(step))) <= step_tolerance * float(
+                np.max(np.abs(d + step))
+            ):
+                converged = True  # the next step would change the image by < tol of its peak
                 break
             it += 1
             objective = phi + lam2 * p.quadratic(d)
@@ -381,11 +385,12 @@ class GaussNewtonSolver:
         Online options (the defaults give the plain cold Gauss-Newton fit):
 
         * ``warm``: start from the last fit's solution and model voltages (no forward solve
-          to get there) and store this fit's end point in it; a different channel set starts
-          cold from ``sigma0``.
+          to get there) and store this fit's end point in it; a different channel set, or a
+          frame with no change at all, starts cold from ``sigma0``.
         * ``step_tolerance``: convergence test on the Gauss-Newton step: stop, without a
           forward solve, when the next step would change no element's ``ln sigma`` by more
-          than this (0.01: 1 % of its conductance).
+          than this fraction of the largest ``|ln sigma|`` of the image (0.01: 1 % of its
+          peak, whatever the contrast).
         * ``relinearise``: keep a linearisation (Jacobian, prior solves, Cholesky factor)
           for the following steps (quasi-Newton with a fixed Jacobian) until the solution
           has moved more than this from where it was taken (max ``|ln sigma|`` change), the
@@ -552,8 +557,8 @@ class GaussNewtonReconstructor:
             need a matrix (e.g. the single-contact spread of :mod:`eit_skin.touch.shapes`).
         max_iterations: Gauss-Newton steps per frame (>= 1).
         tolerance: stop when the residual is this fraction of the measured change.
-        step_tolerance: convergence test, max ``|ln sigma|`` change of the next step
-            (:meth:`GaussNewtonSolver.difference`).
+        step_tolerance: convergence test, max ``|ln sigma|`` change of the next step over
+            the image's max ``|ln sigma|`` (:meth:`GaussNewtonSolver.difference`).
         relinearise: max ``|ln sigma|`` distance before a kept linearisation is renewed.
         warm: the last frame's end point (mutable state of an otherwise fixed operator).
     """
