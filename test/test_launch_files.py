@@ -10,6 +10,7 @@ no colcon build is needed. Skips where launch_ros or the ros2 CLI is not install
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -76,24 +77,40 @@ def env(tmp_path_factory, repo: Path) -> dict[str, str]:
     )
 
 
+def _as_from_a_terminal() -> None:
+    """In the child: SIGINT as a terminal gives it, even if this run inherited it ignored
+    (a non-interactive shell ignores SIGINT in the commands it runs in the background)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def launch(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen:
+    """``ros2 launch eit_skin ...`` in its own process group (so nothing outlives a test)."""
     return subprocess.Popen(
         [str(ROS2), "launch", "eit_skin", *args],
         stdout=log.open("w"),
         stderr=subprocess.STDOUT,
         env=env,
+        process_group=0,
+        preexec_fn=_as_from_a_terminal,
     )
 
 
 def interrupt(process: subprocess.Popen, log: Path) -> str:
-    """Ctrl-C: SIGINT to the launch; returns its output once it has exited."""
+    """Ctrl-C: SIGINT to the launch; returns its output once it has exited.
+
+    If it does not exit, the whole process group (the launch and every node it started) is
+    killed, so a failing test leaves no orphan nodes loading the machine for the next ones.
+    """
     process.send_signal(signal.SIGINT)
     try:
         process.wait(EXIT_S)
     finally:
         if process.poll() is None:
-            process.kill()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
             process.wait()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)  # nodes left behind by an exited launch
     return log.read_text()
 
 
