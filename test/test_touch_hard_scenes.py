@@ -16,11 +16,6 @@ def ends(events):
     return [e for e in events if e.state == "end"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 18 open: idle frames between touches keep the plain lagging baseline, so "
-    "drift accumulated over back-to-back touches still makes an extra event",
-)
 def test_sheet_wide_drift_during_back_to_back_touches_does_not_freeze_a_touch() -> None:
     # touches 0.15 s apart for 6 s while the whole sheet drifts by 8 sigma; then silence
     def script(t):
