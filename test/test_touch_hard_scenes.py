@@ -8,8 +8,12 @@ import pytest
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import HARD_SCENES, SheetFrame, hard_scenario
-from eit_skin.touch.classifier import classify_stream
-from test.synthetic_touches import SIGMA_PA, X, Y, envelope, sequence
+from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, envelope, sequence
+
+ELECTRODES = 0.04 * np.column_stack(
+    [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]
+)
 
 
 def ends(events):
@@ -44,6 +48,53 @@ def test_two_pushes_separated_by_a_tenth_of_a_second_are_two_touches() -> None:
     got = ends(classify_stream(t, images, X, Y))
     assert [e.label for e in got] == ["push", "push"]
     assert got[0].t_end_s < 1.8 <= got[1].t_start_s
+
+
+def test_confidence_is_lower_next_to_a_faulty_electrode() -> None:
+    t, images = sequence(
+        lambda t: ([(0.032, 0.0)], 5000.0 * envelope(t, 1.0, 1.8)) if t > 0.9 else ([], 0), 2.5
+    )
+    healthy = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
+    faulty = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
+    assert faulty.set_faulty_electrodes([0]) == []  # before calibration: nothing to end
+    faulty_far = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
+    faulty_far.set_faulty_electrodes([8])  # the opposite side of the sheet
+    got = {}
+    for name, clf in (("healthy", healthy), ("faulty", faulty), ("far", faulty_far)):
+        events = [e for k in range(len(t)) for e in clf.step(float(t[k]), images[k])]
+        (got[name],) = ends(events + clf.finish())
+    assert faulty.near_fault(got["faulty"].centroid_m)
+    assert not faulty_far.near_fault(got["far"].centroid_m)
+    assert got["faulty"].label == got["healthy"].label == "push"
+    assert got["faulty"].confidence < got["healthy"].confidence
+    assert got["far"].confidence == got["healthy"].confidence
+
+
+def test_a_new_faulty_set_ends_the_touch_and_calibrates_again() -> None:
+    clf = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
+    t, images = sequence(
+        lambda t: ([(0.0, 0.01)], 5000.0 * envelope(t, 1.0, 2.4)) if t > 0.9 else ([], 0), 3.5
+    )
+    # from 1.5 s the imaging leaves electrode 4 out: the image's static offset changes
+    shifted = images + np.where((t >= 1.5)[:, None, None] & INSIDE & (X > 0), 20 * SIGMA_PA, 0)
+    events = []
+    for k in range(len(t)):
+        if t[k] == 1.5:
+            cut = clf.set_faulty_electrodes([4])
+            assert [e.state for e in cut] == ["end"] and not clf.active
+            assert not clf.calibrated
+            events += cut
+        events += clf.step(float(t[k]), shifted[k])
+    events += clf.finish()
+    # no event from the frames of the new calibration
+    assert not [e for e in events if 1.5 <= e.t_s < 2.0]
+    assert ends(events)[0].t_end_s < 1.5
+    with pytest.raises(ValueError, match="out of range"):
+        clf.set_faulty_electrodes([16])
+    with pytest.raises(ValueError, match="electrodes_m"):
+        TouchClassifier(X, Y).set_faulty_electrodes([1])
+    with pytest.raises(ValueError, match="fault_confidence"):
+        ClassifierConfig(fault_confidence=0.0)
 
 
 def test_hard_scenes_fit_the_sheet_and_are_deterministic() -> None:
