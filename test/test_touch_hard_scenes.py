@@ -9,7 +9,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import HARD_SCENES, SheetFrame, hard_scenario
 from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
-from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, envelope, sequence
+from test.synthetic_touches import SIGMA_PA, X, Y, envelope, sequence
 
 ELECTRODES = 0.04 * np.column_stack(
     [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]
@@ -56,7 +56,7 @@ def test_confidence_is_lower_next_to_a_faulty_electrode() -> None:
     )
     healthy = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
     faulty = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
-    assert faulty.set_faulty_electrodes([0]) == []  # before calibration: nothing to end
+    faulty.set_faulty_electrodes([0])
     faulty_far = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
     faulty_far.set_faulty_electrodes([8])  # the opposite side of the sheet
     got = {}
@@ -70,25 +70,23 @@ def test_confidence_is_lower_next_to_a_faulty_electrode() -> None:
     assert got["far"].confidence == got["healthy"].confidence
 
 
-def test_a_new_faulty_set_ends_the_touch_and_calibrates_again() -> None:
-    clf = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
+def test_a_faulty_set_reported_during_a_touch_does_not_cut_it() -> None:
+    # the pipeline's fault check may flag an electrode next to a press for a second: the
+    # touch goes on as one touch, and only its confidence drops
     t, images = sequence(
-        lambda t: ([(0.0, 0.01)], 5000.0 * envelope(t, 1.0, 2.4)) if t > 0.9 else ([], 0), 3.5
+        lambda t: ([(0.032, 0.0)], 5000.0 * envelope(t, 1.0, 2.4)) if t > 0.9 else ([], 0), 3.0
     )
-    # from 1.5 s the imaging leaves electrode 4 out: the image's static offset changes
-    shifted = images + np.where((t >= 1.5)[:, None, None] & INSIDE & (X > 0), 20 * SIGMA_PA, 0)
+    clf = TouchClassifier(X, Y, electrodes_m=ELECTRODES)
     events = []
     for k in range(len(t)):
-        if t[k] == 1.5:
-            cut = clf.set_faulty_electrodes([4])
-            assert [e.state for e in cut] == ["end"] and not clf.active
-            assert not clf.calibrated
-            events += cut
-        events += clf.step(float(t[k]), shifted[k])
-    events += clf.finish()
-    # no event from the frames of the new calibration
-    assert not [e for e in events if 1.5 <= e.t_s < 2.0]
-    assert ends(events)[0].t_end_s < 1.5
+        clf.set_faulty_electrodes([0] if 1.5 <= t[k] < 2.0 else [])
+        events += clf.step(float(t[k]), images[k])
+    updates = [e for e in events if e.state == "update"]
+    (end,) = ends(events + clf.finish())
+    assert end.t_start_s < 1.5 and end.t_end_s > 2.0
+    lowered = [e.confidence for e in updates if 1.5 <= e.t_s < 2.0]
+    normal = [e.confidence for e in updates if e.t_s >= 2.0]
+    assert lowered and normal and max(lowered) < min(normal)
     with pytest.raises(ValueError, match="out of range"):
         clf.set_faulty_electrodes([16])
     with pytest.raises(ValueError, match="electrodes_m"):

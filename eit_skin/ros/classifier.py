@@ -131,7 +131,6 @@ class ClassifierNode(Node):
             contact_spread_m=spread,
             electrodes_m=np.array([e.center for e in layer.electrodes], dtype=np.float64),
         )
-        self._last_header = None
         self.pressure_layer = layer.name
         self.has_stretch = stretch is not None
         self.pair_timeout_ns = int(float(p["pair_timeout_s"]) * 1e9)
@@ -249,7 +248,6 @@ class ClassifierNode(Node):
         # the classifier uses only the stretch peak: a flat vector serves
         stretch_2d = None if stretch is None else stretch.reshape(1, -1)
         events = self.classifier.step(t_s, pressure, stretch_2d)
-        self._last_header = msg.header
         self._publish_events(msg.header, events)
         _, ContactArray = self._msgs
         if self.classifier.calibrated:
@@ -295,9 +293,8 @@ class ClassifierNode(Node):
         """Faulty electrodes the reconstruction of our pressure layer leaves out -> classifier.
 
         The reconstruction node's status of that layer (name ``<node>: <layer>``, hardware id
-        the patch name) carries them as ``faulty_electrodes`` ("3,7"; empty: none). A change
-        makes the classifier calibrate again; the END of a touch it cuts short is published
-        with the stamp of the latest image.
+        the patch name) carries them as ``faulty_electrodes`` ("3,7"; empty: none); events
+        near them get less confidence.
         """
         for status in msg.status:
             if status.hardware_id != self.patch.name or not status.name.endswith(
@@ -309,7 +306,7 @@ class ClassifierNode(Node):
                 continue
             text = values["faulty_electrodes"].strip()
             try:
-                events = self.classifier.set_faulty_electrodes(
+                self.classifier.set_faulty_electrodes(
                     [int(e) for e in text.split(",")] if text else []
                 )
             except ValueError as error:
@@ -317,9 +314,6 @@ class ClassifierNode(Node):
                 self.get_logger().error(
                     f"faulty_electrodes {text!r}: {error}", throttle_duration_sec=5.0
                 )
-                continue
-            if events and self._last_header is not None:
-                self._publish_events(self._last_header, events)
 
     def _publish_diagnostics(self) -> None:
         c = self.classifier

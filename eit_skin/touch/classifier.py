@@ -473,7 +473,6 @@ class TouchClassifier:
         self.config = config or ClassifierConfig()
         self.pixel_m = float(abs(self.x[1] - self.x[0]))
         self.pressure_noise_pa = pressure_noise_pa
-        self._noise_given = pressure_noise_pa is not None
         self.stretch_noise = stretch_noise
         self.segmenter: ContactSegmenter | None = None
         self._xx, self._yy = np.meshgrid(self.x, self.y)
@@ -515,22 +514,18 @@ class TouchClassifier:
         ):
             raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
         self.faulty: tuple[int, ...] = ()
-        self._recalibrate = False
 
     # ------------------------------------------------------------------ electrode faults
-    def set_faulty_electrodes(self, electrodes) -> list[TouchEvent]:
+    def set_faulty_electrodes(self, electrodes) -> None:
         """The electrodes the imaging now leaves out (``LayerProcessor.faulty_electrodes``).
 
-        Leaving channels out (or taking them back) changes the image's static offset and its
-        noise, and the frames just before a fault was found were imaged with its noise. So
-        when the set changes the classifier calibrates again on the next ``calibration_s`` of
-        frames (no event from them); a touch going on ENDs at once (returned), so a
-        controller is never left with a START and no END. Events whose centroid lies within
-        ``fault_radius`` single-finger spreads of a faulty electrode carry
-        ``fault_confidence`` times their confidence.
-
-        Returns:
-            the END of the touch going on, if there is one.
+        Events whose centroid lies within ``fault_radius`` single-finger spreads of a faulty
+        electrode carry ``fault_confidence`` times their confidence. Nothing else changes:
+        calibrating again on a change (and ending the touch going on) was tried and made
+        things worse on the tuning scenes: the pipeline's fault check also flags, for a
+        second, an electrode next to which a touch presses, and a calibration taken during
+        a touch learns the touch into the baseline (a stuck touch); the sheet-wide offset
+        removal already absorbs most of the image's offset change.
 
         Raises:
             ValueError: an index out of range, or faulty electrodes without ``electrodes_m``.
@@ -540,29 +535,7 @@ class TouchClassifier:
             raise ValueError("faulty electrodes given, but the classifier has no electrodes_m")
         if faulty and not (faulty[0] >= 0 and faulty[-1] < len(self.electrodes_m)):
             raise ValueError(f"faulty electrodes out of range 0..{len(self.electrodes_m) - 1}")
-        if faulty == self.faulty:
-            return []
-        events = [] if self._touch is None else self._end(self._touch, self._touch.t_last_s)
         self.faulty = faulty
-        if self.segmenter is not None or self._calibration:
-            self._restart_calibration()
-        return events
-
-    def _restart_calibration(self) -> None:
-        self.segmenter = None
-        self.detector = None
-        self._armed = True
-        self._t0 = None
-        self._calibration = []
-        self._calibration_stretch = []
-        self._noise_var = None
-        self._recent = []
-        self._run = 0
-        self._run_shapes = []
-        self._touched[:] = False
-        self.tracker.reset()
-        if not self._noise_given:
-            self.pressure_noise_pa = None
 
     def near_fault(self, point_m) -> bool:
         """Whether ``(x, y)`` m is within ``fault_radius`` finger spreads of a faulty electrode."""
