@@ -123,11 +123,11 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
             if images is None:  # reference capture (--reference capture) or no usable channel
                 continue
             image = None if extra is None else extra.image
-            # the electrodes the imaging left out: no event from a fault, less confidence
-            # near one (the classifier calibrates again whenever the set changes)
-            events = classifier.set_faulty_electrodes(images.faulty_electrodes)
-            events += classifier.step(t - t0, images.image, image)
-            yield from (event for event in events if event.state == "end")
+            # the electrodes the imaging left out: less confidence near them
+            classifier.set_faulty_electrodes(images.faulty_electrodes)
+            for event in classifier.step(t - t0, images.image, image):
+                if event.state == "end":
+                    yield event
     yield from classifier.finish()
 
 
