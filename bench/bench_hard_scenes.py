@@ -153,7 +153,7 @@ def classify(run: Run, x, y, spread, electrodes_m, config=None, faults: bool = T
     for k in range(len(run.t)):
         bad = tuple(np.flatnonzero(run.faulty[k])) if faults else ()
         if bad != last:
-            events += clf.set_faulty_electrodes(bad)
+            clf.set_faulty_electrodes(bad)
             last = bad
         stretch = None if run.stretch is None else run.stretch[k]
         events += clf.step(float(run.t[k]), run.pressure[k], stretch)
