@@ -148,7 +148,7 @@ class ClassifierConfig:
         offset_margin: pixels within this many single-finger spreads (median over the sheet)
             of the previous frame's contacts are left out of the sheet-wide offset (the median
             of the baseline-free image over the rest of the sheet, removed from every image
-            before segmentation, calibration frames included).
+            after calibration before segmentation).
         offset_deadband: only the part of that offset beyond this many noise sigmas (median
             of the noise map) is removed: a smaller one moves no pixel across the contact
             thresholds by itself, and is mostly the touch's own tails and ringing.
@@ -566,11 +566,9 @@ class TouchClassifier:
             and len(self._calibration) < _MAX_CALIBRATION_FRAMES
         ):
             return
-        raw = stack = np.stack(self._calibration)
+        stack = np.stack(self._calibration)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels outside the sheet
-            # the sheet-wide offset of each frame is removed, as from every later image
-            stack = stack - np.nanmedian(stack, axis=(1, 2), keepdims=True)
             self.baseline = np.nanmedian(stack, axis=0)
         self.baseline = np.where(np.isfinite(self.baseline), self.baseline, 0.0)
         n_avg = min(self.config.average_frames, len(stack))
@@ -579,7 +577,7 @@ class TouchClassifier:
         if self.pressure_noise_pa:
             sigma = self.pressure_noise_pa / math.sqrt(n_avg)
         else:
-            self.pressure_noise_pa = estimate_noise(raw)  # one image's noise, as reported
+            self.pressure_noise_pa = estimate_noise(stack)
             if len(averaged) >= 3:
                 # conservative start (few frames): the larger of the smoothed map and each
                 # pixel's own spread; then the noise keeps being learnt (_follow_noise)
@@ -714,11 +712,9 @@ class TouchClassifier:
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
 
     def _follow_baseline(self, dt: float, pressure, stretch) -> None:
-        """Baseline follows the image less its sheet-wide offset (``baseline_tau_s``)."""
         alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
         ok = np.isfinite(pressure)
-        deviation = pressure[ok] - self.baseline[ok]
-        self.baseline[ok] += alpha * (deviation - np.median(deviation))
+        self.baseline[ok] += alpha * (pressure[ok] - self.baseline[ok])
         if stretch is not None and self.stretch_baseline is not None:
             ok = np.isfinite(stretch)
             self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
