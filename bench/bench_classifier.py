@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from touch_scoring import balanced_accuracy, confusion, score
 
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
@@ -135,38 +136,6 @@ def simulate(
     return Run(rec.t, pressure, stretch, grid.x, grid.y, truth)
 
 
-def score(events, truth):
-    """(true, predicted or None, start latency or None) per truth touch; unmatched END events."""
-    ends = [e for e in events if e.state == "end"]
-    starts = {e.touch_id: e for e in events if e.state == "start"}
-    used, rows = set(), []
-    for tr in truth:
-        best, overlap = None, 0.0
-        for e in ends:
-            o = min(e.t_end_s, tr["t_end"]) - max(e.t_start_s, tr["t_start"])
-            if o > overlap and e.touch_id not in used:
-                best, overlap = e, o
-        if best is None:
-            rows.append((tr["label"], None, None))
-            continue
-        used.add(best.touch_id)
-        rows.append((tr["label"], best.label, starts[best.touch_id].t_s - tr["t_start"]))
-    return rows, [e for e in ends if e.touch_id not in used]
-
-
-def confusion(rows) -> np.ndarray:
-    """``[4, 5]`` counts, rows true label, columns predicted label then missed."""
-    cm = np.zeros((4, 5), dtype=int)
-    for true, pred, _ in rows:
-        cm[LABELS.index(true), 4 if pred is None else LABELS.index(pred)] += 1
-    return cm
-
-
-def balanced_accuracy(cm: np.ndarray) -> float:
-    recalls = [cm[i, i] / cm[i].sum() for i in range(4) if cm[i].sum()]
-    return float(np.mean(recalls)) if recalls else float("nan")
-
-
 def evaluate(runs: list[Run], spread: np.ndarray, config: ClassifierConfig | None = None):
     """(rows, unmatched END events) over touch runs."""
     rows, extra = [], 0
@@ -238,7 +207,7 @@ def main() -> None:
         per_min = len(idle_events) / (args.idle_seconds / 60.0)
         cm = confusion(rows)
         balanced = balanced_accuracy(cm)
-        lat = np.array([lt for _, _, lt in rows if lt is not None]) * 1e3
+        lat = np.array([r[2] for r in rows if r[2] is not None]) * 1e3
         within = float(np.mean(lat <= LATENCY_TARGET_S * 1e3)) if lat.size else float("nan")
         missed = int(cm[:, 4].sum())
         per_label = "/".join(str(int(v)) for v in cm.sum(axis=1))

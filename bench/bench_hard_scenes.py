@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from touch_scoring import confusion, recalls, score
 
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
@@ -146,40 +147,17 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
 
 
 def classify(run: Run, x, y, spread, electrodes_m, config=None, faults: bool = True):
-    """Every event of one scene.
-
-    The classifier does not take the pipeline's faulty electrodes yet (issue 18 open: a first
-    fault-aware classifier lost the easy scenes and was withdrawn), so ``electrodes_m`` and
-    ``faults`` are not used; the recorded faulty sets stay in the data for that work.
-    """
-    del electrodes_m, faults
-    clf = TouchClassifier(x, y, config, contact_spread_m=spread)
-    events = []
+    """Every event of one scene; the pipeline's faulty electrodes fed each frame."""
+    clf = TouchClassifier(x, y, config, contact_spread_m=spread, electrodes_m=electrodes_m)
+    events, last = [], None
     for k in range(len(run.t)):
+        bad = tuple(np.flatnonzero(run.faulty[k])) if faults else ()
+        if bad != last:
+            clf.set_faulty_electrodes(bad)
+            last = bad
         stretch = None if run.stretch is None else run.stretch[k]
         events += clf.step(float(run.t[k]), run.pressure[k], stretch)
     return events + clf.finish()
-
-
-def score(events, truth):
-    """Rows (true, predicted or None, START latency s or None, overrun s or None); extras."""
-    ends = [e for e in events if e.state == "end"]
-    starts = {e.touch_id: e for e in events if e.state == "start"}
-    used, rows = set(), []
-    for tr in truth:
-        best, overlap = None, 0.0
-        for e in ends:
-            o = min(e.t_end_s, tr["t_end"]) - max(e.t_start_s, tr["t_start"])
-            if o > overlap and e.touch_id not in used:
-                best, overlap = e, o
-        if best is None:
-            rows.append((tr["label"], None, None, None))
-            continue
-        used.add(best.touch_id)
-        latency = starts[best.touch_id].t_s - tr["t_start"]
-        overrun = (best.t_end_s - best.t_start_s) - (tr["t_end"] - tr["t_start"])
-        rows.append((tr["label"], best.label, latency, overrun))
-    return rows, [e for e in ends if e.touch_id not in used]
 
 
 def no_touch_s(run: Run, calibration_s: float) -> float:
@@ -189,18 +167,6 @@ def no_touch_s(run: Run, calibration_s: float) -> float:
     for tr in run.truth:
         busy |= (t >= tr["t_start"]) & (t <= tr["t_end"])
     return float(np.count_nonzero(~busy & (t >= t[0] + calibration_s)) / RATE_HZ)
-
-
-def confusion(rows) -> np.ndarray:
-    cm = np.zeros((4, 5), dtype=int)
-    for true, pred, *_ in rows:
-        cm[LABELS.index(true), 4 if pred is None else LABELS.index(pred)] += 1
-    return cm
-
-
-def recalls(cm: np.ndarray) -> np.ndarray:
-    with np.errstate(invalid="ignore"):
-        return np.diag(cm[:, :4]) / cm.sum(axis=1)
 
 
 def evaluate(patch_name: str, seeds, seconds: float, data: Path, cache: Path, faults=True):

@@ -7,9 +7,11 @@ reconstruction node's per-frame pipeline (:class:`~eit_skin.pipeline.processor.L
 reference, drift tracking, fault checks; the same options as ``eit-skin reconstruct``), runs
 :class:`~eit_skin.touch.classifier.TouchClassifier` on the images and prints one JSON object
 per FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame),
-``confidence``, ``centroid`` ([x, y] m, patch frame). Frame times: ``--rate`` when given, else
-the file's ``t``. The first ``calibration_s`` (0.5 s) of images must be free of touch: they
-give the noise level. Errors: one line on stderr, exit status 1.
+``confidence``, ``centroid`` ([x, y] m, patch frame). The electrodes the pipeline's fault
+checks leave out go to the classifier with every image
+(:meth:`~eit_skin.touch.classifier.TouchClassifier.set_faulty_electrodes`). Frame times:
+``--rate`` when given, else the file's ``t``. The first ``calibration_s`` (0.5 s) of images
+must be free of touch: they give the noise level. Errors: one line on stderr, exit status 1.
 """
 
 from __future__ import annotations
@@ -74,6 +76,8 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
 
     ``runs`` (if given) receives, per file, the frames skipped and electrodes left out.
     """
+    import numpy as np
+
     from eit_skin.cli.reconstruct import cache_dir
     from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager
@@ -107,7 +111,10 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
         stretch = _images(stretch_imager, stretch_reader, args, runs)
     # one fingertip's blur at every pixel, m
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    classifier = TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread)
+    electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
+    classifier = TouchClassifier(
+        imager.grid.x, imager.grid.y, contact_spread_m=spread, electrodes_m=electrodes
+    )
     t0 = None
     for times, pressure in _images(imager, reader, args, runs):
         extras = [None] * len(times) if stretch is None else next(stretch)[1]
@@ -116,6 +123,8 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
             if images is None:  # reference capture (--reference capture) or no usable channel
                 continue
             image = None if extra is None else extra.image
+            # the electrodes the imaging left out: less confidence near them
+            classifier.set_faulty_electrodes(images.faulty_electrodes)
             for event in classifier.step(t - t0, images.image, image):
                 if event.state == "end":
                     yield event

@@ -70,6 +70,8 @@ class LayerImages:
             strain for stretch), NaN outside the sheet and in holes.
         touching: whether the frame showed a contact (drift tracking froze).
         channels_used: channels that went into the image (of M).
+        faulty_electrodes: electrodes left out of this image (found faulty by the latest
+            fault check), sorted indices; what the touch classifier needs to know.
     """
 
     t_s: float
@@ -77,6 +79,7 @@ class LayerImages:
     image: np.ndarray
     touching: bool
     channels_used: int
+    faulty_electrodes: tuple[int, ...] = ()
 
 
 class LayerProcessor:
@@ -256,7 +259,8 @@ class LayerProcessor:
         tracker.track(frame, t_s, touching)
         image = self.imager.images(self.imager.physical(values))
         self.frames_imaged += 1
-        return LayerImages(t_s, values, image, touching, used)
+        faulty = tuple(int(e) for e in self._faulty)
+        return LayerImages(t_s, values, image, touching, used, faulty)
 
     def process(
         self, frames_v: np.ndarray, t_s: np.ndarray, flags: np.ndarray | None = None

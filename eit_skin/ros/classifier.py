@@ -10,7 +10,10 @@ within ``pair_slop_s`` (the two layers may come from two boards with their own c
 No image on a subscribed topic for ``image_timeout_s`` turns the diagnostics ERROR. A patch
 without a pressure layer is refused.
 Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), ``contacts``
-(``ContactArray``) and ``/diagnostics``. Pixel geometry: row i, column j is centred at
+(``ContactArray``) and ``/diagnostics``. Electrode faults: the reconstruction's
+``/diagnostics`` status of the pressure layer names the electrodes it leaves out
+(``faulty_electrodes``); they go to the classifier (no event from a fault, less confidence
+near one; docs/classifier.md). Pixel geometry: row i, column j is centred at
 (x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config`` (its inverse
 mesh; the single-finger spread map comes from the reconstruction cache:
 :func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
@@ -43,7 +46,7 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import CLASSIFIER
-from eit_skin.ros.topics import patch_topics
+from eit_skin.ros.topics import RECONSTRUCTION_NODE, patch_topics
 from eit_skin.touch.classifier import (
     LABELS,
     STATES,
@@ -97,14 +100,19 @@ class ClassifierNode(Node):
         geometry_s = time.perf_counter() - started
         noise = float(p["noise_pa"]) or None
         self.classifier = TouchClassifier(
-            self.grid.x, self.grid.y, config, noise, contact_spread_m=spread
+            self.grid.x,
+            self.grid.y,
+            config,
+            noise,
+            contact_spread_m=spread,
+            electrodes_m=np.array([e.center for e in layer.electrodes], dtype=np.float64),
         )
         self.pressure_layer = layer.name
         self.has_stretch = stretch is not None
         self.pairer: StampPairer[tuple[Image, np.ndarray], np.ndarray] = StampPairer(
             int(float(p["pair_slop_s"]) * 1e9), int(float(p["pair_timeout_s"]) * 1e9)
         )
-        self.counts = {"images": 0, "rejected": 0, "events": 0}
+        self.counts = {"images": 0, "rejected": 0, "events": 0, "bad_fault_reports": 0}
         self.image_timeout_s = float(p["image_timeout_s"])
         self.started = time.monotonic()
         self._busy_s = 0.0
@@ -131,6 +139,9 @@ class ClassifierNode(Node):
         self._calibrated: dict[int, tuple[float, float]] = {}  # stamp ns -> press xy, m
         self.create_subscription(ContactArray, topics.calibrated_contacts, self._on_calibrated, 10)
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        # the reconstruction's faulty electrodes come with its diagnostics (1 Hz, like its
+        # fault checks): no extra topic, nothing for a controller to wire up
+        self.create_subscription(DiagnosticArray, topics.diagnostics, self._on_diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
@@ -202,24 +213,8 @@ class ClassifierNode(Node):
         # the classifier uses only the stretch peak: a flat vector serves
         stretch_2d = None if stretch is None else stretch.reshape(1, -1)
         events = self.classifier.step(t_s, pressure, stretch_2d)
-        TouchEvent, ContactArray = self._msgs
-        for event in events:
-            out = TouchEvent()
-            out.header = msg.header
-            out.header.frame_id = msg.header.frame_id or self.patch.frame_id
-            out.patch = self.patch.name
-            out.id = event.touch_id
-            out.label = LABELS.index(event.label)
-            out.state = STATES.index(event.state)
-            out.confidence = float(event.confidence)
-            xy = self._calibrated.get(self._stamp_ns(msg), event.centroid_m)
-            out.centroid.x, out.centroid.y = xy
-            out.area_m2 = float(event.area_m2)
-            out.peak = float(event.peak_pa)
-            duration_ns = max(0, round(event.duration_s * 1e9))
-            out.duration.sec, out.duration.nanosec = divmod(duration_ns, 1_000_000_000)
-            self.events_pub.publish(out)
-            self.counts["events"] += 1
+        self._publish_events(msg.header, events)
+        _, ContactArray = self._msgs
         if self.classifier.calibrated:
             from eit_skin_msgs.msg import Contact
 
@@ -237,6 +232,53 @@ class ClassifierNode(Node):
                 array.contacts.append(item)
             self.contacts_pub.publish(array)
         self._busy_s += time.perf_counter() - started
+
+    def _publish_events(self, header, events) -> None:
+        """Publish touch events with ``header`` (the stamp of the image behind them)."""
+        TouchEvent, _ = self._msgs
+        stamp = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        for event in events:
+            out = TouchEvent()
+            out.header = header
+            out.header.frame_id = header.frame_id or self.patch.frame_id
+            out.patch = self.patch.name
+            out.id = event.touch_id
+            out.label = LABELS.index(event.label)
+            out.state = STATES.index(event.state)
+            out.confidence = float(event.confidence)
+            out.centroid.x, out.centroid.y = self._calibrated.get(stamp, event.centroid_m)
+            out.area_m2 = float(event.area_m2)
+            out.peak = float(event.peak_pa)
+            duration_ns = max(0, round(event.duration_s * 1e9))
+            out.duration.sec, out.duration.nanosec = divmod(duration_ns, 1_000_000_000)
+            self.events_pub.publish(out)
+            self.counts["events"] += 1
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Faulty electrodes the reconstruction of our pressure layer leaves out -> classifier.
+
+        The reconstruction node's status of that layer (name ``<node>: <layer>``, hardware id
+        the patch name) carries them as ``faulty_electrodes`` ("3,7"; empty: none); events
+        near them get less confidence.
+        """
+        for status in msg.status:
+            if status.hardware_id != self.patch.name or not status.name.endswith(
+                f"{RECONSTRUCTION_NODE}: {self.pressure_layer}"
+            ):
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            if "faulty_electrodes" not in values:
+                continue
+            text = values["faulty_electrodes"].strip()
+            try:
+                self.classifier.set_faulty_electrodes(
+                    [int(e) for e in text.split(",")] if text else []
+                )
+            except ValueError as error:
+                self.counts["bad_fault_reports"] += 1
+                self.get_logger().error(
+                    f"faulty_electrodes {text!r}: {error}", throttle_duration_sec=5.0
+                )
 
     def _publish_diagnostics(self) -> None:
         c = self.classifier
@@ -256,6 +298,7 @@ class ClassifierNode(Node):
             **ages,
             "noise_pa": f"{c.pressure_noise_pa or 0.0:.3g}",
             "touch_active": str(c.active),
+            "faulty_electrodes": ",".join(str(e) for e in c.faulty),
             "busy_s": f"{self._busy_s:.3f}",
         }
         msg = DiagnosticArray()

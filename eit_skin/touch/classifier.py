@@ -36,6 +36,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from eit_skin.patch.model import Layer, Patch, PatchError
 from eit_skin.touch.contacts import (
@@ -144,6 +145,16 @@ class ClassifierConfig:
             narrowing (``closing``) is measured (against single noisy frames).
         confidence_gain: slope of the confidence ``0.5 + 0.5 tanh(gain |f - t| / t)`` of a
             feature ``f`` deciding against its threshold ``t``.
+        offset_margin: pixels within this many single-finger spreads (median over the sheet)
+            of the previous frame's contacts are left out of the sheet-wide offset (the median
+            of the baseline-free image over the rest of the sheet, removed from every image
+            after calibration before segmentation).
+        offset_deadband: only the part of that offset beyond this many noise sigmas (median
+            of the noise map) is removed: a smaller one moves no pixel across the contact
+            thresholds by itself, and is mostly the touch's own tails and ringing.
+        fault_radius: an event whose centroid lies within this many single-finger spreads of a
+            faulty electrode has its confidence multiplied by ``fault_confidence``.
+        fault_confidence: confidence factor near a faulty electrode, (0, 1].
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -175,6 +186,10 @@ class ClassifierConfig:
     anchor_frames: int = 3
     closing_window: int = 5
     confidence_gain: float = 2.0
+    offset_margin: float = 2.0
+    offset_deadband: float = 1.0
+    fault_radius: float = 2.0
+    fault_confidence: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -199,6 +214,9 @@ class ClassifierConfig:
             "detect_kernel",
             "noise_floor_fraction",
             "track_missed_frames",
+            "offset_margin",
+            "offset_deadband",
+            "fault_radius",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -221,6 +239,8 @@ class ClassifierConfig:
             raise ValueError(f"blob_fraction must be in [0, 1), got {self.blob_fraction}")
         if not 0 < self.learn_fraction <= 1:
             raise ValueError(f"learn_fraction must be in (0, 1], got {self.learn_fraction}")
+        if not 0 < self.fault_confidence <= 1:
+            raise ValueError(f"fault_confidence must be in (0, 1], got {self.fault_confidence}")
 
 
 @dataclass(frozen=True)
@@ -434,6 +454,8 @@ class TouchClassifier:
         contact_spread_m: spread of one fingertip's image, m: a ``[H, W]`` map
             (:func:`~eit_skin.touch.shapes.single_contact_spread`) or a scalar; ``None``:
             ``config.contact_spread_m``.
+        electrodes_m: ``[E, 2]`` electrode centres of the pressure layer, m (patch frame), so
+            that :meth:`set_faulty_electrodes` can place them; ``None``: no fault handling.
     """
 
     def __init__(
@@ -444,6 +466,7 @@ class TouchClassifier:
         pressure_noise_pa: float | None = None,
         stretch_noise: float | None = None,
         contact_spread_m: float | np.ndarray | None = None,
+        electrodes_m: np.ndarray | None = None,
     ) -> None:
         self.x = np.asarray(x, dtype=np.float64)
         self.y = np.asarray(y, dtype=np.float64)
@@ -482,6 +505,45 @@ class TouchClassifier:
         self.last_contacts: list[Contact] = []
         self.last_features: TouchFeatures | None = None
         self.frames = 0
+        self._touched = np.zeros(self._xx.shape, dtype=bool)  # last contacts, grown
+        unit_px = float(np.median(spread)) / self.pixel_m
+        self._margin_px = max(round(self.config.offset_margin * unit_px), 0)
+        self.electrodes_m = None if electrodes_m is None else np.asarray(electrodes_m, float)
+        if self.electrodes_m is not None and (
+            self.electrodes_m.ndim != 2 or self.electrodes_m.shape[1] != 2
+        ):
+            raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
+        self.faulty: tuple[int, ...] = ()
+
+    # ------------------------------------------------------------------ electrode faults
+    def set_faulty_electrodes(self, electrodes) -> None:
+        """The electrodes the imaging now leaves out (``LayerProcessor.faulty_electrodes``).
+
+        Events whose centroid lies within ``fault_radius`` single-finger spreads of a faulty
+        electrode carry ``fault_confidence`` times their confidence. Nothing else changes:
+        calibrating again on a change (and ending the touch going on) was tried and made
+        things worse on the tuning scenes: the pipeline's fault check also flags, for a
+        second, an electrode next to which a touch presses, and a calibration taken during
+        a touch learns the touch into the baseline (a stuck touch); the sheet-wide offset
+        removal already absorbs most of the image's offset change.
+
+        Raises:
+            ValueError: an index out of range, or faulty electrodes without ``electrodes_m``.
+        """
+        faulty = tuple(sorted({int(e) for e in np.atleast_1d(electrodes).tolist()}))
+        if faulty and self.electrodes_m is None:
+            raise ValueError("faulty electrodes given, but the classifier has no electrodes_m")
+        if faulty and not (faulty[0] >= 0 and faulty[-1] < len(self.electrodes_m)):
+            raise ValueError(f"faulty electrodes out of range 0..{len(self.electrodes_m) - 1}")
+        self.faulty = faulty
+
+    def near_fault(self, point_m) -> bool:
+        """Whether ``(x, y)`` m is within ``fault_radius`` finger spreads of a faulty electrode."""
+        if not self.faulty or self.electrodes_m is None:
+            return False
+        d = np.linalg.norm(self.electrodes_m[list(self.faulty)] - np.asarray(point_m), axis=1)
+        unit = float(np.median(self.contact_spread_m))
+        return bool(d.min() <= self.config.fault_radius * unit)
 
     @property
     def calibrated(self) -> bool:
@@ -569,6 +631,7 @@ class TouchClassifier:
         if self.config.average_frames == 1:
             self._recent = [pressure]
         signal = np.mean(self._recent, axis=0) - self.baseline
+        signal = signal - self._sheet_offset(signal)
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = None  # time of the first frame of a pooled detection, if there is one
         if self.detector is not None:
@@ -578,6 +641,9 @@ class TouchClassifier:
                 detected = self._times[-min(run, len(self._times))]
         contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
+        self._touched = parts > 0
+        if self._margin_px and contacts:
+            self._touched = ndimage.binary_dilation(self._touched, iterations=self._margin_px)
         stretch_peak = None
         if stretch is not None and self.stretch_baseline is not None:
             s = stretch - self.stretch_baseline
@@ -591,6 +657,28 @@ class TouchClassifier:
                 self._follow_baseline(dt, pressure, stretch)
                 self._follow_noise(dt, signal)
         return self._advance(t_s, contacts, stretch_peak, shape, detected)
+
+    def _sheet_offset(self, image: np.ndarray) -> float:
+        """Sheet-wide offset of a baseline-free ``image`` ``[H, W]``: its median away from touch.
+
+        sigma0 drifts with temperature and humidity over the whole sheet; while touches go on
+        back to back the baseline cannot follow it, and a few tenths of a per cent leave most
+        of the sheet several noise sigmas "in contact". A touch covers far less than half of
+        the rest of the sheet, so the median over the pixels away from the previous frame's
+        contacts (``offset_margin`` finger spreads) is that offset; over the whole sheet if
+        the contacts leave less than a quarter of it.
+        """
+        ok = np.isfinite(image)
+        free = ok & ~self._touched
+        if np.count_nonzero(free) < 0.25 * np.count_nonzero(ok):
+            free = ok
+        if not free.any():
+            return 0.0
+        offset = float(np.median(image[free]))
+        # an offset within the dead band moves no pixel across the contact thresholds by
+        # itself; leaving it keeps the touch's own tails and ringing where they were
+        band = self.config.offset_deadband * float(np.median(self.segmenter.noise_sigma))
+        return math.copysign(max(abs(offset) - band, 0.0), offset)
 
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
@@ -757,7 +845,8 @@ class TouchClassifier:
             touch_id=touch.id,
             state=state,
             label=touch.label,
-            confidence=float(touch.confidence),
+            confidence=float(touch.confidence)
+            * (self.config.fault_confidence if self.near_fault(centroid) else 1.0),
             t_s=float(t_s),
             t_start_s=float(touch.t_start_s),
             t_end_s=float(touch.t_last_s if state == "end" else t_s),
