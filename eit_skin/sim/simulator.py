@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import math
+import threading
 from collections import OrderedDict
 from typing import Any
 
@@ -163,6 +164,9 @@ class SkinSimulator:
             for name in self._layers_of(fault):
                 fault.check(self._layers[name].protocol, name)
         self._frames: OrderedDict[int, dict[str, SimFrame]] = OrderedDict()
+        # one simulator may feed several boards' threads (fake devices of a two-board arm):
+        # frames, their cache and the forward models' factorisations are not thread-safe
+        self._frame_lock = threading.Lock()
 
     # ------------------------------------------------------------------ properties
     @property
@@ -235,22 +239,25 @@ class SkinSimulator:
     def frame(self, k: int) -> dict[str, SimFrame]:
         """Frame ``k`` (time ``k / rate_hz``) of every layer; computed once, then cached.
 
+        Safe to call from several threads (one simulator feeding several fake boards).
+
         Past the end of the scenario the sheet is unloaded (drift goes on).
         """
         if k < 0:
             raise ValueError(f"frame index must be >= 0, got {k}")
-        hit = self._frames.get(k)
-        if hit is not None:
-            return hit
-        t = k / self.rate_hz
-        out = {}
-        for i, name in enumerate(self._layers):
-            volts = self.clean_voltages(name, t)
-            out[name] = self._acquire(name, i, k, t, volts)
-        self._frames[k] = out
-        while len(self._frames) > 4096:
-            self._frames.popitem(last=False)
-        return out
+        with self._frame_lock:
+            hit = self._frames.get(k)
+            if hit is not None:
+                return hit
+            t = k / self.rate_hz
+            out = {}
+            for i, name in enumerate(self._layers):
+                volts = self.clean_voltages(name, t)
+                out[name] = self._acquire(name, i, k, t, volts)
+            self._frames[k] = out
+            while len(self._frames) > 4096:
+                self._frames.popitem(last=False)
+            return out
 
     def _layers_of(self, fault: Fault) -> tuple[str, ...]:
         return tuple(self._layers) if fault.layer is None else (fault.layer,)
