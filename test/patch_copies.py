@@ -11,6 +11,25 @@ from eit_skin.resources import config_path
 
 _EXPONENT = re.compile(r"[-+]?\d+(\.\d*)?[eE][-+]?\d+")
 
+_SMALL_DISC = """\
+name: small
+frame_id: small_link
+layers:
+  - name: pressure
+    outline: {type: circle, radius: 0.040, center: [0.0, 0.0]}
+    electrodes: {count: 16, layout: even, width: 0.004, contact_impedance: 4.0}
+    current: 1.0e-4
+    material: {quantity: pressure, sheet_conductance: 6.92e-5, pressure_scale: 3.0e4}
+    protocol: {drive: adjacent, measure: adjacent}
+    mesh: {max_edge: 0.008, electrode_edge: 0.002}
+"""
+
+
+def small_disc_patch(solver: str = "") -> str:
+    """A one-layer 40 mm pressure disc (fast meshes) as patch YAML, with ``solver`` a flow
+    mapping such as ``"{method: one_step, prior: laplace}"`` (empty: the default solver)."""
+    return _SMALL_DISC + (f"    solver: {solver}\n" if solver else "")
+
 
 def shipped_patch_data(name: str) -> dict:
     """A shipped patch file as data (YAML 1.1 reads ``3.0e4`` as a string: made a number)."""

@@ -22,21 +22,11 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
+from test.patch_copies import small_disc_patch
 
-SMALL = """\
-name: small
-frame_id: small_link
-layers:
-  - name: pressure
-    outline: {type: circle, radius: 0.040, center: [0.0, 0.0]}
-    electrodes: {count: 16, layout: even, width: 0.004, contact_impedance: 4.0}
-    current: 1.0e-4
-    material: {quantity: pressure, sheet_conductance: 6.92e-5, pressure_scale: 3.0e4}
-    protocol: {drive: adjacent, measure: adjacent}
-    mesh: {max_edge: 0.008, electrode_edge: 0.002}
-    solver: {method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16,
-             reference_frames: 20}
-"""
+SMALL = small_disc_patch(
+    "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20}"
+)
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
 PRESS = np.array([0.015, 0.01])
 

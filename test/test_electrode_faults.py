@@ -17,21 +17,11 @@ from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push, peak_hertz_pressure
+from test.patch_copies import small_disc_patch
 
 pytestmark = pytest.mark.filterwarnings("error")
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
-SMALL = """\
-name: small
-frame_id: small_link
-layers:
-  - name: pressure
-    outline: {type: circle, radius: 0.040, center: [0.0, 0.0]}
-    electrodes: {count: 16, layout: even, width: 0.004, contact_impedance: 4.0}
-    current: 1.0e-4
-    material: {quantity: pressure, sheet_conductance: 6.92e-5, pressure_scale: 3.0e4}
-    protocol: {drive: adjacent, measure: adjacent}
-    mesh: {max_edge: 0.008, electrode_edge: 0.002}
-"""
+SMALL = small_disc_patch()
 RATE_HZ = 20.0
 #: A 5 N fingertip of 6 mm radius: 66 kPa at its centre (the press of issue 17).
 PRESS_N, PRESS_RADIUS_M = 5.0, 0.006

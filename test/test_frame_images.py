@@ -14,6 +14,7 @@ from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.pipeline.builder import LayerImager
+from test.patch_copies import small_disc_patch
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 R = RADIUS_M
@@ -80,19 +81,9 @@ def test_pixel_matrix_checks_its_input(s, matrix):
     assert matrix.pixel_matrix(other).shape == other.shape  # cached per grid
 
 
-SMALL = """\
-name: small
-frame_id: small_link
-layers:
-  - name: pressure
-    outline: {type: circle, radius: 0.040, center: [0.0, 0.0]}
-    electrodes: {count: 16, layout: even, width: 0.004, contact_impedance: 4.0}
-    current: 1.0e-4
-    material: {quantity: pressure, sheet_conductance: 6.92e-5, pressure_scale: 3.0e4}
-    protocol: {drive: adjacent, measure: adjacent}
-    mesh: {max_edge: 0.008, electrode_edge: 0.002}
-    solver: {method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16}
-"""
+SMALL = small_disc_patch(
+    "{method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16}"
+)
 
 
 def test_layer_frame_images_match_the_three_steps(tmp_path):
