@@ -56,12 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from eit_skin.cli.tune import patch_path
 
     try:
-        path, by_name = patch_path(args.patch)
-        if args.write and by_name:
-            raise ValueError(
-                f"{args.patch}: a shipped config is never written by name; "
-                "copy it and give the copy's path"
-            )
+        path = patch_path(args.patch, args.write)
         layer_name, fit = calibrate(path, args.layer, args.frames, args.gain, args.per_electrode)
         for line in fit.lines():
             print(line)

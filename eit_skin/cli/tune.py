@@ -72,12 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        path, by_name = patch_path(args.patch)
-        if args.write and by_name:
-            raise ValueError(
-                f"{args.patch}: a shipped config is never written by name; "
-                "copy it and give the copy's path"
-            )
+        path = patch_path(args.patch, args.write)
         result = tune_layer(path, args.layer, args.noise_figure)
         print(result.summary())
         if args.frames is not None:
@@ -118,15 +113,24 @@ def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
     return imager.use_reference(reference, repeated, frames).lines()
 
 
-def patch_path(name_or_path: str) -> tuple[Path, bool]:
-    """``(path, resolved_by_name)``: an existing path as given, else a shipped config."""
+def patch_path(name_or_path: str, write: bool = False) -> Path:
+    """An existing path as given, else a shipped config.
+
+    Raises:
+        ValueError: ``write`` and the name resolved to a shipped config (never written by name).
+    """
     path = Path(name_or_path)
     if path.exists():
-        return path, False
+        return path
     from eit_skin.resources import config_path
 
     resolved = config_path(name_or_path)
-    return resolved, resolved != path
+    if write and resolved != path:
+        raise ValueError(
+            f"{name_or_path}: a shipped config is never written by name; "
+            "copy it and give the copy's path"
+        )
+    return resolved
 
 
 @dataclass(frozen=True)
