@@ -60,3 +60,40 @@ def test_spin_nodes_delivers_messages_runs_timers_and_returns_on_shutdown(kind: 
         assert not context.ok()
     finally:
         context.try_shutdown()
+
+
+HUNG_CLEANUP = """
+import sys, threading, time
+from eit_skin.ros.node_runner import StopSignals
+StopSignals().report_hung_cleanup(float(sys.argv[1]))
+print("cleaning up", flush=True)
+threading.Event().wait()  # a clean-up that never ends
+"""
+
+
+@pytest.mark.parametrize("how", ["watchdog", "sigterm"])
+def test_a_hung_cleanup_is_reported_with_its_stack_and_ends(how: str) -> None:
+    """A node stuck in its clean-up after the first signal: a second SIGINT is ignored,
+    SIGTERM (or the watchdog) ends it with every thread's stack printed, never a hang."""
+    import signal
+    import subprocess
+    import sys
+
+    timeout_s = "2.0" if how == "watchdog" else "600"
+    process = subprocess.Popen(
+        [sys.executable, "-c", HUNG_CLEANUP, timeout_s],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout.readline() == "cleaning up\n"
+        process.send_signal(signal.SIGINT)  # ignored: the clean-up goes on
+        if how == "sigterm":
+            process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == (1 if how == "watchdog" else -signal.SIGTERM), stderr
+    assert "in <module>" in stderr and "hread 0x" in stderr, stderr  # "Current thread 0x..."
+    assert "KeyboardInterrupt" not in stderr, stderr

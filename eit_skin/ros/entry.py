@@ -6,10 +6,15 @@ imports and every node printed a KeyboardInterrupt traceback. Here SIGINT and SI
 handled before anything heavy is imported: one that arrives during the imports ends the
 process with exit 0 and no output (nothing has started, nothing needs cleaning up);
 afterwards :func:`eit_skin.ros.node_runner.run_node` installs its own handling.
+
+For bug reports from a robot: a crash (SIGSEGV, SIGABRT, ...) prints every thread's Python
+stack to the node's log, and ``kill -USR1 <pid>`` prints them without stopping the node
+(Python's :mod:`faulthandler`).
 """
 
 from __future__ import annotations
 
+import faulthandler
 import importlib
 import signal
 
@@ -20,6 +25,8 @@ def _stop_while_importing(signum: int, frame: object) -> None:
 
 def _run(module: str) -> int:
     """``eit_skin.ros.<module>.main()`` with quiet signals until its own handling starts."""
+    faulthandler.enable(all_threads=True)
+    faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _stop_while_importing)
     return importlib.import_module(f"eit_skin.ros.{module}").main()
