@@ -15,21 +15,27 @@ The ladder (all lengths scale with ``R``, so the rule is the same for any sheet)
 * forward mesh edge ``FORWARD_EDGES_R * R``, coarse to fine (each rung about doubles the
   triangle count), electrode edge ``ELECTRODE_EDGE_FRACTION`` of it (at least the loader's
   default, a quarter of the narrowest electrode);
-* at each forward edge, inverse (imaging) mesh edge ``INVERSE_RATIOS x`` the forward edge,
-  coarse first (``1``: the forward mesh itself);
-* image pixels: a pixel pitch of ``1 / PIXELS_PER_INVERSE_EDGE`` of the inverse edge along the
-  outline's long side (at least ``MIN_PIXELS``);
-* ``gauss_newton`` only: at each mesh pair, ``max_iterations`` from ``ITERATIONS``, fewest
-  first (higher caps on a mesh pair are skipped once raising the cap did not lower a
+* the inverse (imaging) mesh is the forward mesh: an inverse mesh twice as coarse as the
+  forward one (the Jacobian mapped onto it) was measured worse than the forward mesh alone
+  at every rung, and a forward mesh twice as fine as the inverse one did not help either
+  (docs/reconstruction.md, *Accuracy target*);
+* at each mesh, image pixels for a pitch of ``1 / PIXELS_PER_EDGE`` of the mesh edge along
+  the outline's long side, fewest first (at least ``MIN_PIXELS``): the pixel count moves the
+  position error as much as the mesh does;
+* ``gauss_newton`` only: at each mesh and pixel count, ``max_iterations`` from
+  ``ITERATIONS``, fewest first (higher caps are skipped once raising the cap did not lower a
   targeted figure).
 
-Phantom set: ``N_PHANTOMS`` discs of radius ``TARGET_RADIUS_R * R``, conductance x
-``TARGET_CONTRAST``, centres at least ``EDGE_CLEARANCE`` target radii from the outline and
-holes, simulated on a data mesh finer than every candidate (edge ``DATA_EDGE_FRACTION`` of the
-finest forward edge, at most ``DATA_EDGE_PER_TARGET_RADIUS`` target radii: no inverse crime),
-white noise of ``NOISE`` x the RMS difference signal. Selection: centres on a hexagonal
-lattice, noise seed :data:`SELECTION_SEED`; a held-out set (:func:`phantom_set` with
-``held_out=True``) draws random centres and noise with another seed, for checking a choice.
+Phantom set: discs of radius ``TARGET_RADIUS_R * R``, conductance x
+``TARGET_CONTRAST``, centres in the sheet (not in a hole; a target may overlap holes, as
+``eit-skin tune``'s do: a hole grid leaves no room otherwise) and at least ``EDGE_CLEARANCE``
+target radii from the outline, simulated on a data mesh finer than every candidate (edge
+``DATA_EDGE_FRACTION`` of the finest forward edge, at most ``DATA_EDGE_PER_TARGET_RADIUS``
+target radii: no inverse crime), white noise of ``NOISE`` x the RMS difference signal.
+Selection: centres on a hexagonal lattice of about ``SELECTION_LATTICE`` points over the sheet
+(those clear of the outline), noise seed :data:`SELECTION_SEED`; a held-out set
+(:func:`phantom_set` with ``held_out=True``) draws ``HELD_OUT_PHANTOMS`` random centres and
+noise with another seed, for checking a choice.
 """
 
 from __future__ import annotations
@@ -61,17 +67,16 @@ FORWARD_EDGES_R = (0.3, 0.21, 0.15, 0.106, 0.075, 0.053)
 #: Electrode edge: this fraction of the forward edge, but no finer than the loader's default
 #: (a quarter of the narrowest electrode) and no coarser than the forward edge.
 ELECTRODE_EDGE_FRACTION = 0.25
-#: Inverse mesh edge / forward mesh edge, coarse first (1: the forward mesh).
-INVERSE_RATIOS = (2.0, 1.0)
-#: Pixels per inverse-mesh edge along the long side of the outline; fewest pixels.
-PIXELS_PER_INVERSE_EDGE = 2.0
+#: Pixels per mesh edge along the long side of the outline, fewest first; fewest pixels.
+PIXELS_PER_EDGE = (2.0, 4.0)
 MIN_PIXELS = 16
-#: Gauss-Newton iteration caps tried at each mesh pair, fewest first.
+#: Gauss-Newton iteration caps tried at each mesh and pixel count, fewest first.
 ITERATIONS = (1, 2, 3, 5)
 #: A candidate is chosen when its errors are at most this fraction of the target (the margin
 #: covers another noise draw and other target positions: the held-out check).
 SELECTION_MARGIN = 0.9
-N_PHANTOMS = 12
+SELECTION_LATTICE = 48
+HELD_OUT_PHANTOMS = 24
 TARGET_RADIUS_R = 0.10
 TARGET_CONTRAST = 2.0
 NOISE = 0.01
@@ -122,10 +127,13 @@ class Candidate:
         return replace(layer, mesh=mesh, solver=solver)
 
     def describe(self) -> str:
-        text = (
-            f"forward {self.forward_edge_m * 1e3:.3g} mm, inverse {self.inverse_edge_m * 1e3:.3g}"
-            f" mm, {self.image_pixels} px"
-        )
+        if self.inverse_edge_m == self.forward_edge_m:
+            text = f"mesh {self.forward_edge_m * 1e3:.3g} mm, {self.image_pixels} px"
+        else:
+            text = (
+                f"forward {self.forward_edge_m * 1e3:.3g} mm, inverse "
+                f"{self.inverse_edge_m * 1e3:.3g} mm, {self.image_pixels} px"
+            )
         return text if self.max_iterations is None else f"{text}, {self.max_iterations} it"
 
 
@@ -162,7 +170,7 @@ class Evaluation:
 
     def row(self) -> str:
         return (
-            f"{self.candidate.describe():<48} {self.forward_triangles:>6}"
+            f"{self.candidate.describe():<40} {self.forward_triangles:>6}"
             f" {self.inverse_elements:>6} {self.pixels:>6} {self.max_position_error:>8.2%}"
             f" {self.mean_position_error:>8.2%}"
             f" {self.max_amplitude_error:>8.1%} {self.build_s:>7.2f} {self.frame_ms:>8.2f}"
@@ -180,6 +188,7 @@ class ModelChoice:
         chosen: index in ``ladder`` of the choice.
         radius_m: the sheet's equivalent radius R, m.
         data_triangles: triangles of the mesh the phantoms were simulated on.
+        n_phantoms: phantoms of the selection set.
         from_cache: read from the choice cache (no phantom imaged).
     """
 
@@ -188,6 +197,7 @@ class ModelChoice:
     chosen: int
     radius_m: float
     data_triangles: int
+    n_phantoms: int
     from_cache: bool = False
 
     @property
@@ -211,11 +221,11 @@ class ModelChoice:
         out = [
             f"layer {self.layer.name}: accuracy target position error <= "
             f"{target.position_error_percent:g} % R{amplitude} (R = {self.radius_m * 1e3:.1f} mm;"
-            f" chosen at <= {SELECTION_MARGIN:.0%} of it on {N_PHANTOMS} phantoms, radius "
+            f" chosen at <= {SELECTION_MARGIN:.0%} of it on {self.n_phantoms} phantoms, radius "
             f"{TARGET_RADIUS_R:.0%} R, x{TARGET_CONTRAST:g}, {NOISE:.0%} noise, "
             f"{self.data_triangles}-triangle data mesh)"
             + (" [from cache]" if self.from_cache else ""),
-            f"{'candidate':<48} {'fwd tri':>6} {'inv el':>6} {'pixels':>6} {'max PE':>8}"
+            f"{'candidate':<40} {'fwd tri':>6} {'inv el':>6} {'pixels':>6} {'max PE':>8}"
             f" {'mean PE':>8} {'max AE':>8} {'build s':>7} {'frame ms':>8} {'MiB':>6}  meets",
         ]
         out += [e.row() for e in self.ladder]
@@ -262,12 +272,11 @@ def ladder(layer: Layer) -> list[Candidate]:
     gauss_newton = layer.solver.method == "gauss_newton"
     out = []
     for fraction in FORWARD_EDGES_R:
-        forward = fraction * radius
-        for ratio in INVERSE_RATIOS:
-            inverse = ratio * forward
-            pixels = max(MIN_PIXELS, math.ceil(PIXELS_PER_INVERSE_EDGE * extent / inverse))
+        edge = fraction * radius
+        for per_edge in PIXELS_PER_EDGE:
+            pixels = max(MIN_PIXELS, math.ceil(per_edge * extent / edge))
             for iterations in ITERATIONS if gauss_newton else (None,):
-                out.append(Candidate(forward, inverse, pixels, iterations))
+                out.append(Candidate(edge, edge, pixels, iterations))
     return out
 
 
@@ -284,14 +293,14 @@ def phantom_set(layer: Layer, simulate: Simulate, held_out: bool = False) -> Pha
     clearance = EDGE_CLEARANCE * target_r
     if held_out:
         lo, hi = layer.outline.min(axis=0), layer.outline.max(axis=0)
-        points = rng.uniform(lo, hi, size=(200 * N_PHANTOMS, 2))
+        points = rng.uniform(lo, hi, size=(200 * HELD_OUT_PHANTOMS, 2))
     else:
-        points = target_centres(data_mesh, 2 * N_PHANTOMS)
+        points = target_centres(data_mesh, SELECTION_LATTICE)
     inside = locate_points(data_mesh, points) >= 0
-    points = points[inside & (_boundary_distance(layer, points) >= clearance)]
+    points = points[inside & (_outline_distance(layer, points) >= clearance)]
     if points.shape[0] == 0:
         raise ValueError(f"layer {layer.name}: no room for a simulated target")
-    centres = points[:N_PHANTOMS] if held_out else points
+    centres = points[:HELD_OUT_PHANTOMS] if held_out else points
     sigma0 = layer.material.sheet_conductance_s
     reference = model.voltages(sigma0)
     areas = data_mesh.areas
@@ -308,10 +317,20 @@ def phantom_set(layer: Layer, simulate: Simulate, held_out: bool = False) -> Pha
     )
 
 
-def evaluate(layer: Layer, candidate: Candidate, phantoms: PhantomSet, build: Build) -> Evaluation:
-    """Build ``candidate`` for ``layer`` and measure it on ``phantoms``."""
+def evaluate(
+    layer: Layer,
+    candidate: Candidate,
+    phantoms: PhantomSet,
+    build: Build,
+    explicit: Layer | None = None,
+) -> Evaluation:
+    """Build ``candidate`` for ``layer`` and measure it on ``phantoms``.
+
+    ``explicit``: measure this explicit layer instead (e.g. a shipped config's sizes, for
+    comparison; ``candidate`` then only labels it).
+    """
     target = layer.solver.accuracy_target
-    concrete = candidate.layer(layer)
+    concrete = candidate.layer(layer) if explicit is None else explicit
     started = time.perf_counter()
     imager = build(concrete)
     build_s = time.perf_counter() - started
@@ -383,7 +402,12 @@ def choose_model(
         tried.append(evaluate(layer, candidate, phantoms, build))
         if tried[-1].meets:
             choice = ModelChoice(
-                layer, tuple(tried), len(tried) - 1, phantoms.radius_m, phantoms.data_triangles
+                layer,
+                tuple(tried),
+                len(tried) - 1,
+                phantoms.radius_m,
+                phantoms.data_triangles,
+                phantoms.centres.shape[0],
             )
             if path is not None:
                 _save(path, choice)
@@ -398,22 +422,21 @@ def choice_key(layer: Layer) -> str:
 
 
 def _cap_cannot_help(candidate: Candidate, tried: list[Evaluation], target: AccuracyTarget) -> bool:
-    """A higher Gauss-Newton cap on a mesh pair where raising the cap last improved nothing.
+    """A higher Gauss-Newton cap on a model where raising the cap last improved nothing.
 
     Raising the cap is only worth another rung while it lowers a figure the target asks for
     (the largest position error, and the amplitude error when targeted); once it does not,
     the fits stop on their convergence test or the mesh limits them, and the walk moves on
-    to the next mesh pair.
+    to the next mesh or pixel count.
     """
     if candidate.max_iterations is None or len(tried) < 2:
         return False
     last, before = tried[-1], tried[-2]
-    same_meshes = all(
-        (e.candidate.forward_edge_m, e.candidate.inverse_edge_m)
-        == (candidate.forward_edge_m, candidate.inverse_edge_m)
+    same_model = all(
+        replace(e.candidate, max_iterations=None) == replace(candidate, max_iterations=None)
         for e in (last, before)
     )
-    if not same_meshes:
+    if not same_model:
         return False
     improved = last.max_position_error < before.max_position_error
     if target.amplitude_error_percent is not None:
@@ -467,16 +490,13 @@ def _reset(imager: Any) -> None:
         reset()
 
 
-def _boundary_distance(layer: Layer, points: np.ndarray) -> np.ndarray:
-    """``[K]`` distance (m) of ``points`` ``[K, 2]`` to the outline and every hole."""
-    best = np.full(points.shape[0], np.inf)
-    for loop in (layer.outline, *layer.holes):
-        a = np.asarray(loop, dtype=np.float64)
-        ab = np.roll(a, -1, axis=0) - a
-        ap = points[:, None, :] - a[None]
-        s = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(ap - s[..., None] * ab, axis=-1).min(axis=1))
-    return best
+def _outline_distance(layer: Layer, points: np.ndarray) -> np.ndarray:
+    """``[K]`` distance (m) of ``points`` ``[K, 2]`` to the outline of the sheet."""
+    a = np.asarray(layer.outline, dtype=np.float64)
+    ab = np.roll(a, -1, axis=0) - a
+    ap = points[:, None, :] - a[None]
+    s = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(ap - s[..., None] * ab, axis=-1).min(axis=1)
 
 
 def _save(path: Path, choice: ModelChoice) -> None:
@@ -487,6 +507,7 @@ def _save(path: Path, choice: ModelChoice) -> None:
         "chosen": choice.chosen,
         "radius_m": choice.radius_m,
         "data_triangles": choice.data_triangles,
+        "n_phantoms": choice.n_phantoms,
         "ladder": [asdict(e) for e in choice.ladder],
     }
     try:
@@ -519,6 +540,7 @@ def _load(path: Path, layer: Layer) -> ModelChoice | None:
             chosen,
             float(data["radius_m"]),
             int(data["data_triangles"]),
+            int(data["n_phantoms"]),
             from_cache=True,
         )
     except (OSError, ValueError, KeyError, TypeError, IndexError):
