@@ -33,7 +33,9 @@ target radii from the outline, simulated on a data mesh finer than every candida
 ``DATA_EDGE_FRACTION`` of the finest forward edge, at most ``DATA_EDGE_PER_TARGET_RADIUS``
 target radii: no inverse crime), white noise of ``NOISE`` x the RMS difference signal.
 Selection: centres on a hexagonal lattice of about ``SELECTION_LATTICE`` points over the sheet
-(those clear of the outline), noise seed :data:`SELECTION_SEED`; a held-out set
+(those clear of the outline) plus a ring at the clearance inside the outline with the
+lattice's pitch (near the outline the error is largest and a lattice samples it least),
+noise seed :data:`SELECTION_SEED`; a held-out set
 (:func:`phantom_set` with ``held_out=True``) draws ``HELD_OUT_PHANTOMS`` random centres and
 noise with another seed, for checking a choice.
 """
@@ -57,11 +59,12 @@ from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.greit import target_centres
+from eit_skin.patch import geometry
 from eit_skin.patch.mesh_budget import estimate_cost
 from eit_skin.patch.model import AccuracyTarget, Layer, MeshSpec, PatchError
 
 #: Bumped whenever the ladder, the phantom set or the rule changes (stale choices rebuild).
-SELECTOR_VERSION = "1"
+SELECTOR_VERSION = "2"
 #: Forward mesh edges, fractions of the equivalent radius R, coarse to fine.
 FORWARD_EDGES_R = (0.3, 0.21, 0.15, 0.106, 0.075, 0.053)
 #: Electrode edge: this fraction of the forward edge, but no finer than the loader's default
@@ -295,9 +298,11 @@ def phantom_set(layer: Layer, simulate: Simulate, held_out: bool = False) -> Pha
         lo, hi = layer.outline.min(axis=0), layer.outline.max(axis=0)
         points = rng.uniform(lo, hi, size=(200 * HELD_OUT_PHANTOMS, 2))
     else:
-        points = target_centres(data_mesh, SELECTION_LATTICE)
+        pitch = math.sqrt(2.0 * layer.area_m2 / (math.sqrt(3.0) * SELECTION_LATTICE))
+        ring = _inner_ring(layer, clearance, pitch)
+        points = np.concatenate([target_centres(data_mesh, SELECTION_LATTICE), ring])
     inside = locate_points(data_mesh, points) >= 0
-    points = points[inside & (_outline_distance(layer, points) >= clearance)]
+    points = points[inside & (_outline_distance(layer, points) >= (1 - 1e-9) * clearance)]
     if points.shape[0] == 0:
         raise ValueError(f"layer {layer.name}: no room for a simulated target")
     centres = points[:HELD_OUT_PHANTOMS] if held_out else points
@@ -492,11 +497,25 @@ def _reset(imager: Any) -> None:
 
 def _outline_distance(layer: Layer, points: np.ndarray) -> np.ndarray:
     """``[K]`` distance (m) of ``points`` ``[K, 2]`` to the outline of the sheet."""
-    a = np.asarray(layer.outline, dtype=np.float64)
-    ab = np.roll(a, -1, axis=0) - a
-    ap = points[:, None, :] - a[None]
-    s = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
-    return np.linalg.norm(ap - s[..., None] * ab, axis=-1).min(axis=1)
+    outline = layer.outline
+    return geometry.distance_to_segments(points, outline, np.roll(outline, -1, axis=0))
+
+
+def _inner_ring(layer: Layer, clearance_m: float, pitch_m: float) -> np.ndarray:
+    """``[K, 2]`` points ``clearance_m`` inside the outline, about ``pitch_m`` apart along it.
+
+    Where targets are hardest to place (the outline cuts their image), and where a lattice
+    over the sheet samples least; points that end up nearer the outline elsewhere (corners)
+    are dropped by the caller.
+    """
+    outline = layer.outline
+    perimeter = layer.perimeter_m
+    s = np.arange(math.ceil(perimeter / pitch_m)) * (perimeter / math.ceil(perimeter / pitch_m))
+    step = 1e-6 * perimeter
+    tangent = geometry.point_at_arc(outline, s + step) - geometry.point_at_arc(outline, s - step)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    inward = np.column_stack([-tangent[:, 1], tangent[:, 0]])  # left of a CCW outline
+    return geometry.point_at_arc(outline, s) + clearance_m * inward
 
 
 def _save(path: Path, choice: ModelChoice) -> None:
