@@ -41,9 +41,11 @@ PATCHES = ("arm", "face", "elbow")
 TARGETS = (1.5, 3.0, 6.0, 10.0)  # percent of R
 
 
-def with_target(layer, percent: float):
+def with_target(layer, percent: float, source: str = "<dict>", index: int = 0):
     """``layer`` with ``solver.accuracy_target: {position_error_percent: percent}``."""
-    return replace(layer, solver=replace(layer.solver, accuracy_target=AccuracyTarget(percent)))
+    key = f"layers[{index}].solver.accuracy_target"
+    target = AccuracyTarget(percent, source=source, key=key)
+    return replace(layer, solver=replace(layer.solver, accuracy_target=target))
 
 
 def build(layer):
@@ -67,7 +69,7 @@ def row(label: str, selection_pe: float, e) -> str:
     )
 
 
-def layer_section(patch_name: str, layer, targets) -> list[str]:
+def layer_section(patch_name: str, index: int, layer, targets) -> list[str]:
     radius = np.sqrt(layer.area_m2 / np.pi)
     lines = [
         f"## {patch_name} / {layer.name} ({layer.solver.method}, R = {radius * 1e3:.1f} mm)",
@@ -75,7 +77,7 @@ def layer_section(patch_name: str, layer, targets) -> list[str]:
     ]
     chosen = []
     for percent in targets:
-        target_layer = with_target(layer, percent)
+        target_layer = with_target(layer, percent, f"config/{patch_name}.yaml", index)
         started = time.perf_counter()
         try:
             choice = choose_layer_model(target_layer, cache_dir=None)
@@ -129,8 +131,8 @@ def main() -> int:
     started = time.perf_counter()
     sections = []
     for name in args.patch:
-        for layer in load_patch(config_path(name)).layers:
-            sections += layer_section(name, layer, args.targets)
+        for index, layer in enumerate(load_patch(config_path(name)).layers):
+            sections += layer_section(name, index, layer, args.targets)
             print("\n".join(sections[-40:]), flush=True)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     head = [

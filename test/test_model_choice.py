@@ -200,3 +200,19 @@ def test_the_node_and_the_cli_build_the_same_chosen_model(tmp_path, monkeypatch,
     assert [p.name for p in cache.glob("*.json")] == [f"{choice_key(layer)}.json"]
     assert [p.name for p in cache.glob("*.npz")] == [f"{cache_key(choice.resolved)}.npz"]
     assert f"layer pressure: {choice.choice.inverse_elements} elements" in log.read_text()
+
+
+def test_gauss_newton_choices_carry_their_iteration_cap(tmp_path):
+    """A Gauss-Newton target also chooses ``max_iterations``; the built reconstructor has it."""
+    solver = "{method: gauss_newton, accuracy_target: {position_error_percent: 8}}"
+    layer = load_patch(target_patch(tmp_path, solver)).layers[0]
+    choice = choose_layer_model(layer, tmp_path / "cache")
+    chosen = choice.choice.candidate
+    assert chosen.max_iterations in (1, 2, 3, 5)
+    # caps are tried fewest first on each model: the first rung is one iteration
+    assert choice.ladder[0].candidate.max_iterations == 1
+    imager = LayerImager.build(layer, tmp_path / "cache")
+    assert imager.method == "gauss_newton"
+    assert imager.reconstructor.max_iterations == chosen.max_iterations
+    assert imager.layer.solver.max_iterations == chosen.max_iterations
+    assert choice.choice.max_position_error <= SELECTION_MARGIN * 0.08
