@@ -12,6 +12,13 @@ radius ``R``, conductance x2, 1 % noise, fixed seed), simulated on a finer mesh 
 reconstruction's (edge at most 40 % of the target radius, so every target covers several
 triangles).
 
+A layer with ``solver.accuracy_target`` (instead of mesh sizes) first gets its model chosen
+(:func:`eit_skin.pipeline.builder.choose_layer_model`: the coarsest forward and inverse meshes,
+pixel count and Gauss-Newton iteration count meeting the target on the package's phantom set,
+cached by content hash, so the node builds the same model); the ladder of candidates with
+each one's errors and cost, and the choice, are printed first, and the hyperparameter is then
+tuned on the chosen model.
+
 ``--write`` stores ``hyperparameter: <h>`` in that layer's ``solver`` mapping by editing the
 file's text at the positions PyYAML reports (a flow mapping ``{...}`` gets a new entry before
 its closing brace, a block mapping a new line; an existing value is replaced), so comments
@@ -73,6 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         path = patch_path(args.patch, args.write)
+        for line in model_choice(path, args.layer):
+            print(line)
         result = tune_layer(path, args.layer, args.noise_figure)
         print(result.summary())
         if args.frames is not None:
@@ -88,6 +97,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"eit-skin tune: error: {message}", file=sys.stderr)
         return 1
     return 0
+
+
+def model_choice(path: Path, layer_name: str | None) -> list[str]:
+    """The accuracy target's ladder and choice (cached), or nothing for explicit mesh sizes."""
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.pipeline.builder import choose_layer_model
+
+    patch = load_patch(path)
+    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    if layer.solver.accuracy_target is None:
+        return []
+    return choose_layer_model(layer).lines()
 
 
 def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
@@ -196,10 +217,11 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
     from eit_skin.inverse.one_step import relative_difference
     from eit_skin.patch.loading import load_patch
-    from eit_skin.pipeline.builder import LayerImager, forward_model
+    from eit_skin.pipeline.builder import LayerImager, forward_model, resolve_layer
 
     patch = load_patch(path)
     layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    layer = resolve_layer(layer)  # an accuracy target: its chosen model (cached)
     solver = layer.solver
     if noise_figure is None:
         noise_figure = solver.noise_figure or DEFAULT_NOISE_FIGURE[solver.method]

@@ -26,6 +26,7 @@ from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
+    AccuracyTarget,
     Electrode,
     Layer,
     MeshSpec,
@@ -121,6 +122,8 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
     protocol = _protocol(r, d.get("protocol", {}), r.join(path, "protocol"), len(electrodes))
     mesh = _mesh_spec(r, d.get("mesh", {}), r.join(path, "mesh"), outline, electrodes)
     solver = _solver_spec(r, d.get("solver", {}), r.join(path, "solver"))
+    if solver.accuracy_target is not None:
+        _refuse_chosen_keys(r, d, path)
     for array in (outline, *holes):
         array.setflags(write=False)
     layer = Layer(
@@ -263,6 +266,43 @@ def _method_and_prior(r: Reader, d: Mapping, path: str, defaults: SolverSpec) ->
     return "greit", defaults.prior
 
 
+#: What ``solver.accuracy_target`` chooses: ``(section, key)`` pairs a layer with a target may
+#: not give (both would be one decision made twice). ``mesh.min_angle`` (quality) stays free.
+CHOSEN_BY_TARGET = (
+    ("mesh", "max_edge"),
+    ("mesh", "electrode_edge"),
+    ("mesh", "inverse_max_edge"),
+    ("solver", "image_pixels"),
+    ("solver", "max_iterations"),
+)
+
+
+def _refuse_chosen_keys(r: Reader, d: Mapping, path: str) -> None:
+    """A layer with ``solver.accuracy_target`` gives no mesh size, pixel or iteration count."""
+    for section, key in CHOSEN_BY_TARGET:
+        given = d.get(section)
+        if isinstance(given, Mapping) and key in given:
+            raise r.error(
+                r.join(r.join(path, section), key),
+                f"{path}.solver.accuracy_target chooses it; give {section}.{key} or the "
+                "accuracy target, not both",
+            )
+
+
+def _accuracy_target(r: Reader, data: Any, path: str) -> AccuracyTarget:
+    d = r.mapping(
+        data,
+        path,
+        required=("position_error_percent",),
+        optional=("amplitude_error_percent",),
+    )
+    position = r.number(d, "position_error_percent", path, positive=True)
+    amplitude = r.number(
+        d, "amplitude_error_percent", path, default=None, positive=True, allow_none=True
+    )
+    return AccuracyTarget(position, amplitude, source=r.source, key=path)
+
+
 def _solver_spec(r: Reader, data: Any, path: str) -> SolverSpec:
     d = r.mapping(data, path, optional=tuple(f.name for f in fields(SolverSpec)))
     defaults = SolverSpec()
@@ -285,6 +325,9 @@ def _solver_spec(r: Reader, data: Any, path: str) -> SolverSpec:
         "reference_frames": r.integer(
             d, "reference_frames", path, default=defaults.reference_frames, minimum=1
         ),
+        "accuracy_target": None
+        if d.get("accuracy_target") is None
+        else _accuracy_target(r, d["accuracy_target"], r.join(path, "accuracy_target")),
     }
     return SolverSpec(**kwargs)
 

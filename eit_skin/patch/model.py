@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from eit_skin.patch.protocol import ProtocolSpec
 from eit_skin.patch.yaml_reader import ConfigError
 
 __all__ = [
+    "AccuracyTarget",
     "Electrode",
     "Layer",
     "MeshSpec",
@@ -105,6 +106,43 @@ class MeshSpec:
 
 
 @dataclass(frozen=True)
+class AccuracyTarget:
+    """What a layer's model must achieve, instead of mesh sizes (``solver.accuracy_target``).
+
+    The pipeline picks the coarsest forward and inverse meshes, pixel count and Gauss-Newton
+    iteration count that meet it on the package's simulated phantom set
+    (:mod:`eit_skin.pipeline.model_choice`, docs/reconstruction.md).
+
+    Attributes:
+        position_error_percent: largest position error of a small target, percent of the
+            sheet's equivalent radius ``R = sqrt(area / pi)`` (> 0).
+        amplitude_error_percent: largest error of a target's imaged amplitude (the image's
+            integral over the true change's integral, GREIT's amplitude response) from 1,
+            percent, or ``None`` (not asked for).
+        source: file the target was read from (error messages only; not hashed).
+        key: its key path in that file (error messages only; not hashed).
+    """
+
+    position_error_percent: float
+    amplitude_error_percent: float | None = None
+    source: str = field(default="<dict>", compare=False)
+    key: str = field(default="solver.accuracy_target", compare=False)
+
+    #: Where the target was written: named in errors, never part of the model's content hash.
+    HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("source", "key")
+
+    def __post_init__(self) -> None:
+        if not self.position_error_percent > 0:
+            raise ValueError(
+                f"position_error_percent: must be > 0, got {self.position_error_percent}"
+            )
+        if self.amplitude_error_percent is not None and not self.amplitude_error_percent > 0:
+            raise ValueError(
+                f"amplitude_error_percent: must be > 0, got {self.amplitude_error_percent}"
+            )
+
+
+@dataclass(frozen=True)
 class SolverSpec:
     """Reconstruction settings of one layer (used by the reconstruction engine).
 
@@ -119,6 +157,9 @@ class SolverSpec:
         max_iterations: Gauss-Newton iterations (>= 1).
         image_pixels: pixels along the long side of the ``H x W`` image grid (>= 8).
         reference_frames: frames averaged into the reference (no-touch) measurement (>= 1).
+        accuracy_target: what the model must achieve (:class:`AccuracyTarget`), or ``None``;
+            with a target the mesh sizes, ``image_pixels`` and ``max_iterations`` are chosen
+            by the pipeline and may not be given.
     """
 
     method: str = "one_step"
@@ -128,6 +169,10 @@ class SolverSpec:
     max_iterations: int = 5
     image_pixels: int = 64
     reference_frames: int = 20
+    accuracy_target: AccuracyTarget | None = None
+
+    #: Keys added after patches were hashed: left out of the content hash at their default.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("accuracy_target",)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -269,7 +314,10 @@ def _canonical(obj: Any) -> Any:
     if is_dataclass(obj):
         out = {"__type__": type(obj).__name__}
         later = getattr(type(obj), "HASH_ONLY_IF_SET", ())
+        skip = getattr(type(obj), "HASH_EXCLUDE", ())
         for f in fields(obj):
+            if f.name in skip:
+                continue  # where it was written, not what it is
             value = getattr(obj, f.name)
             if f.name in later and value == f.default:
                 continue  # a key added later, at its default: the hash it had before

@@ -1,7 +1,8 @@
 """The per-frame pipeline of one layer, shared by the reconstruction node and the CLI.
 
 Modules: ``builder`` (the only place that builds layer -> meshes -> forward model -> the
-layer's reconstruction method, cached on disk by content hash), ``reference`` (no-load
+layer's reconstruction method, cached on disk by content hash), ``model_choice`` (the
+coarsest model meeting a layer's accuracy target), ``reference`` (no-load
 reference: capture, drift, posture), ``processor`` (the per-frame pipeline of one layer:
 reference, drift, flags, faults, units, images), ``colour_scale`` (false colour for rviz).
 """
@@ -23,6 +24,8 @@ _EXPORTS: dict[str, str] = {
     "PostureReferences": "reference",
     "ReferenceTracker": "reference",
     "build_operator": "builder",
+    "choose_layer_model": "builder",
+    "resolve_layer": "builder",
     "default_cache_dir": "builder",
     "forward_model": "builder",
     "with_method": "builder",
@@ -37,8 +40,10 @@ __all__ = [
     "PostureReferences",
     "ReferenceTracker",
     "build_operator",
+    "choose_layer_model",
     "default_cache_dir",
     "forward_model",
+    "resolve_layer",
     "with_method",
 ]
 
@@ -47,8 +52,10 @@ if TYPE_CHECKING:
         LayerImager,
         Operator,
         build_operator,
+        choose_layer_model,
         default_cache_dir,
         forward_model,
+        resolve_layer,
         with_method,
     )
     from eit_skin.pipeline.colour_scale import ColourScale

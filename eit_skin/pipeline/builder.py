@@ -6,6 +6,10 @@ layer -> protocol -> mesh(es) -> forward model -> the layer's method
 reconstruction node and the offline commands do exactly the same thing; :func:`forward_model`
 is the layer's physics for everything that simulates it (the simulator, ``eit-skin tune``).
 
+A layer with ``solver.accuracy_target`` is first resolved into an explicit layer (the coarsest
+model meeting it, :mod:`eit_skin.pipeline.model_choice`, cached by content hash) by
+:func:`resolve_layer`; everything below builds that layer.
+
 Building needs a forward solve and a Jacobian; the relative Jacobian on the imaging mesh and
 the chosen hyperparameter are cached on disk keyed by the layer's content hash, so a restart
 with an unchanged config skips that work (``gauss_newton`` still sets up its forward model,
@@ -45,6 +49,7 @@ from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
+from eit_skin.pipeline.model_choice import ModelChoice, choose_model
 
 #: Bumped whenever the cached quantities change meaning.
 CACHE_VERSION = "2"
@@ -70,6 +75,34 @@ def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
         layer.contact_impedance_ohm_m,
         layer.current_a,
     )
+
+
+def choose_layer_model(layer: Layer, cache_dir: Path | str | None = "default") -> ModelChoice:
+    """The coarsest model meeting the layer's ``solver.accuracy_target`` (cached in ``cache_dir``).
+
+    Candidates are built by :meth:`LayerImager.build` and the phantoms simulated with
+    :func:`forward_model`: the reconstruction's own chain and physics.
+
+    Raises:
+        PatchError: no candidate meets the target (names the file and key).
+        ValueError: the layer has no accuracy target.
+    """
+    directory = default_cache_dir() if cache_dir == "default" else cache_dir
+    return choose_model(
+        layer, lambda explicit: LayerImager.build(explicit, None), forward_model, directory
+    )
+
+
+def resolve_layer(layer: Layer, cache_dir: Path | str | None = "default") -> Layer:
+    """``layer`` as built: with an accuracy target, the explicit layer of its chosen model.
+
+    A layer without ``solver.accuracy_target`` is returned as it is. The reconstruction node,
+    the offline commands and ``eit-skin tune`` all build through this, so they share the
+    chosen model (same content hash, same matrix cache).
+    """
+    if layer.solver.accuracy_target is None:
+        return layer
+    return choose_layer_model(layer, cache_dir).resolved
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,8 +132,10 @@ def build_operator(layer: Layer, cache_dir: Path | str | None = "default") -> Op
     forward mesh when unset), which also carries Gauss-Newton's unknowns. The hyperparameter
     is ``solver.hyperparameter``, else chosen for ``solver.noise_figure`` on the method's
     linear matrix (Gauss-Newton: its first linearised step, the one-step matrix with the
-    same prior).
+    same prior). A layer with ``solver.accuracy_target`` builds its chosen model
+    (:func:`resolve_layer`).
     """
+    layer = resolve_layer(layer, cache_dir)
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     inverse_edge = layer.mesh.inverse_max_edge_m
     inverse_mesh = build_mesh(layer, inverse_edge) if inverse_edge else build_mesh(layer)
@@ -287,7 +322,12 @@ class LayerImager:
 
     @classmethod
     def build(cls, layer: Layer, cache_dir: Path | str | None = "default") -> LayerImager:
-        """Build (or load from ``cache_dir``; ``None`` disables the cache) the chain of a layer."""
+        """Build (or load from ``cache_dir``; ``None`` disables the cache) the chain of a layer.
+
+        A layer with ``solver.accuracy_target`` builds its chosen model (:func:`resolve_layer`);
+        ``imager.layer`` is then that explicit layer.
+        """
+        layer = resolve_layer(layer, cache_dir)
         op = build_operator(layer, cache_dir)
         grid = ImageGrid.build(op.mesh, layer.solver.image_pixels)
         rec = op.reconstructor

@@ -29,7 +29,7 @@ from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
-from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir
+from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir, resolve_layer
 
 BLOB_FRACTION = 0.3
 """Pixels count towards the moments by how far they exceed this fraction of the maximum
@@ -185,6 +185,7 @@ def contact_geometry(
     and caches it there, then stores the spread. ``cache_dir=None``: no cache at all.
     """
     directory = default_cache_dir() if cache_dir == "default" else cache_dir
+    layer = resolve_layer(layer, directory)  # an accuracy target: its chosen model's grid
     path = None if directory is None else Path(directory) / f"{cache_key(layer)}-spread.npz"
     params = np.array([radius_m, stride, fraction], dtype=np.float64)
     if path is not None and path.is_file():
