@@ -71,6 +71,10 @@ SUMMARY_PRESSES = 60
 PYEIT_H0 = 0.1  # pyEIT's examples: mesh.create(16, h0=0.1) on the unit circle
 PYEIT_SETUP = {"p": 0.5, "lamb": 0.01, "method": "kotre", "perm": 1.0, "jac_normalized": True}
 SENSITIVITY_FRACTIONS = (0.25, 0.75)
+#: Track steps (analysis only): data change, in units of the noise, below which a step is at
+#: the noise level, and above which it is clear (:func:`step_table`).
+STEP_NOISE_LEVEL = 2.0
+STEP_CLEAR = 10.0
 ANALYSIS_BEGIN = "<!-- BEGIN analysis (written by hand; the bench keeps it) -->"
 ANALYSIS_END = "<!-- END analysis -->"
 
@@ -127,6 +131,16 @@ def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
     )
     model_v = forward.voltages(layer.material.sheet_conductance_s)
     return Run("eit_skin", images, imager.grid, build_s, frame_ms, model_v, tuple(report.lines()))
+
+
+def step_noise(layer: Layer, protocol, data: scoring.RealSet) -> np.ndarray:
+    """``[M]`` channel noise (device units) by the rule eit_skin's chain uses for the set."""
+    from eit_skin.inverse.channel_noise import estimate_channel_noise
+
+    with np.load(DATA / f"{data.name}.npz") as raw:
+        repeated = raw.get("reference_frames")
+    noise = estimate_channel_noise(data.reference, protocol, repeated, data.frames)
+    return np.full(data.reference.shape, np.nan) if noise is None else noise.sigma_v
 
 
 def calibrate(layer: Layer, protocol, data: scoring.RealSet, radius: float) -> dict:
@@ -338,6 +352,7 @@ def main() -> None:
             "sensitivity": sensitivity,
             "model_r": correlation(data.reference, runs[0].model_v),
             "calibration": calibration,
+            "step_noise": step_noise(layer, protocol, data),
         }
         print(name, [{k: round(v, 4) for k, v in s.items()} for s in scores], flush=True)
     write_report(results, started, load_start, metadata.version("pyeit"))
@@ -395,16 +410,18 @@ def write_report(results: dict, started: str, load_start: float, pyeit_version: 
         "",
         "## Sets with a track only",
         "",
-        "The object moves around the tank (iirc_rotate: a rod carried round about three "
-        "times; sciospec_adjacent: a cup put in at about half the radius, carried "
-        "counter-clockwise round about two thirds of the tank, lifted out). Frames with the "
+        "The object moves in the tank; its path is not documented (iirc_rotate: a rod "
+        'rotated around the tank; sciospec_adjacent: the source says only "a circular water '
+        'tank with an insulating object"; as both tools image it, the cup rests at about '
+        "half the radius, is carried counter-clockwise most of the way round and then moves "
+        "back or sideways: the step table below). Frames with the "
         "object: RMS relative voltage change at least "
         f"{scoring.PRESENCE_FRACTION:.0%} of the recording's largest (a rule on the data, "
         "the same frames for both tools). Consistency: fraction of consecutive steps of the "
         "strongest blob whose angle about the sheet centre turns the majority way "
-        "(1 = every step goes round the same way; a random track scores about 0.5; the "
-        "cup's slow phases, where the true step is below the image noise, keep it below 1 "
-        "for any tool). Circle fit: least-squares circle through the track, RMS radial "
+        "(1 = every step goes round the same way; a random track scores about 0.5; steps where the "
+        "object rests or really turns back keep it below 1 for any tool: step table). "
+        "Circle fit: least-squares circle through the track, RMS radial "
         "residual (the rod's true track is a circle; the cup's radius drifts, so its "
         "residual is not zero even for a perfect image).",
         "",
@@ -425,6 +442,7 @@ def write_report(results: dict, started: str, load_start: float, pyeit_version: 
             f"{py['consistency']:.3f} | {1e3 * py['fit_radius_m']:.1f} | "
             f"{mm(py['fit_residual_m'], radius)} | {sense[es['sense']]} / {sense[py['sense']]} |"
         )
+    lines += step_table(results)
     lines += [
         "",
         "## Cost, finiteness, model fit",
@@ -514,6 +532,67 @@ def _figures(score: dict, known_positions: bool, radius: float) -> str:
     return f"{score['consistency']:.3f} / {mm(score['fit_residual_m'], radius)}"
 
 
+def radial_offsets(run: Run, data: scoring.RealSet) -> np.ndarray:
+    """``[n]`` |blob| - |target| (m) of the matched blob of every off-centre target."""
+    out = []
+    for image, truth in zip(run.images, data.truth_xy, strict=True):
+        targets = truth[np.isfinite(truth).all(axis=1)]
+        if not len(targets):
+            continue
+        blob_xy, _ = scoring.blobs(image, run.grid.x, run.grid.y, data.expected_sign)
+        matched = scoring.matched_blobs(blob_xy, targets)
+        r_target = np.linalg.norm(targets, axis=1)
+        out.append((np.linalg.norm(matched, axis=1) - r_target)[r_target > 0])
+    return np.concatenate(out) if out else np.empty(0)
+
+
+def step_table(results: dict) -> list[str]:
+    """Track steps against the data: which steps any image could get right (track sets)."""
+    lines = [
+        "",
+        "Track steps against the data (no tool's images involved in the first two columns). "
+        "Data change of a step: mean over the channels of the squared frame-to-frame change "
+        "over twice the channel's noise variance (the noise eit_skin measured for the set: "
+        "Details; without repeated reference frames it comes from the set's own "
+        "frame-to-frame differences, motion included, and understates the change), about 1 "
+        "when only noise changed; at the noise level: below "
+        f"{STEP_NOISE_LEVEL:g}. Reversed: steps with a clear data change (above "
+        f"{STEP_CLEAR:g}) on which both tools turn against the majority sense (the object "
+        "really moved back or sideways there, unless both tools share a model error). Best "
+        "possible consistency: (steps - reversed) / steps, an upper bound for any image that "
+        "follows the object (steps at the noise level make it lower still).",
+        "",
+        "| set | steps | at the noise level | clear data change | both tools agree on the "
+        "sense (clear steps) | reversed | best possible consistency | eit_skin / pyEIT "
+        "consistency on the clear steps |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        data = r["data"]
+        if data.has_positions:
+            continue
+        present = scoring.present_frames(data.frames, data.reference)
+        sigma = r["step_noise"]
+        steps = np.diff(data.frames[present], axis=0)
+        chi = np.nanmean((steps / (np.sqrt(2.0) * sigma)) ** 2, axis=1)
+        turns = []
+        for run in r["runs"][:2]:
+            xy = scoring.track(run.images[present], run.grid.x, run.grid.y, data.expected_sign)
+            turns.append(np.angle(np.exp(1j * np.diff(np.arctan2(xy[:, 1], xy[:, 0])))))
+        sense = np.sign(np.sum(np.sign(turns[0])))
+        clear = chi > STEP_CLEAR
+        agree = np.sign(turns[0]) == np.sign(turns[1])
+        reversed_ = clear & agree & (np.sign(turns[0]) == -sense)
+        n = len(chi)
+        on_clear = [np.mean(np.sign(t[clear]) == sense) for t in turns]
+        lines.append(
+            f"| {name} | {n} | {int((chi < STEP_NOISE_LEVEL).sum())} | {int(clear.sum())} | "
+            f"{np.mean(agree[clear]):.2f} | {int(reversed_.sum())} | "
+            f"{(n - reversed_.sum()) / n:.3f} | {on_clear[0]:.3f} / {on_clear[1]:.3f} |"
+        )
+    return lines
+
+
 def details(results: dict) -> list[str]:
     """Per-target errors of the small sets, hydrogel by depth, sensitivity of the figures."""
     lines = ["", "## Details", ""]
@@ -532,6 +611,14 @@ def details(results: dict) -> list[str]:
         lines.append(
             f"- {name}, error per target in frame order (mm; {'; '.join(data.labels)}): "
             f"eit_skin {cells[0]}; pyEIT {cells[1]}."
+        )
+        offsets = [
+            ", ".join(f"{1e3 * v:+.0f}" for v in radial_offsets(run, data)) for run in r["runs"][:2]
+        ]
+        lines.append(
+            f"- {name}, radial offset of the matched blob (its distance from the centre minus "
+            f"the target's, mm; targets off the centre, frame order): eit_skin {offsets[0]}; "
+            f"pyEIT {offsets[1]}."
         )
     hydro = results.get("hydrogel_ohmc16")
     if hydro is not None:

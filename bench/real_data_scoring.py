@@ -135,15 +135,25 @@ def match_errors(blob_xy: np.ndarray, targets: np.ndarray) -> np.ndarray:
     Returns:
         ``[K]`` errors, metres; ``inf`` when there is no blob.
     """
+    matched = matched_blobs(blob_xy, targets)
+    return np.linalg.norm(matched - targets, axis=1)  # inf rows stay inf
+
+
+def matched_blobs(blob_xy: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """``[K, 2]`` the blob each target is matched to (metres; ``inf`` rows: no blob at all).
+
+    One-to-one among the ``K`` strongest blobs with the smallest total distance; with fewer
+    blobs than targets, every target takes its nearest blob.
+    """
     k = len(targets)
     if len(blob_xy) == 0:
-        return np.full(k, np.inf)
+        return np.full((k, 2), np.inf)
     d = np.linalg.norm(targets[:, None, :] - blob_xy[None, :k, :], axis=-1)  # [K, min(B, K)]
     if d.shape[1] < k:
-        return d.min(axis=1)
+        return blob_xy[d.argmin(axis=1)]
     rows = np.arange(k)
     best = min(itertools.permutations(range(k)), key=lambda p: d[rows, list(p)].sum())
-    return d[rows, list(best)]
+    return blob_xy[list(best)]
 
 
 def position_errors(

@@ -298,3 +298,52 @@ def test_real_hydrogel_presses_meet_the_goals(n_train, goal_m):
     layer = load_patch(HYDROGEL_PATCH).layers[0]
     cv = cross_validate(hydrogel_session(), layer, folds=5, n_train=n_train)
     assert np.median(cv.xy_error) < goal_m
+
+
+def test_presses_record_and_locate_read_full_layout_frames(tmp_path, capsys, session):
+    """A board's full-layout frames (W = 256 numbers) are read as ``reconstruct`` reads them."""
+    from eit_skin.patch.protocol import build_protocol
+
+    data = shipped_patch_data("elbow")
+    data["layers"][0]["protocol"] = {"drive": "adjacent", "measure": "adjacent", "layout": "full"}
+    patch = write_patch(tmp_path, data, "elbow_full")
+    layer = load_patch(patch).layers[0]
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    assert protocol.frame_size == 256 and protocol.n_measurements == session.n_measurements
+    device = protocol.device_frame  # [..., M] -> [..., 256], zeros on the driven pairs
+    # presses record: 20 presses, each after its own baseline, frames as the board sends them
+    t = np.arange(40) * 0.5
+    frames = np.empty((40, session.n_measurements))
+    frames[0::2], frames[1::2] = session.references[:20], session.frames[:20]
+    np.savez(tmp_path / "rec.npz", reference=device(session.reference), frames=device(frames), t=t)
+    probe = tmp_path / "probe.csv"
+    rows = [f"{t[2 * k + 1]},{x},{y}" for k, (x, y) in enumerate(session.press_xy[:20])]
+    probe.write_text("time,x,y\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "s.npz"
+    argv = ["presses", "record", "--patch", str(patch), "--frames", str(tmp_path / "rec.npz")]
+    assert main([*argv, "--probe", str(probe), "--baseline-offset", "0.5", "--out", str(out)]) == 0
+    recorded = load_press_session(out)
+    np.testing.assert_array_equal(recorded.frames, session.frames[:20])
+    np.testing.assert_array_equal(recorded.references, session.references[:20])
+    # locate: the same positions from full-layout frames as from the protocol's M numbers
+    model = tmp_path / "m.npz"
+    PressLocaliser.fit(session.subset(np.arange(100)), layer).save(model)
+    held_out = session.subset(np.arange(100, 130))
+    expected = PressLocaliser.load(model, layer).locate(
+        held_out.frames, held_out.reference, held_out.references
+    )
+    np.savez(
+        tmp_path / "f.npz",
+        reference=device(held_out.reference),
+        frames=device(held_out.frames),
+        references=device(held_out.references),
+    )
+    argv = ["locate", "--patch", str(patch), "--calibration", str(model), "--frames"]
+    assert main([*argv, str(tmp_path / "f.npz"), "--out", str(tmp_path / "o.npz")]) == 0
+    with np.load(tmp_path / "o.npz") as located:
+        np.testing.assert_allclose(located["xy"], expected.xy)
+    # a width that is neither 256 nor M: refused naming the file and key, nothing written
+    np.savez(tmp_path / "g.npz", reference=np.ones(255), frames=np.ones((3, 255)))
+    assert main([*argv, str(tmp_path / "g.npz"), "--out", str(tmp_path / "no.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "g.npz: 'reference'" in err and "256" in err and not (tmp_path / "no.npz").exists()

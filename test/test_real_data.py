@@ -139,6 +139,8 @@ def test_matching_is_one_to_one_and_merged_targets_both_count() -> None:
     blob_xy = np.array([[0.05, 0.0], [-0.04, 0.03]])
     targets = np.array([[-0.04, 0.02], [0.05, 0.01]])
     np.testing.assert_allclose(scoring.match_errors(blob_xy, targets), [0.01, 0.01])
+    np.testing.assert_array_equal(scoring.matched_blobs(blob_xy, targets), blob_xy[::-1])
+    np.testing.assert_array_equal(scoring.matched_blobs(blob_xy[:1], targets), blob_xy[[0, 0]])
     one = scoring.match_errors(blob_xy[:1], targets)
     np.testing.assert_allclose(one, [np.hypot(0.09, 0.02), 0.01])
     assert np.isinf(scoring.match_errors(np.empty((0, 2)), targets)).all()

@@ -1,10 +1,11 @@
 """``eit-skin locate``: press positions, confidence and depth of frames from a calibration.
 
 Input ``--frames``: ``reference`` [M] + ``frames`` [T, M] (+ optional ``references`` [T, M],
-each frame's own unloaded baseline). Output ``--out`` (npz): ``xy`` [T, 2] m in the sheet
-frame, ``confidence`` [T] in [0, 1] (share of calibration presses spaced at least as far
-from their neighbours as this frame is from the nearest one: near 0 = unlike any calibration
-press), ``depth`` [T] m when calibrated.
+each frame's own unloaded baseline), in the patch's device conventions as ``reconstruct`` reads
+them (``layout: full`` frames of W numbers, complex frames). Output ``--out`` (npz): ``xy``
+[T, 2] m in the sheet frame, ``confidence`` [T] in [0, 1] (share of calibration presses spaced
+at least as far from their neighbours as this frame is from the nearest one: near 0 = unlike
+any calibration press), ``depth`` [T] m when calibrated.
 """
 
 from __future__ import annotations
@@ -22,24 +23,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output npz")
 
 
-def load_located_frames(path: Path, m: int):
-    """(reference [M], frames [T, M], references [T, M] | None) of a frames file, validated."""
+def load_located_frames(path: Path, protocol, m: int | None = None):
+    """(reference [M], frames [T, M], references [T, M] | None, t [T] | None) of a frames file.
+
+    Read in the layer's device conventions, as ``eit-skin reconstruct`` reads it
+    (:meth:`~eit_skin.patch.protocol.Protocol.select`: ``layout: full`` frames keep the
+    protocol's entries, complex frames their ``complex_part``); ``m``: the M a calibration
+    expects (checked). Every problem raises ValueError naming the file and key.
+    """
     import numpy as np
 
-    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.io.npz import FramesNpzReader
 
-    reference, frames, _ = load_frames_npz(path, m)
-    with np.load(path, allow_pickle=False) as data:
-        references = data["references"].astype(float) if "references" in data.files else None
-    if references is not None and references.shape != frames.shape:
+    reader = FramesNpzReader(path, convert=protocol.select)
+    if m is not None and reader.n_measurements != m:
         raise ValueError(
-            f"{path}: key 'references': shape {references.shape}, want {list(frames.shape)}"
+            f"{path}: 'reference' has {reader.n_measurements} measurements, the calibration "
+            f"expects {m}"
         )
+    parts = list(reader.blocks_with_references())
+    frames = np.concatenate([f for _, f, _, _ in parts])
+    t = np.concatenate([b for _, _, b, _ in parts]) if reader.has_t else None
+    references = np.concatenate([r for _, _, _, r in parts]) if reader.has_references else None
     for key, values in (("frames", frames), ("references", references)):
         if values is not None and not np.isfinite(values).all():
             row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
             raise ValueError(f"{path}: key '{key}' row {row}: not finite")
-    return reference, frames, references
+    return reader.reference, frames, references, t
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,13 +59,17 @@ def run(args: argparse.Namespace) -> int:
     from eit_skin.io.npz import write_npz_atomic
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
+    from eit_skin.patch.protocol import build_protocol
     from eit_skin.resources import config_path
 
     try:
         patch = load_patch(config_path(args.patch))
         layer = patch.layer(args.layer) if args.layer else patch.layers[0]
         model = PressLocaliser.load(args.calibration, layer)
-        reference, frames, references = load_located_frames(args.frames, model.n_measurements)
+        protocol = build_protocol(layer.protocol, layer.n_electrodes)
+        reference, frames, references, _ = load_located_frames(
+            args.frames, protocol, model.n_measurements
+        )
         located = model.locate(frames, reference, references)
         out = {"xy": located.xy, "confidence": located.confidence}
         if located.depth is not None:

@@ -1,11 +1,12 @@
 """``eit-skin presses``: make a press session file (the input of ``eit-skin calibrate``).
 
 ``record --frames REC.npz --probe PROBE.csv --out S.npz``: pair a frame recording that has
-times ``t`` (``eit-skin frames export`` of the driver's MCAP gives header stamps) with the
-robot's probe log, one CSV row per press at full depth: ``time_s, x_m, y_m[, depth_m]`` in
-the patch frame, on the same clock. ``--baseline-offset S``: each press's own baseline is
-the frame ``S`` seconds before it (probe lifted). ``--patch`` checks M and that every press
-lies on the sheet before anything is written.
+times ``t`` (``eit-skin frames export`` of the driver's MCAP gives header stamps; a device's
+own frames are read in the patch's conventions, e.g. ``layout: full``, as ``reconstruct`` reads
+them) with the robot's probe log, one CSV row per press at full depth: ``time_s, x_m,
+y_m[, depth_m]`` in the patch frame, on the same clock. ``--baseline-offset S``: each press's own
+baseline is the frame ``S`` seconds before it (probe lifted). ``--patch`` checks M and that
+every press lies on the sheet before anything is written.
 
 ``simulate --patch P --count N --out S.npz``: N random presses simulated on the patch.
 """
@@ -35,16 +36,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from eit_skin.calibration.session import pair_probe_csv
-    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.cli.locate import load_located_frames
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
+    from eit_skin.patch.protocol import build_protocol
     from eit_skin.resources import config_path
 
     try:
         patch = load_patch(config_path(args.patch))
         layer = patch.layer(args.layer) if args.layer else patch.layers[0]
         if args.mode == "record":
-            reference, frames, t = load_frames_npz(args.frames)
+            protocol = build_protocol(layer.protocol, layer.n_electrodes)
+            reference, frames, _, t = load_located_frames(args.frames, protocol)
             if t is None:
                 raise ValueError(f"{args.frames}: missing key 't' (frame times to pair with)")
             session = pair_probe_csv(
