@@ -98,6 +98,25 @@ def test_link_refuses_to_replace_a_regular_file(tmp_path):
     assert target.read_text() == "keep me"
 
 
+def test_a_failing_frame_source_is_reported_by_stop_not_lost():
+    """The sending thread dies on the source's error: stop() raises it with the frame count,
+    so a dead fake board never looks like a quiet one."""
+
+    def failing(i: int) -> np.ndarray:
+        if i == 3:
+            raise ValueError("frame 3 is corrupt")
+        return source(i)
+
+    device = FakeDevice(failing, rate_hz=1000.0)
+    device.open()
+    device.start()
+    device._thread.join(60.0)  # the thread ends by itself at frame 3
+    assert isinstance(device.failed, ValueError)
+    with pytest.raises(RuntimeError, match=r"after 3 frames.*frame 3 is corrupt"):
+        device.close()
+    assert device.slave_path == ""  # unplugged all the same
+
+
 def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
     frames = np.random.default_rng(0).normal(0, 0.1, (7, 208))
     npz = tmp_path / "in.npz"

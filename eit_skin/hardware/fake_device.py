@@ -80,6 +80,7 @@ class FakeDevice:
         self._pending = bytearray()
         self._t0_ns = time.monotonic_ns()
         self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
         self._stop = threading.Event()
         self._lock = threading.Lock()
 
@@ -194,22 +195,45 @@ class FakeDevice:
         return index
 
     def start(self, count: int | None = None) -> None:
-        """Run ``run(count)`` on a daemon thread."""
+        """Run ``run(count)`` on a daemon thread; an error there is raised by :meth:`stop`."""
         self._stop.clear()
-        self._thread = threading.Thread(target=self.run, args=(count,), daemon=True)
+        self._error = None
+        self._thread = threading.Thread(target=self._run_keeping_error, args=(count,), daemon=True)
         self._thread.start()
 
+    def _run_keeping_error(self, count: int | None) -> None:
+        try:
+            self.run(count)
+        except BaseException as error:  # kept for stop(): a dead board must not look idle
+            self._error = error
+
+    @property
+    def failed(self) -> BaseException | None:
+        """The error that ended the thread started by ``start`` (None while it is fine)."""
+        return self._error
+
     def stop(self) -> None:
-        """Stop the thread started by ``start``."""
+        """Stop the thread started by ``start``; raise what ended it early, if anything.
+
+        Raises:
+            RuntimeError: the frame source or the pty failed (the cause is chained).
+        """
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise RuntimeError(
+                f"fake device stopped after {self.frames_sent} frames: {error!r}"
+            ) from error
 
     def close(self) -> None:
-        """Stop sending and unplug."""
-        self.stop()
-        self.unplug()
+        """Stop sending and unplug (unplugged even when :meth:`stop` raises)."""
+        try:
+            self.stop()
+        finally:
+            self.unplug()
 
     def __enter__(self) -> FakeDevice:
         self.open()
