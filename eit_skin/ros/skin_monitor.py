@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +34,8 @@ from eit_skin.ros.topics import PatchTopics, patch_topics
 LABELS = ("push", "rub", "pinch", "grab")
 STATES = ("START", "UPDATE", "END")
 GIF_PERIOD_S = 0.2
+GIF_MAX_FRAMES = 1500
+"""The GIF keeps the last 5 minutes at 5 frames per second."""
 SCALES = {"pressure": (10000.0, "Pa"), "stretch": (0.05, "")}  # as the node's colour scale
 
 
@@ -48,10 +51,17 @@ class PatchView:
     latest: dict[str, np.ndarray] = field(default_factory=dict)
     images: int = 0
     frames: int = 0  # highest frame sequence seen + 1 (script progress)
+    end_stamp_ns: int | None = None  # acquisition stamp of the frame ending the script pass
+    image_stamp_ns: int = -1  # newest acquisition stamp imaged (first layer)
     events: list[tuple[float, str, str]] = field(default_factory=list)
     touch_peak: float = -np.inf
     touch_best: dict[str, np.ndarray] | None = None
-    gif_frames: list[np.ndarray] = field(default_factory=list)
+    # the GIF's frames: images every GIF_PERIOD_S of acquisition time (not wall time, so a
+    # loaded machine still gets every one), rendered at the end
+    gif_images: deque[dict[str, np.ndarray]] = field(
+        default_factory=lambda: deque(maxlen=GIF_MAX_FRAMES)
+    )
+    gif_stamp_ns: int | None = None
     calibrated: dict[int, object] = field(default_factory=dict)  # stamp ns -> Contact
 
     @property
@@ -90,7 +100,7 @@ class SkinMonitor(Node):
             self.create_subscription(
                 EitFrame,
                 view.topics.layers[first_layer].frames,
-                lambda msg, v=view: setattr(v, "frames", max(v.frames, msg.sequence + 1)),
+                lambda msg, v=view: self._on_frame(v, msg),
                 qos_profile_sensor_data,
             )
             for layer, topics in view.topics.layers.items():
@@ -104,11 +114,23 @@ class SkinMonitor(Node):
     def elapsed(self) -> float:
         return 0.0 if self.t0 is None else time.monotonic() - self.t0
 
+    def _on_frame(self, view: PatchView, msg) -> None:
+        view.frames = max(view.frames, msg.sequence + 1)
+        end = self.script_frames.get(view.namespace)
+        if end is not None and view.end_stamp_ns is None and view.frames >= end + TAIL_FRAMES:
+            view.end_stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
     def _on_image(self, view: PatchView, layer: str, msg: Image) -> None:
         image = np.frombuffer(bytes(msg.data), dtype=np.float32).reshape(msg.height, msg.width)
         view.latest[layer] = image
         view.images += 1
         first = next(iter(view.layers))
+        if layer == first:
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            view.image_stamp_ns = max(view.image_stamp_ns, stamp)
+            if view.gif_stamp_ns is None or stamp - view.gif_stamp_ns >= GIF_PERIOD_S * 1e9:
+                view.gif_images.append(dict(view.latest))  # arrays are new per message
+                view.gif_stamp_ns = stamp
         if layer == first and view.touch_best is not None:
             peak = float(np.nanmax(image, initial=0.0))
             if peak > view.touch_peak:
@@ -152,11 +174,6 @@ class SkinMonitor(Node):
             self.snapshots += 1
             path = self.out / f"{view.name}_{self.snapshots:02d}_{label}.png"
             save_snapshot(view, images, f"{view.name}: {label}", path)
-
-    def gif_frame(self) -> None:
-        for view in self.views:
-            if view.latest:
-                view.gif_frames.append(render_rgb(view, view.latest))
 
 
 def _calibrated_text(press) -> str:
@@ -269,10 +286,10 @@ def run_skin(
 ) -> int:
     """Start the nodes, watch them, clean up.
 
-    Stops ``duration_s`` seconds after the first frame, or once every simulated patch has published
-    ``script_frames[namespace]`` frames (one pass of its script) plus a short tail, or on
-    Ctrl-C when neither is given. Gives up (exit 1) when no frame arrives within
-    ``first_frame_timeout_s`` (None: wait for a board forever).
+    Stops ``duration_s`` seconds after the first frame, or once every simulated patch has
+    published ``script_frames[namespace]`` frames (one pass of its script) plus a short tail
+    and the last of them is imaged, or on Ctrl-C when neither is given. Gives up (exit 1)
+    when no frame arrives within ``first_frame_timeout_s`` (None: wait for a board forever).
     """
     out.mkdir(parents=True, exist_ok=True)
     signals = StopSignals()
@@ -305,7 +322,7 @@ def _run(
             return code
         nodes += [start(spec, logs) for spec in specs if spec.executable == "eit_driver"]
         started = time.monotonic()
-        next_gif = next_line = 0.0
+        next_line = 0.0
         # callbacks on their own thread, so pictures and the status line keep wall-clock time
         executor = SingleThreadedExecutor()
         executor.add_node(monitor)
@@ -338,9 +355,6 @@ def _run(
                 )
                 return 1
             now = monitor.elapsed()
-            if now >= next_gif:
-                monitor.gif_frame()
-                next_gif = now + GIF_PERIOD_S
             if now >= next_line:
                 total = "" if duration_s is None else f"/{duration_s:.0f}"
                 if monitor.script_frames:
@@ -377,8 +391,10 @@ def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:
     if duration_s is not None:
         return monitor.t0 is not None and monitor.elapsed() >= duration_s
     if monitor.script_frames:
+        # the pass is over when its last frame is imaged, not merely published: on a loaded
+        # machine the images lag the frames by seconds
         return all(
-            view.frames >= monitor.script_frames[view.namespace] + TAIL_FRAMES
+            view.end_stamp_ns is not None and view.image_stamp_ns >= view.end_stamp_ns
             for view in monitor.views
         )
     return False
@@ -416,16 +432,15 @@ def _finish(monitor: SkinMonitor) -> None:
     for view in monitor.views:
         labels = [label for _, label, _ in view.events]
         print(f"{view.name}: {view.images} images, touches: {', '.join(labels) or 'none'}")
-        if not view.gif_frames and view.latest:  # stopped before the first GIF period
-            view.gif_frames.append(render_rgb(view, view.latest))
-        if view.gif_frames:
-            height = max(f.shape[0] for f in view.gif_frames)
-            width = max(f.shape[1] for f in view.gif_frames)
+        gif_frames = [render_rgb(view, images) for images in view.gif_images]
+        if gif_frames:
+            height = max(f.shape[0] for f in gif_frames)
+            width = max(f.shape[1] for f in gif_frames)
             frames = [
                 PilImage.fromarray(
                     np.pad(f, ((0, height - f.shape[0]), (0, width - f.shape[1]), (0, 0)))
                 )
-                for f in view.gif_frames
+                for f in gif_frames
             ]
             path = monitor.out / f"{view.name}.gif"
             frames[0].save(
