@@ -35,6 +35,17 @@ are looked at again. An electrode all of whose channels touch other named ones (
 dead electrodes) cannot be judged and is not named (also when it was named first: a last
 pass drops it); its channels are left out anyway.
 
+A **noisy electrode** (a degrading contact: its channels several times noisier than the
+others, but not ``threshold`` times) is named by the same majority rule, with a channel
+counting as spoiled for it once its roughness exceeds ``sqrt(threshold)`` (3.2 for the
+default 10) times the median channel's: one channel that rough stays in (it is not erratic),
+but an electrode more than 77 % of whose channels are is the common cause. Issue 18: 10x
+noise on one electrode's channels spread the estimates around the 10x threshold, so less
+than the majority crossed it and the noise reached the images (and a false touch). A
+healthy sheet's channel roughness scatters by tens of per cent over a check's frames, and a
+press near an electrode moves its channels smoothly (no second difference), so neither
+makes most of one electrode's channels 3x rougher than the median.
+
 :class:`FaultTolerantReconstructor` wraps any method's reconstructor
 (:class:`~eit_skin.inverse.methods.Reconstructor`) and images with the measurements touching
 faulty electrodes removed; the reconstructor caches what it needs per excluded-channel set
@@ -43,6 +54,7 @@ faulty electrodes removed; the reconstructor caches what it needs per excluded-c
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -86,6 +98,20 @@ def spoiled_channels(
         threshold: how many times the median channel roughness counts as erratic.
         saturation_v: ADC full scale, volts; saturated channels count as bad.
     """
+    return _channel_state(frames, reference, threshold, saturation_v)[0]
+
+
+def _channel_state(
+    frames: np.ndarray,
+    reference: np.ndarray,
+    threshold: float = 10.0,
+    saturation_v: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(spoiled [M] bool, roughness [M])``: roughness relative to the median channel's.
+
+    ``roughness`` is each channel's robust noise over that of the median unspoiled channel
+    (0 where undefined: one frame, or a noise-free median).
+    """
     v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
     ref = np.asarray(reference, dtype=np.float64)
     spoiled = bad_channels(v, ref, saturation_v)
@@ -94,6 +120,7 @@ def spoiled_channels(
     q[:, spoiled] = 0.0
     level = np.median(q, axis=0)
     spoiled |= (level < 1.0 / CONDUCTANCE_RATIO_LIMIT) | (level > CONDUCTANCE_RATIO_LIMIT)
+    relative = np.zeros(spoiled.shape)
     if v.shape[0] > 1:
         steps = np.diff(q, n=min(2, v.shape[0] - 1), axis=0)  # [T-2, M]: a ramp's are 0
         noise = _MAD_TO_STD * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0)
@@ -101,7 +128,8 @@ def spoiled_channels(
         spoiled |= noise > 1.0 / CONDUCTANCE_RATIO_LIMIT
         if typical > 0:
             spoiled |= noise > threshold * typical
-    return spoiled
+            relative = noise / typical
+    return spoiled, relative
 
 
 def shared_fraction(protocol: Protocol) -> float:
@@ -137,9 +165,13 @@ def faulty_electrodes(
         saturation_v: ADC full scale, volts; saturated channels count as bad.
 
     The rule (module docstring) names a dead electrode, never its healthy neighbours, and
-    nothing for a load on a healthy sheet.
+    nothing for a load on a healthy sheet. For naming electrodes, a channel also counts as
+    spoiled when it is ``sqrt(threshold)`` times rougher than the median channel (a
+    **noisy electrode**, module docstring): only an electrode nearly all of whose channels
+    are that rough is named.
     """
-    spoiled = spoiled_channels(frames, reference, threshold, saturation_v)
+    spoiled, roughness = _channel_state(frames, reference, threshold, saturation_v)
+    spoiled = spoiled | (roughness > math.sqrt(threshold))
     n_el = protocol.n_electrodes
     touch = np.stack([protocol.touching([i]) for i in range(n_el)])  # [n_el, M]
     majority = 0.5 * (1.0 + shared_fraction(protocol))
