@@ -53,6 +53,9 @@ LATENCY_TARGET_S = 0.100
 OVERRUN_S = 0.5
 DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
+CACHE_VERSION = 2
+"""Part of the cached scenes' key: 2 since the pipeline's fault check names noisy electrodes
+(the imaged frames and faulty sets of version 1 are stale)."""
 
 
 @dataclass
@@ -67,7 +70,7 @@ class Run:
 
 
 def _key(patch: Patch, *parts) -> str:
-    text = json.dumps([[ly.content_hash for ly in patch.layers], *parts])
+    text = json.dumps([[ly.content_hash for ly in patch.layers], CACHE_VERSION, *parts])
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
