@@ -146,7 +146,6 @@ def test_bad_configuration_is_refused() -> None:
 def test_every_tuning_constant_is_a_validated_config_field() -> None:
     for field, bad in [
         ("closing_window", 0),
-        ("anchor_frames", 0),
         ("lookback_frames", 0),
         ("noise_window", 0),
         ("track_missed_frames", -1),

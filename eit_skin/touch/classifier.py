@@ -154,10 +154,9 @@ class ClassifierConfig:
         finger_radius_m: radius of the fingertip-sized disc whose reconstructed image defines
             the single-finger spread (:func:`~eit_skin.touch.shapes.single_contact_spread`;
             used where that map is computed), m.
-        anchor_frames: the place a touch settled (origin of ``travel``) is the median
-            centroid of its first this many strong frames.
         closing_window: frames of the rolling median over the blob's major axis before its
-            narrowing (``closing``) is measured (against single noisy frames).
+            narrowing (``closing``) is measured, and over its centroid path before ``travel``
+            is (against single noisy frames).
         confidence_gain: slope of the confidence ``0.5 + 0.5 tanh(gain |f - t| / t)`` of a
             feature ``f`` deciding against its threshold ``t``.
         offset_margin: pixels within this many single-finger spreads (median over the sheet)
@@ -202,7 +201,6 @@ class ClassifierConfig:
     lookback_frames: int = 50
     blob_fraction: float = BLOB_FRACTION
     finger_radius_m: float = FINGER_RADIUS_M
-    anchor_frames: int = 3
     closing_window: int = 5
     confidence_gain: float = 2.0
     offset_margin: float = 2.0
@@ -248,7 +246,6 @@ class ClassifierConfig:
             "average_frames",
             "noise_window",
             "lookback_frames",
-            "anchor_frames",
             "closing_window",
         ):
             if not getattr(self, name) >= 1:
