@@ -55,8 +55,8 @@ LATENCY_TARGET_S = 0.100
 OVERRUN_S = 0.5
 DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
-CACHE_VERSION = 2
-"""Part of the cached scenes' key: 2 since the pipeline's fault check names noisy electrodes
+CACHE_VERSION = 3
+"""Part of the cached scenes' key: 3 since the pipeline's fault check names noisy electrodes
 (the imaged frames and faulty sets of version 1 are stale)."""
 
 

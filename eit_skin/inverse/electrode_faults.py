@@ -36,11 +36,14 @@ dead electrodes) cannot be judged and is not named (also when it was named first
 pass drops it); its channels are left out anyway.
 
 A **noisy electrode** (a degrading contact: its channels several times noisier than the
-others, but not ``threshold`` times) is named by the same majority rule, with a channel
-counting as spoiled for it once its roughness exceeds ``sqrt(threshold)`` (3.2 for the
-default 10) times the median channel's: one channel that rough stays in (it is not erratic),
-but an electrode more than 77 % of whose channels are is the common cause. Issue 18: 10x
-noise on one electrode's channels spread the estimates around the 10x threshold, so less
+others, but not ``threshold`` times) is named in the same loop when the median roughness of
+its channels still to judge exceeds ``sqrt(threshold)`` (3.2 for the default 10) times the
+median roughness of the channels not touching it, or when more than the majority above of
+them are each that rough: one channel that rough stays in (it is not erratic), but an
+electrode most of whose channels are is the common cause. A neighbour shares only 28 of its
+52 channels; once the noisy electrode is named they are explained and its own are quiet.
+Issue 18: 10x noise on one electrode's channels spread the estimates around the 10x
+threshold (5x the median channel's roughness, the channels' own noise differing), so less
 than the majority crossed it and the noise reached the images (and a false touch). A
 healthy sheet's channel roughness scatters by tens of per cent over a check's frames, and a
 press near an electrode moves its channels smoothly (no second difference), so neither
@@ -171,17 +174,28 @@ def faulty_electrodes(
     are that rough is named.
     """
     spoiled, roughness = _channel_state(frames, reference, threshold, saturation_v)
-    spoiled = spoiled | (roughness > math.sqrt(threshold))
+    noisy = math.sqrt(threshold)
+    spoiled = spoiled | (roughness > noisy)
     n_el = protocol.n_electrodes
     touch = np.stack([protocol.touching([i]) for i in range(n_el)])  # [n_el, M]
     majority = 0.5 * (1.0 + shared_fraction(protocol))
     faulty = np.zeros(n_el, dtype=bool)
     explained = np.zeros(spoiled.shape, dtype=bool)
+    # the median roughness of the channels not touching each electrode: "the others"
+    others = np.ma.median(np.ma.masked_array(np.broadcast_to(roughness, touch.shape), touch), 1)
+    others = np.ma.filled(others, 0.0)
     while True:
         remaining = touch & ~explained  # [n_el, M] channels still to judge
         n_left = remaining.sum(axis=1)
         n_spoiled = (remaining & spoiled).sum(axis=1)
-        candidate = ~faulty & (n_left > 0) & (n_spoiled > majority * n_left)
+        own = np.ma.filled(
+            np.ma.median(
+                np.ma.masked_array(np.broadcast_to(roughness, touch.shape), ~remaining), 1
+            ),
+            0.0,
+        )
+        rough = (others > 0) & (own > noisy * others)  # a noisy electrode (module docstring)
+        candidate = ~faulty & (n_left > 0) & ((n_spoiled > majority * n_left) | rough)
         if not candidate.any():
             break
         worst = int(np.argmax(np.where(candidate, n_spoiled, -1)))
