@@ -36,18 +36,18 @@ dead electrodes) cannot be judged and is not named (also when it was named first
 pass drops it); its channels are left out anyway.
 
 A **noisy electrode** (a degrading contact: its channels several times noisier than the
-others, but not ``threshold`` times) is named in the same loop when the median roughness of
-its channels still to judge exceeds ``sqrt(threshold)`` (3.2 for the default 10) times the
-median roughness of the channels not touching it, or when more than the majority above of
-them are each that rough: one channel that rough stays in (it is not erratic), but an
-electrode most of whose channels are is the common cause. A neighbour shares only 28 of its
-52 channels; once the noisy electrode is named they are explained and its own are quiet.
-Issue 18: 10x noise on one electrode's channels spread the estimates around the 10x
-threshold (5x the median channel's roughness, the channels' own noise differing), so less
-than the majority crossed it and the noise reached the images (and a false touch). A
-healthy sheet's channel roughness scatters by tens of per cent over a check's frames, and a
-press near an electrode moves its channels smoothly (no second difference), so neither
-makes most of one electrode's channels 3x rougher than the median.
+others, but not ``threshold`` times) is named in the same loop when, no electrode having
+been named yet, the median roughness of its channels exceeds ``sqrt(threshold)`` (3.2 for
+the default 10) times the median roughness of the channels not touching it, or when more
+than the majority above of its channels are each that rough. One channel that rough stays
+in (it is not erratic); an electrode most of whose channels are is the common cause. A
+neighbour shares only 28 of its 52 channels, and once an electrode is named this test is
+not made again (after a dead electrode, a neighbour's remaining channels can look rough).
+Issue 18: 10x noise on one electrode's channels put their roughness at ~5x the median
+channel's (the channels' own noise differs), so fewer than the majority crossed the
+erratic threshold and the noise reached the images (and a false touch). A healthy sheet's
+channel roughness scatters by tens of per cent over a check's frames, and a press near an
+electrode moves its channels smoothly (no second difference).
 
 :class:`FaultTolerantReconstructor` wraps any method's reconstructor
 (:class:`~eit_skin.inverse.methods.Reconstructor`) and images with the measurements touching
@@ -194,7 +194,9 @@ def faulty_electrodes(
             ),
             0.0,
         )
-        rough = (others > 0) & (own > noisy * others)  # a noisy electrode (module docstring)
+        # a noisy electrode (module docstring); only while none is named: after a dead
+        # electrode, a neighbour's channels still to judge can look rough too
+        rough = (others > 0) & (own > noisy * others) & ~faulty.any()
         candidate = ~faulty & (n_left > 0) & ((n_spoiled > majority * n_left) | rough)
         if not candidate.any():
             break
