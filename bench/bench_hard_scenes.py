@@ -57,7 +57,7 @@ DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
 CACHE_VERSION = 3
 """Part of the cached scenes' key: 3 since the pipeline's fault check names noisy electrodes
-(the imaged frames and faulty sets of version 1 are stale)."""
+(the imaged frames and faulty sets of earlier versions are stale)."""
 
 
 @dataclass
