@@ -18,17 +18,28 @@ import numpy as np
 from eit_skin.touch.classifier import LABELS
 
 
-def score(events, truth: list[dict]) -> tuple[list[tuple], list]:
-    """``(rows, unmatched END events)`` of one run's events against its true touches."""
+def match(events, truth: list[dict]) -> list:
+    """The END event matched to each true touch (``None``: missed), in the truth's order."""
     ends = [e for e in events if e.state == "end"]
-    starts = {e.touch_id: e for e in events if e.state == "start"}
-    used, rows = set(), []
+    used, matched = set(), []
     for tr in truth:
         best, overlap = None, 0.0
         for e in ends:
             o = min(e.t_end_s, tr["t_end"]) - max(e.t_start_s, tr["t_start"])
             if o > overlap and e.touch_id not in used:
                 best, overlap = e, o
+        if best is not None:
+            used.add(best.touch_id)
+        matched.append(best)
+    return matched
+
+
+def score(events, truth: list[dict]) -> tuple[list[tuple], list]:
+    """``(rows, unmatched END events)`` of one run's events against its true touches."""
+    ends = [e for e in events if e.state == "end"]
+    starts = {e.touch_id: e for e in events if e.state == "start"}
+    used, rows = set(), []
+    for tr, best in zip(truth, match(events, truth), strict=True):
         if best is None:
             rows.append((tr["label"], None, None, None))
             continue

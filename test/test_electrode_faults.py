@@ -140,3 +140,19 @@ def test_nan_and_saturated_channels():
     bad = bad_channels(frames, ref2, saturation_v=2.5)
     assert np.flatnonzero(bad).tolist() == [17, 40, 99]
     assert faulty_electrodes(frames, ref2, PROTOCOL, saturation_v=2.5).size == 0
+
+
+@pytest.mark.parametrize("electrode", [2, 9])
+def test_a_ten_times_noisier_electrode_is_named(electrode):
+    """Issue 18: a degrading electrode, 10x the noise on each of its channels (no touch), was
+    missed: the channels' roughness scatters around 10x, so fewer than the majority crossed
+    the erratic threshold. The noisy-electrode rule names it, and not its neighbours."""
+    rng = np.random.default_rng(electrode)
+    ref, frames = frames_with(electrode, t=50)
+    touch = PROTOCOL.touching([electrode])
+    frames[:, touch] += 9.95e-3 * np.abs(ref[touch]) * rng.normal(size=(50, touch.sum()))
+    assert faulty_electrodes(frames, ref, PROTOCOL).tolist() == [electrode]
+    # 2x the noise is no fault
+    ref, frames = frames_with(electrode, t=50)
+    frames[:, touch] += 1.7e-3 * np.abs(ref[touch]) * rng.normal(size=(50, touch.sum()))
+    assert faulty_electrodes(frames, ref, PROTOCOL).size == 0

@@ -146,7 +146,6 @@ def test_bad_configuration_is_refused() -> None:
 def test_every_tuning_constant_is_a_validated_config_field() -> None:
     for field, bad in [
         ("closing_window", 0),
-        ("anchor_frames", 0),
         ("lookback_frames", 0),
         ("noise_window", 0),
         ("track_missed_frames", -1),
@@ -160,13 +159,17 @@ def test_every_tuning_constant_is_a_validated_config_field() -> None:
         with pytest.raises(ValueError, match=field):
             ClassifierConfig(**{field: bad})
 
-    # they act: a wider closing window smooths a pinch's narrowing away
+    # they act: a wider closing window smooths a pinch's narrowing away (the steady-narrowing
+    # rule, which would still call it a pinch, switched off)
     def pinch(t):
         half = 0.02 - 0.013 * np.clip((t - ONSET_S - 0.1) / 1.0, 0, 1)
         return [(0.0, -half), (0.0, half)], 4000.0 * envelope(t, ONSET_S, RELEASE_S)
 
     t, images = sequence(pinch, 3.0)
-    wide = classify_stream(t, images, X, Y, config=ClassifierConfig(closing_window=200))
+    narrow = classify_stream(t, images, X, Y, config=ClassifierConfig(pinch_trend=1e9))
+    assert narrow[-1].label == "pinch"
+    config = ClassifierConfig(closing_window=200, pinch_trend=1e9)
+    wide = classify_stream(t, images, X, Y, config=config)
     assert wide[-1].label != "pinch"
 
 

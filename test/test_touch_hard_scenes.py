@@ -9,7 +9,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.scenario import HARD_SCENES, SheetFrame, hard_scenario
 from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
-from test.synthetic_touches import SIGMA_PA, X, Y, envelope, sequence
+from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, blobs, envelope, sequence
 
 ELECTRODES = 0.04 * np.column_stack(
     [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]
@@ -115,3 +115,66 @@ def test_hard_scenes_fit_the_sheet_and_are_deterministic() -> None:
     assert 0.014 <= pinch.start_gap_m <= 0.016 and 0.004 <= pinch.end_gap_m <= 0.006
     with pytest.raises(KeyError, match="hard scene"):
         hard_scenario("nope", 1, 10.0, patch)
+
+
+# Close pinches and short rubs under a wide blur (issue 18): one finger's image 9 mm wide,
+# as on the knit patches, so that two fingers closing from 15 to 5 mm make one blob that
+# narrows by only ~0.3 finger spreads, and a 13 mm stroke travels ~1.45 finger spreads.
+WIDE_M = 0.009
+
+
+def _wide_sequence(script, duration_s: float, seed: int):
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration_s * 50.0)) / 50.0
+    frames = []
+    for tk in t:
+        centres, amplitude = script(tk)
+        image = blobs(centres, amplitude, WIDE_M) if len(centres) else np.zeros(INSIDE.shape)
+        image = image + SIGMA_PA * rng.standard_normal(image.shape)
+        frames.append(np.where(INSIDE, image, np.nan))
+    return t, np.array(frames, dtype=np.float32)
+
+
+def _close_pinch(t):
+    half = 0.0075 - 0.005 * np.clip((t - 1.15) / 0.8, 0, 1)  # 15 mm -> 5 mm apart
+    return [(0.005, -half), (0.005, half)], 1500.0 * envelope(t, 1.0, 2.4)
+
+
+def _labels(t, images, config=None, stretch=None):
+    events = classify_stream(t, images, X, Y, stretch, config, contact_spread_m=WIDE_M)
+    return [e.label for e in ends(events)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_close_pinch_is_a_pinch_on_one_layer_and_on_two(seed) -> None:
+    t, images = _wide_sequence(_close_pinch, 3.0, seed)
+    assert _labels(t, images) == ["pinch"]
+    # the steady-narrowing rule decides it: the relative narrowing alone says push
+    assert _labels(t, images, ClassifierConfig(pinch_trend=1e9)) == ["push"]
+    # a two-layer patch: the stretch layer's image (a band between the fingers) rides along
+    stretch = np.stack([blobs([(0.005, 0.0)], 0.05 * envelope(tk, 1.0, 2.4), WIDE_M) for tk in t])
+    stretch = np.where(
+        INSIDE, stretch + 1e-4 * np.random.default_rng(seed).normal(size=stretch.shape), np.nan
+    )
+    assert _labels(t, images, stretch=stretch.astype(np.float32)) == ["pinch"]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_push_under_the_same_blur_stays_a_push(seed) -> None:
+    t, images = _wide_sequence(
+        lambda t: ([(0.005, 0.0)], 3000.0 * envelope(t, 1.0, 2.4)), 3.0, seed
+    )
+    assert _labels(t, images) == ["push"]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_short_rub_is_a_rub(seed) -> None:
+    def rub(t):  # 13 mm in 0.5 s
+        return [(-0.01 + 0.013 * np.clip((t - 1.15) / 0.5, 0, 1), 0.005)], 3000.0 * envelope(
+            t, 1.0, 1.9
+        )
+
+    t, images = _wide_sequence(rub, 2.5, seed)
+    assert _labels(t, images) == ["rub"]
+    # the former threshold (1.5 finger spreads) read it as a push
+    assert _labels(t, images, ClassifierConfig(rub_travel=1.5)) == ["push"]

@@ -35,6 +35,20 @@ are looked at again. An electrode all of whose channels touch other named ones (
 dead electrodes) cannot be judged and is not named (also when it was named first: a last
 pass drops it); its channels are left out anyway.
 
+A **noisy electrode** (a degrading contact: its channels several times noisier than the
+others, but not ``threshold`` times) is named in the same loop when, no electrode having
+been named yet, the median roughness of its channels exceeds ``sqrt(threshold)`` (3.2 for
+the default 10) times the median roughness of the channels not touching it, or when more
+than the majority above of its channels are each that rough. One channel that rough stays
+in (it is not erratic); an electrode most of whose channels are is the common cause. A
+neighbour shares only 28 of its 52 channels, and once an electrode is named this test is
+not made again (after a dead electrode, a neighbour's remaining channels can look rough).
+Issue 18: 10x noise on one electrode's channels put their roughness at ~5x the median
+channel's (the channels' own noise differs), so fewer than the majority crossed the
+erratic threshold and the noise reached the images (and a false touch). A healthy sheet's
+channel roughness scatters by tens of per cent over a check's frames, and a press near an
+electrode moves its channels smoothly (no second difference).
+
 :class:`FaultTolerantReconstructor` wraps any method's reconstructor
 (:class:`~eit_skin.inverse.methods.Reconstructor`) and images with the measurements touching
 faulty electrodes removed; the reconstructor caches what it needs per excluded-channel set
@@ -43,6 +57,7 @@ faulty electrodes removed; the reconstructor caches what it needs per excluded-c
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -86,6 +101,20 @@ def spoiled_channels(
         threshold: how many times the median channel roughness counts as erratic.
         saturation_v: ADC full scale, volts; saturated channels count as bad.
     """
+    return _channel_state(frames, reference, threshold, saturation_v)[0]
+
+
+def _channel_state(
+    frames: np.ndarray,
+    reference: np.ndarray,
+    threshold: float = 10.0,
+    saturation_v: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(spoiled [M] bool, roughness [M])``: roughness relative to the median channel's.
+
+    ``roughness`` is each channel's robust noise over that of the median unspoiled channel
+    (0 where undefined: one frame, or a noise-free median).
+    """
     v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
     ref = np.asarray(reference, dtype=np.float64)
     spoiled = bad_channels(v, ref, saturation_v)
@@ -94,6 +123,7 @@ def spoiled_channels(
     q[:, spoiled] = 0.0
     level = np.median(q, axis=0)
     spoiled |= (level < 1.0 / CONDUCTANCE_RATIO_LIMIT) | (level > CONDUCTANCE_RATIO_LIMIT)
+    relative = np.zeros(spoiled.shape)
     if v.shape[0] > 1:
         steps = np.diff(q, n=min(2, v.shape[0] - 1), axis=0)  # [T-2, M]: a ramp's are 0
         noise = _MAD_TO_STD * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0)
@@ -101,7 +131,8 @@ def spoiled_channels(
         spoiled |= noise > 1.0 / CONDUCTANCE_RATIO_LIMIT
         if typical > 0:
             spoiled |= noise > threshold * typical
-    return spoiled
+            relative = noise / typical
+    return spoiled, relative
 
 
 def shared_fraction(protocol: Protocol) -> float:
@@ -137,19 +168,36 @@ def faulty_electrodes(
         saturation_v: ADC full scale, volts; saturated channels count as bad.
 
     The rule (module docstring) names a dead electrode, never its healthy neighbours, and
-    nothing for a load on a healthy sheet.
+    nothing for a load on a healthy sheet. For naming electrodes, a channel also counts as
+    spoiled when it is ``sqrt(threshold)`` times rougher than the median channel (a
+    **noisy electrode**, module docstring): only an electrode nearly all of whose channels
+    are that rough is named.
     """
-    spoiled = spoiled_channels(frames, reference, threshold, saturation_v)
+    spoiled, roughness = _channel_state(frames, reference, threshold, saturation_v)
+    noisy = math.sqrt(threshold)
+    spoiled = spoiled | (roughness > noisy)
     n_el = protocol.n_electrodes
     touch = np.stack([protocol.touching([i]) for i in range(n_el)])  # [n_el, M]
     majority = 0.5 * (1.0 + shared_fraction(protocol))
     faulty = np.zeros(n_el, dtype=bool)
     explained = np.zeros(spoiled.shape, dtype=bool)
+    # the median roughness of the channels not touching each electrode: "the others"
+    others = np.ma.median(np.ma.masked_array(np.broadcast_to(roughness, touch.shape), touch), 1)
+    others = np.ma.filled(others, 0.0)
     while True:
         remaining = touch & ~explained  # [n_el, M] channels still to judge
         n_left = remaining.sum(axis=1)
         n_spoiled = (remaining & spoiled).sum(axis=1)
-        candidate = ~faulty & (n_left > 0) & (n_spoiled > majority * n_left)
+        own = np.ma.filled(
+            np.ma.median(
+                np.ma.masked_array(np.broadcast_to(roughness, touch.shape), ~remaining), 1
+            ),
+            0.0,
+        )
+        # a noisy electrode (module docstring); only while none is named: after a dead
+        # electrode, a neighbour's channels still to judge can look rough too
+        rough = (others > 0) & (own > noisy * others) & ~faulty.any()
+        candidate = ~faulty & (n_left > 0) & ((n_spoiled > majority * n_left) | rough)
         if not candidate.any():
             break
         worst = int(np.argmax(np.where(candidate, n_spoiled, -1)))

@@ -23,7 +23,9 @@ see docs/classifier.md):
 * features over the touch's strong frames: ``spread`` (median blob size), ``closing`` (largest
   relative narrowing of the major axis), ``travel`` (centroid travel);
 * rules: ``closing >= pinch_closing`` -> pinch; ``spread >= grab_spread`` -> grab;
-  ``travel >= rub_travel`` -> rub; else push.
+  ``travel >= rub_travel`` -> rub; a significant steady narrowing (``trend >= pinch_trend``
+  and ``narrowing >= pinch_narrowing``) -> pinch; ``major >= grab_major`` (a long blob:
+  fingers along an arc) -> grab; else push.
 
 The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
 the evidence so far and may revise it; END carries the final label.
@@ -110,8 +112,21 @@ class ClassifierConfig:
             (press and release ramps) do not enter the shape features.
         rub_travel: centroid travel that makes a rub, in single-finger spreads.
         pinch_closing: relative narrowing of the blob's major axis that makes a pinch (0..1).
+        pinch_trend: a still touch (not a grab, not a rub) whose major axis shrinks with a
+            least-squares slope this many standard errors from zero (a t-statistic, i.e. in
+            units of the frame-to-frame scatter of the shape) is a pinch too: a close pinch
+            narrows its blob by only 5-15 % of a finger spread, too little for
+            ``pinch_closing`` but steadily over its closing (issue 18).
+        pinch_narrowing: ... and only if that fitted narrowing over the strong frames is at
+            least this many single-finger spreads (a long press's negligible creep is no pinch).
+        travel_fraction: frames whose peak is at least this fraction of the touch's largest
+            enter ``travel`` (a quarter: the whole stroke, press and release included).
         grab_spread: blob spread (geometric mean of the principal spreads) that makes a grab,
             in single-finger spreads.
+        grab_major: a still touch (not a pinch or rub by the rules before) whose blob's major
+            spread (median) is at least this many single-finger spreads is a grab too: 3-5
+            fingers bunched along an arc make a long, narrow blob whose geometric-mean
+            ``spread`` stays under ``grab_spread`` (issue 18: uneven grabs).
         contact_spread_m: spread of one fingertip's image, m, used when the classifier is
             given no per-pixel map.
         stretch_ratio_rub: stretch per pascal above which a single still contact is a pinch
@@ -139,10 +154,9 @@ class ClassifierConfig:
         finger_radius_m: radius of the fingertip-sized disc whose reconstructed image defines
             the single-finger spread (:func:`~eit_skin.touch.shapes.single_contact_spread`;
             used where that map is computed), m.
-        anchor_frames: the place a touch settled (origin of ``travel``) is the median
-            centroid of its first this many strong frames.
         closing_window: frames of the rolling median over the blob's major axis before its
-            narrowing (``closing``) is measured (against single noisy frames).
+            narrowing (``closing``) is measured, and over its centroid path before ``travel``
+            is (against single noisy frames).
         confidence_gain: slope of the confidence ``0.5 + 0.5 tanh(gain |f - t| / t)`` of a
             feature ``f`` deciding against its threshold ``t``.
         offset_margin: pixels within this many single-finger spreads (median over the sheet)
@@ -168,9 +182,13 @@ class ClassifierConfig:
     count_frames: int = 3
     gate_pixels: float = 8.0
     strong_fraction: float = 0.5
-    rub_travel: float = 1.5
+    rub_travel: float = 1.15
     pinch_closing: float = 0.3
+    pinch_trend: float = 3.0
+    pinch_narrowing: float = 0.05
+    travel_fraction: float = 0.25
     grab_spread: float = 1.35
+    grab_major: float = 1.45
     contact_spread_m: float = 0.005
     stretch_ratio_rub: float = 0.0
     detect_kernel: float = 2.5
@@ -183,7 +201,6 @@ class ClassifierConfig:
     lookback_frames: int = 50
     blob_fraction: float = BLOB_FRACTION
     finger_radius_m: float = FINGER_RADIUS_M
-    anchor_frames: int = 3
     closing_window: int = 5
     confidence_gain: float = 2.0
     offset_margin: float = 2.0
@@ -198,6 +215,8 @@ class ClassifierConfig:
             "gate_pixels",
             "rub_travel",
             "grab_spread",
+            "grab_major",
+            "pinch_trend",
             "contact_spread_m",
             "k_detect",
             "confirm_s",
@@ -217,6 +236,7 @@ class ClassifierConfig:
             "offset_margin",
             "offset_deadband",
             "fault_radius",
+            "pinch_narrowing",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -226,7 +246,6 @@ class ClassifierConfig:
             "average_frames",
             "noise_window",
             "lookback_frames",
-            "anchor_frames",
             "closing_window",
         ):
             if not getattr(self, name) >= 1:
@@ -235,6 +254,8 @@ class ClassifierConfig:
             raise ValueError(f"pinch_closing must be in (0, 1), got {self.pinch_closing}")
         if not 0 <= self.strong_fraction < 1:
             raise ValueError(f"strong_fraction must be in [0, 1), got {self.strong_fraction}")
+        if not 0 <= self.travel_fraction < 1:
+            raise ValueError(f"travel_fraction must be in [0, 1), got {self.travel_fraction}")
         if not 0 <= self.blob_fraction < 1:
             raise ValueError(f"blob_fraction must be in [0, 1), got {self.blob_fraction}")
         if not 0 < self.learn_fraction <= 1:
@@ -302,6 +323,12 @@ class TouchFeatures:
         elongation: median ratio of the blob's major to minor spread (>= 1).
         stretch_ratio: largest stretch over largest pressure, 1/Pa (stretch layer only).
         frames: strong frames the shape features were computed from.
+        trend: t-statistic of the narrowing of the blob's major axis (in single-finger
+            spreads) over the strong frames: least-squares slope over its standard error,
+            positive when the blob narrows (0 with fewer than 4 frames).
+        narrowing: that fitted narrowing from the first to the last strong frame, in
+            single-finger spreads.
+        major: median major spread of the blob, in single-finger spreads.
     """
 
     count: int
@@ -311,6 +338,9 @@ class TouchFeatures:
     elongation: float
     stretch_ratio: float | None = None
     frames: int = 0
+    trend: float = 0.0
+    narrowing: float = 0.0
+    major: float = 1.0
 
 
 def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, float]:
@@ -330,6 +360,10 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
         return "grab", margin(f.spread, c.grab_spread)
     if f.travel >= c.rub_travel:
         return "rub", min(margin(f.travel, c.rub_travel), margin(f.closing, c.pinch_closing))
+    if f.trend >= c.pinch_trend and f.narrowing >= c.pinch_narrowing:
+        return "pinch", margin(f.trend, c.pinch_trend)
+    if f.major >= c.grab_major:
+        return "grab", margin(f.major, c.grab_major)
     ratio = f.stretch_ratio
     if ratio is not None and c.stretch_ratio_rub > 0 and ratio >= c.stretch_ratio_rub:
         return "pinch", 0.5 * margin(ratio, c.stretch_ratio_rub)
@@ -337,6 +371,8 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
         margin(f.travel, c.rub_travel),
         margin(f.closing, c.pinch_closing),
         margin(f.spread, c.grab_spread),
+        margin(max(f.trend, 0.0), c.pinch_trend),
+        margin(f.major, c.grab_major),
     )
     return "push", conf
 
@@ -411,36 +447,85 @@ class _Touch:
         return int(counts[min(min_frames, counts.size) - 1])
 
 
-def shape_features(
-    shapes: np.ndarray, config: ClassifierConfig
-) -> tuple[float, float, float, float, int]:
-    """``(travel, closing, spread, elongation, frames)`` of a touch's per-frame blob shapes.
+def shape_features(shapes: np.ndarray, config: ClassifierConfig) -> dict[str, float]:
+    """Shape features of a touch's per-frame blob shapes (see :class:`TouchFeatures`).
 
     Args:
         shapes: ``[T]`` records of :data:`SHAPE_DTYPE`; records with a NaN field are ignored.
         config: ``strong_fraction`` (frames with a peak below this fraction of the largest
-            are ignored), ``anchor_frames``, ``closing_window``.
+            are ignored by every feature but ``travel``), ``travel_fraction`` (likewise for
+            ``travel``), ``closing_window`` (rolling median against single noisy frames).
+
+    Returns:
+        ``travel``, ``closing``, ``spread``, ``elongation``, ``trend``, ``narrowing``,
+        ``major`` and ``frames`` (strong frames used).
     """
     finite = np.ones(shapes.size, dtype=bool)
     for name in SHAPE_DTYPE.names:
         finite &= np.isfinite(shapes[name])
     s = shapes[finite]
+    out = {
+        "travel": 0.0,
+        "closing": 0.0,
+        "spread": 1.0,
+        "elongation": 1.0,
+        "trend": 0.0,
+        "narrowing": 0.0,
+        "major": 1.0,
+    }
     if s.size == 0:
-        return 0.0, 0.0, 1.0, 1.0, 0
-    s = s[s["peak"] >= config.strong_fraction * s["peak"].max()]
+        return {**out, "frames": 0}
+    top = s["peak"].max()
+    out["travel"] = _travel(s[s["peak"] >= config.travel_fraction * top], config.closing_window)
+    s = s[s["peak"] >= config.strong_fraction * top]
     finger = np.maximum(s["finger_m"], 1e-6)
-    unit = float(np.median(finger))
     major = s["major_m"] / finger
-    spread = float(np.median(np.sqrt(s["major_m"] * s["minor_m"]) / finger))
-    elongation = float(np.median(s["major_m"] / np.maximum(s["minor_m"], 1e-9)))
+    out["spread"] = float(np.median(np.sqrt(s["major_m"] * s["minor_m"]) / finger))
+    out["major"] = float(np.median(major))
+    out["elongation"] = float(np.median(s["major_m"] / np.maximum(s["minor_m"], 1e-9)))
     n = s.size
-    xy = np.column_stack([s["x_m"], s["y_m"]])
-    anchor = np.median(xy[: min(config.anchor_frames, n)], axis=0)
-    travel = float(np.max(np.linalg.norm(xy - anchor, axis=1))) / unit
     w = min(config.closing_window, n)  # rolling median against noisy frames
     smooth = np.median(np.lib.stride_tricks.sliding_window_view(major, w), axis=1)
-    closing = float(np.max(1.0 - smooth / np.maximum.accumulate(smooth)))
-    return travel, closing, spread, elongation, n
+    out["closing"] = float(np.max(1.0 - smooth / np.maximum.accumulate(smooth)))
+    out["trend"], out["narrowing"] = _narrowing_trend(s["t_s"], major)
+    return {**out, "frames": n}
+
+
+def _travel(s: np.ndarray, window: int) -> float:
+    """How far the blob centroid went over ``s`` (``[T]`` shapes), in single-finger spreads.
+
+    The centroid path is smoothed by a rolling median of ``window`` frames (one noisy frame of
+    a weak press moves it by half a finger spread); the travel is the largest distance of a
+    smoothed point from either end of the path: a stroke's whole length, however it began.
+    """
+    if s.size == 0:
+        return 0.0
+    xy = np.column_stack([s["x_m"], s["y_m"]])
+    w = min(window, len(xy))
+    xy = np.median(np.lib.stride_tricks.sliding_window_view(xy, w, axis=0), axis=-1)
+    far = max(np.linalg.norm(xy - xy[0], axis=1).max(), np.linalg.norm(xy - xy[-1], axis=1).max())
+    return float(far) / float(np.median(np.maximum(s["finger_m"], 1e-6)))
+
+
+def _narrowing_trend(t_s: np.ndarray, major: np.ndarray) -> tuple[float, float]:
+    """``(t, narrowing)``: least-squares narrowing of ``major`` ``[T]`` over time ``t_s`` ``[T]``.
+
+    ``t`` is minus the fitted slope over its standard error (residual scatter of the frames);
+    ``narrowing`` the fitted decrease from the first to the last frame, in the unit of
+    ``major``. Both 0 with fewer than 4 frames or no time span.
+    """
+    n = major.size
+    if n < 4:
+        return 0.0, 0.0
+    tc = t_s - t_s.mean()
+    sxx = float(np.dot(tc, tc))
+    if sxx <= 0:
+        return 0.0, 0.0
+    slope = float(np.dot(tc, major - major.mean())) / sxx
+    resid = major - major.mean() - slope * tc
+    stderr = math.sqrt(float(np.dot(resid, resid)) / (n - 2) / sxx)
+    span = float(t_s[-1] - t_s[0])
+    return -slope / max(stderr, 1e-12), -slope * span
 
 
 class TouchClassifier:
@@ -817,12 +902,23 @@ class TouchClassifier:
 
     def features(self, touch: _Touch) -> TouchFeatures:
         """Features of a touch on the evidence so far."""
-        travel, closing, spread, elongation, n = shape_features(touch.shapes.rows, self.config)
+        f = shape_features(touch.shapes.rows, self.config)
         ratio = None
         if touch.max_stretch is not None and touch.max_pressure > 0:
             ratio = touch.max_stretch / touch.max_pressure
         count = max(touch.count(self.config.count_frames), 1)
-        return TouchFeatures(count, travel, closing, spread, elongation, ratio, n)
+        return TouchFeatures(
+            count,
+            f["travel"],
+            f["closing"],
+            f["spread"],
+            f["elongation"],
+            ratio,
+            f["frames"],
+            f["trend"],
+            f["narrowing"],
+            f["major"],
+        )
 
     def _relabel(self, touch: _Touch) -> None:
         features = self.features(touch)
