@@ -187,13 +187,18 @@ class PixelMatrix:
 
     Only the rows of the ``K <= min(N, H*W)`` elements that lie under a pixel are kept, each
     multiplied by a constant unit ``scale`` (pascals per unit of the element value, say), in
-    float32, C-contiguous; an image is one ``[K, M] @ [M]`` product, a clip to
-    ``[floor, ceiling]`` and
+    float32; an image is one ``[K, M] @ [M]`` product, a clip to ``[floor, ceiling]`` and
     one gather onto the ``H*W`` pixels (NaN outside the sheet and in holes). ``T`` inputs
-    are one matrix-matrix product.
+    are one matrix-matrix product. Folding onto pixels never pays: a ``[H*W, M]`` product
+    has at least as many rows as ``K`` and the gather costs ``H*W`` loads, not ``H*W*M``.
+
+    The matrix is stored column-major (Fortran order): the matrix-vector product then runs
+    as ``M`` contiguous column updates, which OpenBLAS does 20-30 % faster than ``K`` row dot
+    products of length ``M`` (bench/REPORT.md); the batched product reads it as the
+    C-contiguous ``[M, K]`` transpose.
 
     Attributes:
-        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``.
+        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``, Fortran order.
         elements: ``[K]`` int64 the element of each row (ascending).
         owner: ``[H*W]`` intp row of each pixel, ``K`` where no element is (NaN).
         shape: ``(H, W)``.
@@ -230,7 +235,7 @@ class PixelMatrix:
         elements, owner = np.unique(element[element < n], return_inverse=True)
         pixel_row = np.full(element.size, elements.size, dtype=np.intp)
         pixel_row[element < n] = owner.ravel()
-        matrix = np.ascontiguousarray(a[elements] * scale, dtype=np.float32)
+        matrix = np.asfortranarray(a[elements] * scale, dtype=np.float32)
         if not floor <= ceiling:
             raise ValueError(f"floor {floor} is above ceiling {ceiling}")
         return cls(
@@ -244,9 +249,14 @@ class PixelMatrix:
         )
 
     def _clip(self, y: np.ndarray) -> None:
-        """Clip ``y`` in place to ``[floor, ceiling]`` (nothing when both are infinite)."""
-        if self.floor > -np.inf or self.ceiling < np.inf:
-            np.clip(y, self.floor, self.ceiling, out=y)
+        """Clip ``y`` in place to ``[floor, ceiling]`` (nothing when both are infinite).
+
+        Two ufuncs, not ``np.clip`` (several microseconds of wrapper per call); NaN stays NaN.
+        """
+        if self.floor > -np.inf:
+            np.maximum(y, self.floor, out=y)
+        if self.ceiling < np.inf:
+            np.minimum(y, self.ceiling, out=y)
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Input ``[M]`` or ``[T, M]`` -> float32 image ``[H, W]`` or ``[T, H, W]``."""
