@@ -187,8 +187,10 @@ def throughput(
     """
     os.sched_setaffinity(0, {1})
     log = (workdir / f"worker_{k}.log").open("w")
+    profile = os.environ.get("EIT_SKIN_BENCH_PROFILE")  # cProfile output of the worker
+    prefix = ["-m", "cProfile", "-o", f"{profile}.{k}"] if profile else []
     proc = subprocess.Popen(
-        [sys.executable, __file__, "--worker", str(k), "--cache", str(cache)],
+        [sys.executable, *prefix, __file__, "--worker", str(k), "--cache", str(cache)],
         stdout=subprocess.PIPE, stderr=log, text=True,
     )  # fmt: skip
     assert proc.stdout.readline().strip() == "ready", (workdir / f"worker_{k}.log").read_text()
