@@ -160,7 +160,7 @@ class ImageGrid:
             padded = np.empty(n + 1, dtype=np.float32)
             padded[:n] = v
             padded[n] = np.nan
-            return padded.take(self._owner).reshape(self.shape)
+            return self.image_of_row(padded)
         single = v.ndim == 1
         v2 = v[None, :] if single else v
         if v2.ndim != 2 or v2.shape[1] != self.matrix.shape[1]:
@@ -170,6 +170,10 @@ class ImageGrid:
         h, w = self.shape
         padded = np.concatenate([v2, np.full((v2.shape[0], 1), np.nan, np.float32)], axis=1)
         return np.take(padded, self._owner, axis=1).reshape(-1, h, w)[0 if single else slice(None)]
+
+    def image_of_row(self, row: np.ndarray) -> np.ndarray:
+        """``[N + 1]`` float32 element values with NaN last -> ``[H, W]`` image (one gather)."""
+        return row.take(self._owner).reshape(self.shape)
 
     @cached_property
     def _owner(self) -> np.ndarray:

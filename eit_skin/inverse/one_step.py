@@ -461,6 +461,26 @@ class ReconstructionMatrix:
                     return pixels.apply(x32)
         return pixels.from_elements(self.reconstruct(frames, reference, excluded))
 
+    def _solve_finite_frame(self, v: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
+        """One frame ``[M]`` against ``ref`` ``[M]`` (float64 V) in the fewest numpy calls.
+
+        The same numbers as the general path of :meth:`reconstruct` (same scale, same
+        float64 quotient rounded once to float32, same product); None when the reference or
+        the quotient is not finite (or overflows float32): the general path handles those.
+        A node calls this once per frame against a reference that drift moves every frame,
+        so nothing here is cached.
+        """
+        ss = float(ref @ ref)
+        if not math.isfinite(ss):
+            return None
+        scale = np.abs(ref)
+        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(ref.size, 1)) or 1.0), out=scale)
+        x32 = np.empty(ref.size, dtype=np.float32)
+        np.divide(np.subtract(v, ref), scale, out=x32)  # finite ref: no invalid operation
+        if not math.isfinite(np.add.reduce(x32)):
+            return None
+        return x32 @ self._matrix32_t()
+
     def _reference_scale(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(reference, reference_scale(reference))`` float64 ``[M]``, None unless finite.
 
@@ -503,6 +523,10 @@ class ReconstructionMatrix:
                 f"frames must be [M] or [T, M] with M={self.n_channels}, got {v.shape}"
             )
         single = v.ndim == 1
+        if single and excluded is None and self.channels.size == self.n_channels:
+            out = self._solve_finite_frame(v, ref)
+            if out is not None:
+                return out
         v2 = v[None] if single else v
         scale = reference_scale(ref)  # a few microseconds; drift moves ref every frame
         with np.errstate(invalid="ignore"):
