@@ -1,7 +1,7 @@
 """Reconstruction speed against error: eit_skin vs pyEIT JAC on the same disk meshes and data.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]
-[--gn-only | --gn-node | --online-only] [--json OUT.json]``;
+[--gn-only | --gn-node | --online-only | --frame-only] [--json OUT.json]``;
 writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
 
 * Data: simulated once on a finer mesh (h = 1.2 mm, ~23k triangles) than any reconstruction
@@ -25,6 +25,10 @@ writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
   cold and warm-started variants on a press sequence at 100 Hz, against five cold
   iterations per frame.
 * ``--json OUT.json``: one row per mesh (:data:`JSON_KEYS`; null where not measured).
+* Frame -> image (``--frame-only`` runs just the per-mesh table, without Gauss-Newton,
+  sweep or plot, and rewrites only the report's first section): ours
+  (``ReconstructionMatrix.images``) and pyEIT's ``solve`` followed by the same unit, clip
+  and gather onto the same pixels, so both produce the same image.
 * Gauss-Newton in the node (``--gn-node`` runs just this part and rewrites only its section):
   the shipped arm, face and elbow layers switched to ``method: gauss_newton`` and imaged
   frame by frame through ``LayerImager.relative_change`` (the reconstruction node's call) on
@@ -37,6 +41,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -104,6 +109,19 @@ def median_time(fn, n):
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
+
+
+def interleaved_medians(fns, n):
+    """Median time, s, of each of ``fns`` called in turn ``n`` times: on a shared machine the
+    load hits every candidate alike, so their ratio holds even when the absolute times do not.
+    """
+    times = [[] for _ in fns]
+    for _ in range(n):
+        for fn, t_fn in zip(fns, times, strict=True):
+            t = time.perf_counter()
+            fn()
+            t_fn.append(time.perf_counter() - t)
+    return [float(np.median(t_fn)) for t_fn in times]
 
 
 def merit(grid, values, phantoms):
@@ -202,7 +220,7 @@ def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
         return grid.to_image(np.maximum(unit * x, floor))
 
     image_t = median_time(image, 30)
-    return build, frame_t, image_t, merit(grid, ds, phantoms)
+    return build, frame_t, image_t, merit(grid, ds, phantoms), image
 
 
 class TimedForward:
@@ -599,6 +617,12 @@ def main() -> None:
         "--online-only", action="store_true", help="only the online Gauss-Newton section"
     )
     ap.add_argument("--json", type=Path, help="also write the per-mesh rows to this JSON file")
+    ap.add_argument(
+        "--frame-only",
+        action="store_true",
+        help="only the per-mesh frame table (no Gauss-Newton, sweep or plot): rewrites that "
+        "section of REPORT.md",
+    )
     args = ap.parse_args()
     if args.gn_node:
         rows, cpu = gn_node_rows(GN_NODE_RATE_HZ)
@@ -652,14 +676,22 @@ def main() -> None:
         rm_l = ReconstructionMatrix.build(fwd_l, prior="laplace", noise_figure=NOISE_FIGURE)
         build_l = time.perf_counter() - t
         lap = merit(grid, rm_l.reconstruct(frames, v0), phantoms)
-        gn = gn_case(fwd, large, v0)
-        gn_rows += gn
-        gn_ms = [(g["wall_ms"], g["iterations"]) for g in gn]  # the reusable solver, per frame
-        on = online_gn_case(fwd, press, v0)
-        online += on
+        if args.frame_only:
+            gn_ms, on = [(float("nan"), 0)] * 2, []
+        else:
+            gn = gn_case(fwd, large, v0)
+            gn_rows += gn
+            gn_ms = [(g["wall_ms"], g["iterations"]) for g in gn]  # reusable solver, per frame
+            on = online_gn_case(fwd, press, v0)
+            online += on
         if mesh.n_triangles <= args.no_pyeit_above:
-            py_build, py_frame, py_image, py = pyeit_case(
+            py_build, py_frame, py_image, py, py_fn = pyeit_case(
                 mesh, protocol, frames, v0, phantoms, grid
+            )
+            # the ratio from interleaved calls (ours, pyEIT's, ours, ...): same load on both
+            rm = g["matrix"]
+            frame_t, py_image = interleaved_medians(
+                [lambda rm=rm, grid=grid: rm.images(frames[0], v0, grid, UNIT, FLOOR), py_fn], 200
             )
         else:
             py_build, py_frame, py_image, py = None, None, None, (None,) * 4
@@ -669,7 +701,7 @@ def main() -> None:
                 build_s=build,
                 frame_ms=frame_t * 1e3,
                 batched_frame_ms=batch_t * 1e3,
-                gn_frame_ms=next(r["mean_ms"] for r in on if r["default"]),
+                gn_frame_ms=next((r["mean_ms"] for r in on if r["default"]), None),
                 max_pe_r=ours[0],
                 pyeit_build_s=py_build,
                 pyeit_frame_ms=None if py_image is None else py_image * 1e3,
@@ -687,6 +719,14 @@ def main() -> None:
         row += (py_image * 1e3,)
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
+    if args.frame_only:
+        if args.json is not None:
+            write_json(args.json, records)
+        replace_section(
+            OUT / "REPORT.md",
+            frame_section(rows, args.quick, fine.mesh.n_triangles, frame_only=True),
+        )
+        return
     sweep = []
     fwd = ForwardModel(disk_mesh(R, h_m=0.0023), protocol, 1e-4)
     for h in SWEEP[:3] if args.quick else SWEEP:
@@ -756,6 +796,66 @@ def write_json(path: Path, rows: list[dict]) -> None:
     Path(path).write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n")
 
 
+def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> list[str]:
+    """The report's first section: machine, method and the per-mesh frame table."""
+    only = " (this section only; the sections below are from an earlier run)"
+    flags = "".join(f" {a}" for a in sys.argv[1:] if a.startswith("--") and a != "--json")
+    lines = [
+        "# Reconstruction benchmark",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
+        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
+        f"Python {platform.python_version()}, numpy "
+        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
+        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
+        f".venv/bin/python bench/bench_reconstruction.py{flags}`"
+        f"{only if frame_only else ''}"
+        f", {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        "",
+        f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
+        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
+        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
+        f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
+        "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
+        "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
+        "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
+        "median of 50 (30 for pyEIT's element frame) single-frame calls; frame->image, ours and "
+        "pyEIT's: median of 200 interleaved calls (ours, pyEIT's, ours, ...) so that the "
+        "machine's load weighs on both alike; batched: 30 frames in one call, "
+        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
+        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
+        "one product with the matrix rows of the elements under pixels, folded once); element "
+        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
+        "float32 image error: max deviation from the float64 chain over max |image|; "
+        "pyEIT frame->image: pyEIT's `solve` then the same unit, clip and float32 gather onto "
+        "the same pixels (`ImageGrid.to_image`), i.e. the same output as ours (before this "
+        "column the ratio was taken against pyEIT's element frame alone, which flattered "
+        "pyEIT by the imaging step); frame / pyEIT: our frame->image time over pyEIT's "
+        "frame->image time. Our matrix is float32 and column-major (OpenBLAS's faster "
+        "matrix-vector kernel); pyEIT's is float64, row-major, on all N elements. "
+        "Gauss-Newton: see its sections below. "
+        "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
+        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
+        "",
+        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
+        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
+        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
+        "| pyEIT frame ms | pyEIT frame->image ms | pyEIT max PE | pyEIT RES | pyEIT RNG "
+        "| pyEIT SD |",
+        "|" + "---|" * 23,
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[26]:.2f} | "
+            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
+            f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
+            f"{r[10]:.2f} | {r[11]:.3f} | {r[26]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | "
+            f"{r[15]:.2f} |"
+        )
+    return lines
+
+
 def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     import matplotlib
 
@@ -789,55 +889,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     ax[2].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(OUT / "reconstruction.png", dpi=90)
-    lines = [
-        "# Reconstruction benchmark",
-        "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
-        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
-        f"Python {platform.python_version()}, numpy "
-        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
-        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
-        ".venv/bin/python bench/bench_reconstruction.py`.",
-        "",
-        f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
-        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
-        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
-        f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
-        "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
-        "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
-        "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
-        "median of 50 (30 for pyEIT) single-frame calls; batched: 30 frames in one call, "
-        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
-        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
-        "one product with the matrix rows of the elements under pixels, folded once); element "
-        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
-        "float32 image error: max deviation from the float64 chain over max |image|; "
-        "pyEIT frame->image: pyEIT's `solve` then the same unit, clip and float32 gather onto "
-        "the same pixels (`ImageGrid.to_image`), i.e. the same output as ours (before this "
-        "column the ratio was taken against pyEIT's element frame alone, which flattered "
-        "pyEIT by the imaging step); frame / pyEIT: our frame->image time over pyEIT's "
-        "frame->image time. Our matrix is float32 and column-major (OpenBLAS's faster "
-        "matrix-vector kernel); pyEIT's is float64, row-major, on all N elements. "
-        "Gauss-Newton: see its sections below. "
-        "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
-        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
-        "",
-        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
-        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
-        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
-        "| pyEIT frame ms | pyEIT frame->image ms | pyEIT max PE | pyEIT RES | pyEIT RNG "
-        "| pyEIT SD |",
-        "|" + "---|" * 23,
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[26]:.2f} | "
-            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
-            f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
-            f"{r[10]:.2f} | {r[11]:.3f} | {r[26]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | "
-            f"{r[15]:.2f} |"
-        )
+    lines = frame_section(rows, quick, data_n)
     lines += [
         "",
         f"## Inverse-mesh sweep (forward mesh {sweep_fwd} triangles, same data)",
