@@ -1,7 +1,7 @@
 """Reconstruction speed against error: eit_skin vs pyEIT JAC on the same disk meshes and data.
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]
-[--gn-only | --gn-node | --online-only] [--json OUT.json]``;
+[--gn-only | --gn-node | --online-only | --frame-only] [--json OUT.json]``;
 writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
 
 * Data: simulated once on a finer mesh (h = 1.2 mm, ~23k triangles) than any reconstruction
@@ -25,6 +25,10 @@ writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
   cold and warm-started variants on a press sequence at 100 Hz, against five cold
   iterations per frame.
 * ``--json OUT.json``: one row per mesh (:data:`JSON_KEYS`; null where not measured).
+* Frame -> image (``--frame-only`` runs just the per-mesh table, without Gauss-Newton,
+  sweep or plot, and rewrites only the report's first section): ours
+  (``ReconstructionMatrix.images``) and pyEIT's ``solve`` followed by the same unit, clip
+  and gather onto the same pixels, so both produce the same image.
 * Gauss-Newton in the node (``--gn-node`` runs just this part and rewrites only its section):
   the shipped arm, face and elbow layers switched to ``method: gauss_newton`` and imaged
   frame by frame through ``LayerImager.relative_change`` (the reconstruction node's call) on
@@ -37,6 +41,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -62,6 +67,8 @@ from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
 
 R = 0.05
+#: Frame -> image: a unit factor (e.g. Pa per unit relative change) and the pipeline's clip.
+UNIT, FLOOR = 1.0e4, -0.9e4
 NOISE_FIGURE = DEFAULT_NOISE_FIGURE["one_step"]  # Laplace prior
 GREIT_NOISE_FIGURE = DEFAULT_NOISE_FIGURE["greit"]  # trained matrix, the shipped value
 OUT = Path(__file__).resolve().parent
@@ -104,6 +111,19 @@ def median_time(fn, n):
     return float(np.median(times))
 
 
+def interleaved_medians(fns, n):
+    """Median time, s, of each of ``fns`` called in turn ``n`` times: on a shared machine the
+    load hits every candidate alike, so their ratio holds even when the absolute times do not.
+    """
+    times = [[] for _ in fns]
+    for _ in range(n):
+        for fn, t_fn in zip(fns, times, strict=True):
+            t = time.perf_counter()
+            fn()
+            t_fn.append(time.perf_counter() - t)
+    return [float(np.median(t_fn)) for t_fn in times]
+
+
 def merit(grid, values, phantoms):
     """max PE / R, mean RES, mean RNG, max SD over the phantoms."""
     imgs = grid.to_image(values)
@@ -134,7 +154,7 @@ def greit_case(mesh, protocol, frames, v0, phantoms, grid):
     fwd = ForwardModel(mesh, protocol, 1e-4)
     rm = ReconstructionMatrix.greit(imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE)
     build = time.perf_counter() - t
-    unit, floor = 1.0e4, -0.9e4  # e.g. Pa per unit relative change, and the pipeline's clip
+    unit, floor = UNIT, FLOOR
     rm.images(frames[0], v0, grid, unit, floor)  # folds the pixel matrix once (cached)
     exact = np.asarray(rm.matrix, dtype=np.float64) @ ((frames - v0) / reference_scale(v0)).T
     exact = grid.to_image(np.maximum(unit * exact.T, floor))
@@ -154,6 +174,15 @@ def greit_case(mesh, protocol, frames, v0, phantoms, grid):
 
 
 def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
+    """pyEIT 1.2.4 JAC on ``mesh``: build s, element frame s, frame -> image s, merit.
+
+    Element frame: ``solver.solve`` (volts -> element values, all pyEIT gives). Frame ->
+    image: the same output as eit_skin's frame -> image (the float32 pixel image of ``grid``
+    with the unit factor, the clip and NaN outside the sheet) made from pyEIT's element
+    values by the cheapest route numpy offers (a unit multiply, ``np.maximum`` and
+    :meth:`ImageGrid.to_image`'s gather), so the two frame -> image times compare like with
+    like.
+    """
     from pyeit.eit import jac
     from pyeit.eit import protocol as pprot
     from pyeit.mesh import PyEITMesh
@@ -182,9 +211,16 @@ def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
     frame_t = median_time(lambda: solver.solve(f_py[0], v0_py, normalize=True), 30)
     ds = np.real(solver.solve(f_py, v0_py, normalize=True)).T  # [T, N]
     # pyEIT's sign convention: make a conductive target positive
-    if np.sum(ds[0]) < 0:
-        ds = -ds
-    return build, frame_t, merit(grid, ds, phantoms)
+    sign = -1.0 if np.sum(ds[0]) < 0 else 1.0
+    ds = sign * ds
+    unit, floor = sign * UNIT, FLOOR
+
+    def image():
+        x = np.real(solver.solve(f_py[0], v0_py, normalize=True))
+        return grid.to_image(np.maximum(unit * x, floor))
+
+    image_t = median_time(image, 30)
+    return build, frame_t, image_t, merit(grid, ds, phantoms), image
 
 
 class TimedForward:
@@ -581,6 +617,12 @@ def main() -> None:
         "--online-only", action="store_true", help="only the online Gauss-Newton section"
     )
     ap.add_argument("--json", type=Path, help="also write the per-mesh rows to this JSON file")
+    ap.add_argument(
+        "--frame-only",
+        action="store_true",
+        help="only the per-mesh frame table (no Gauss-Newton, sweep or plot): rewrites that "
+        "section of REPORT.md",
+    )
     args = ap.parse_args()
     if args.gn_node:
         rows, cpu = gn_node_rows(GN_NODE_RATE_HZ)
@@ -634,37 +676,57 @@ def main() -> None:
         rm_l = ReconstructionMatrix.build(fwd_l, prior="laplace", noise_figure=NOISE_FIGURE)
         build_l = time.perf_counter() - t
         lap = merit(grid, rm_l.reconstruct(frames, v0), phantoms)
-        gn = gn_case(fwd, large, v0)
-        gn_rows += gn
-        gn_ms = [(g["wall_ms"], g["iterations"]) for g in gn]  # the reusable solver, per frame
-        on = online_gn_case(fwd, press, v0)
-        online += on
-        if mesh.n_triangles <= args.no_pyeit_above:
-            py_build, py_frame, py = pyeit_case(mesh, protocol, frames, v0, phantoms, grid)
+        if args.frame_only:
+            gn_ms, on = [(float("nan"), 0)] * 2, []
         else:
-            py_build, py_frame, py = None, None, (None,) * 4
+            gn = gn_case(fwd, large, v0)
+            gn_rows += gn
+            gn_ms = [(g["wall_ms"], g["iterations"]) for g in gn]  # reusable solver, per frame
+            on = online_gn_case(fwd, press, v0)
+            online += on
+        if mesh.n_triangles <= args.no_pyeit_above:
+            py_build, py_frame, py_image, py, py_fn = pyeit_case(
+                mesh, protocol, frames, v0, phantoms, grid
+            )
+            # the ratio from interleaved calls (ours, pyEIT's, ours, ...): same load on both
+            rm = g["matrix"]
+            frame_t, py_image = interleaved_medians(
+                [lambda rm=rm, grid=grid: rm.images(frames[0], v0, grid, UNIT, FLOOR), py_fn], 200
+            )
+        else:
+            py_build, py_frame, py_image, py = None, None, None, (None,) * 4
         records.append(
             json_row(
                 triangles=mesh.n_triangles,
                 build_s=build,
                 frame_ms=frame_t * 1e3,
                 batched_frame_ms=batch_t * 1e3,
-                gn_frame_ms=next(r["mean_ms"] for r in on if r["default"]),
+                gn_frame_ms=next((r["mean_ms"] for r in on if r["default"]), None),
                 max_pe_r=ours[0],
                 pyeit_build_s=py_build,
-                pyeit_frame_ms=None if py_frame is None else py_frame * 1e3,
+                pyeit_frame_ms=None if py_image is None else py_image * 1e3,
                 pyeit_max_pe_r=py[0],
             )
         )
         nan = float("nan")
         py_build = nan if py_build is None else py_build
         py_frame = nan if py_frame is None else py_frame
+        py_image = nan if py_image is None else py_image
         py = tuple(nan if x is None else x for x in py)
         row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_ms[0][0], gn_ms[0][1])
         row += (*ours, py_build, py_frame * 1000.0, *py, build_l, *lap, *gn_ms[1])
         row += (g["element_frame_s"] * 1e3, g["element_batched_s"] * 1e3, g["image_error"])
+        row += (py_image * 1e3,)
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
+    if args.frame_only:
+        if args.json is not None:
+            write_json(args.json, records)
+        replace_section(
+            OUT / "REPORT.md",
+            frame_section(rows, args.quick, fine.mesh.n_triangles, frame_only=True),
+        )
+        return
     sweep = []
     fwd = ForwardModel(disk_mesh(R, h_m=0.0023), protocol, 1e-4)
     for h in SWEEP[:3] if args.quick else SWEEP:
@@ -694,7 +756,8 @@ def main() -> None:
 
 
 #: Keys of one ``--json`` row: times in s / ms, position error as a fraction of R; null
-#: where not measured (pyEIT skipped above ``--no-pyeit-above``).
+#: where not measured (pyEIT skipped above ``--no-pyeit-above``). ``frame_ms`` and
+#: ``pyeit_frame_ms`` are both frame -> image (the same pixel image, unit and mask).
 JSON_KEYS = (
     "triangles",
     "build_s",
@@ -733,6 +796,66 @@ def write_json(path: Path, rows: list[dict]) -> None:
     Path(path).write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n")
 
 
+def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> list[str]:
+    """The report's first section: machine, method and the per-mesh frame table."""
+    only = " (this section only; the sections below are from an earlier run)"
+    flags = "".join(f" {a}" for a in sys.argv[1:] if a.startswith("--") and a != "--json")
+    lines = [
+        "# Reconstruction benchmark",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
+        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
+        f"Python {platform.python_version()}, numpy "
+        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
+        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
+        f".venv/bin/python bench/bench_reconstruction.py{flags}`"
+        f"{only if frame_only else ''}"
+        f", {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        "",
+        f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
+        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
+        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
+        f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
+        "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
+        "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
+        "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
+        "median of 50 (30 for pyEIT's element frame) single-frame calls; frame->image, ours and "
+        "pyEIT's: median of 200 interleaved calls (ours, pyEIT's, ours, ...) so that the "
+        "machine's load weighs on both alike; batched: 30 frames in one call, "
+        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
+        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
+        "one product with the matrix rows of the elements under pixels, folded once); element "
+        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
+        "float32 image error: max deviation from the float64 chain over max |image|; "
+        "pyEIT frame->image: pyEIT's `solve` then the same unit, clip and float32 gather onto "
+        "the same pixels (`ImageGrid.to_image`), i.e. the same output as ours (before this "
+        "column the ratio was taken against pyEIT's element frame alone, which flattered "
+        "pyEIT by the imaging step); frame / pyEIT: our frame->image time over pyEIT's "
+        "frame->image time. Our matrix is float32 and column-major (OpenBLAS's faster "
+        "matrix-vector kernel); pyEIT's is float64, row-major, on all N elements. "
+        "Gauss-Newton: see its sections below. "
+        "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
+        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
+        "",
+        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
+        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
+        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
+        "| pyEIT frame ms | pyEIT frame->image ms | pyEIT max PE | pyEIT RES | pyEIT RNG "
+        "| pyEIT SD |",
+        "|" + "---|" * 23,
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[26]:.2f} | "
+            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
+            f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
+            f"{r[10]:.2f} | {r[11]:.3f} | {r[26]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | "
+            f"{r[15]:.2f} |"
+        )
+    return lines
+
+
 def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     import matplotlib
 
@@ -745,7 +868,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     ax[0].loglog(a[:, 0], a[:, 10], "s-", label="pyEIT JAC build")
     ax[0].loglog(a[:, 0], a[:, 4] / 1e3, "^-", label="eit_skin 5 GN iterations (NOSER, solver)")
     ax[0].loglog(a[:, 0], a[:, 2] / 1e3, "o:", label="eit_skin frame->image")
-    ax[0].loglog(a[:, 0], a[:, 11] / 1e3, "s:", label="pyEIT frame")
+    ax[0].loglog(a[:, 0], a[:, 26] / 1e3, "s:", label="pyEIT frame->image")
     ax[0].set_xlabel("triangles")
     ax[0].set_ylabel("seconds")
     ax[0].legend(fontsize=8)
@@ -766,48 +889,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     ax[2].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(OUT / "reconstruction.png", dpi=90)
-    lines = [
-        "# Reconstruction benchmark",
-        "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
-        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
-        f"Python {platform.python_version()}, numpy "
-        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
-        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
-        ".venv/bin/python bench/bench_reconstruction.py`.",
-        "",
-        f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
-        "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
-        f"matrix (`method: greit`), noise figure {GREIT_NOISE_FIGURE} (build/frame/PE/RES/RNG/SD "
-        f"columns); Laplace prior at noise figure {NOISE_FIGURE} for comparison; "
-        "pyEIT 1.2.4 JAC: kotre, p = 0.5, lambda = 0.01, "
-        "normalized Jacobian and data, same mesh, point electrodes at the electrodes' middle "
-        "nodes. Build: once per mesh (includes the forward model and Jacobian for both). Frame: "
-        "median of 50 (30 for pyEIT) single-frame calls; batched: 30 frames in one call, "
-        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
-        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
-        "one product with the matrix rows of the elements under pixels, folded once); element "
-        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
-        "float32 image error: max deviation from the float64 chain over max |image|; "
-        "frame / pyEIT: frame->image time over pyEIT's element frame time. "
-        "Gauss-Newton: see its sections below. "
-        "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
-        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
-        "",
-        "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
-        "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
-        "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
-        "| pyEIT frame ms | pyEIT max PE | pyEIT RES | pyEIT RNG | pyEIT SD |",
-        "|" + "---|" * 22,
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]:.4f} | {r[2] / r[11]:.2f} | "
-            f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
-            f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
-            f"{r[10]:.2f} | {r[11]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | {r[15]:.2f} |"
-        )
+    lines = frame_section(rows, quick, data_n)
     lines += [
         "",
         f"## Inverse-mesh sweep (forward mesh {sweep_fwd} triangles, same data)",

@@ -155,6 +155,12 @@ class ImageGrid:
             float32 ``[H, W]`` or ``[T, H, W]``, NaN outside the sheet and in holes.
         """
         v = np.asarray(values, dtype=np.float32)
+        n = self.matrix.shape[1]
+        if v.shape == (n,):  # one frame, the node's case: one copy and one gather
+            padded = np.empty(n + 1, dtype=np.float32)
+            padded[:n] = v
+            padded[n] = np.nan
+            return self.image_of_row(padded)
         single = v.ndim == 1
         v2 = v[None, :] if single else v
         if v2.ndim != 2 or v2.shape[1] != self.matrix.shape[1]:
@@ -164,6 +170,10 @@ class ImageGrid:
         h, w = self.shape
         padded = np.concatenate([v2, np.full((v2.shape[0], 1), np.nan, np.float32)], axis=1)
         return np.take(padded, self._owner, axis=1).reshape(-1, h, w)[0 if single else slice(None)]
+
+    def image_of_row(self, row: np.ndarray) -> np.ndarray:
+        """``[N + 1]`` float32 element values with NaN last -> ``[H, W]`` image (one gather)."""
+        return row.take(self._owner).reshape(self.shape)
 
     @cached_property
     def _owner(self) -> np.ndarray:
@@ -187,13 +197,18 @@ class PixelMatrix:
 
     Only the rows of the ``K <= min(N, H*W)`` elements that lie under a pixel are kept, each
     multiplied by a constant unit ``scale`` (pascals per unit of the element value, say), in
-    float32, C-contiguous; an image is one ``[K, M] @ [M]`` product, a clip to
-    ``[floor, ceiling]`` and
+    float32; an image is one ``[K, M] @ [M]`` product, a clip to ``[floor, ceiling]`` and
     one gather onto the ``H*W`` pixels (NaN outside the sheet and in holes). ``T`` inputs
-    are one matrix-matrix product.
+    are one matrix-matrix product. Folding onto pixels never pays: a ``[H*W, M]`` product
+    has at least as many rows as ``K`` and the gather costs ``H*W`` loads, not ``H*W*M``.
+
+    The matrix is stored column-major (Fortran order): the matrix-vector product then runs
+    as ``M`` contiguous column updates, which OpenBLAS does 20-30 % faster than ``K`` row dot
+    products of length ``M`` (bench/REPORT.md); the batched product reads it as the
+    C-contiguous ``[M, K]`` transpose.
 
     Attributes:
-        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``.
+        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``, Fortran order.
         elements: ``[K]`` int64 the element of each row (ascending).
         owner: ``[H*W]`` intp row of each pixel, ``K`` where no element is (NaN).
         shape: ``(H, W)``.
@@ -230,7 +245,7 @@ class PixelMatrix:
         elements, owner = np.unique(element[element < n], return_inverse=True)
         pixel_row = np.full(element.size, elements.size, dtype=np.intp)
         pixel_row[element < n] = owner.ravel()
-        matrix = np.ascontiguousarray(a[elements] * scale, dtype=np.float32)
+        matrix = np.asfortranarray(a[elements] * scale, dtype=np.float32)
         if not floor <= ceiling:
             raise ValueError(f"floor {floor} is above ceiling {ceiling}")
         return cls(
@@ -244,9 +259,14 @@ class PixelMatrix:
         )
 
     def _clip(self, y: np.ndarray) -> None:
-        """Clip ``y`` in place to ``[floor, ceiling]`` (nothing when both are infinite)."""
-        if self.floor > -np.inf or self.ceiling < np.inf:
-            np.clip(y, self.floor, self.ceiling, out=y)
+        """Clip ``y`` in place to ``[floor, ceiling]`` (nothing when both are infinite).
+
+        Two ufuncs, not ``np.clip`` (several microseconds of wrapper per call); NaN stays NaN.
+        """
+        if self.floor > -np.inf:
+            np.maximum(y, self.floor, out=y)
+        if self.ceiling < np.inf:
+            np.minimum(y, self.ceiling, out=y)
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Input ``[M]`` or ``[T, M]`` -> float32 image ``[H, W]`` or ``[T, H, W]``."""

@@ -410,6 +410,26 @@ class LayerImager:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""
         return self.grid.to_image(element_values)
 
+    def physical_image(self, relative_change: np.ndarray) -> np.ndarray:
+        """One frame's relative change ``[N]`` -> its physical image ``[H, W]`` float32.
+
+        Bit for bit ``images(physical(relative_change))``; for pressure (a linear unit) in
+        five numpy calls into one preallocated row (clip, float64 product rounded once to
+        float32, gather) instead of a dozen: the per-frame step of a node.
+        """
+        material = self.layer.material
+        v = np.asarray(relative_change)
+        n = self.mesh.n_triangles
+        if material.quantity != "pressure" or v.shape != (n,):
+            return self.images(self.physical(v))
+        low, high = RELATIVE_CHANGE_RANGE
+        clipped = np.maximum(v, low)
+        np.minimum(clipped, high, out=clipped)
+        row = np.empty(n + 1, dtype=np.float32)
+        np.multiply(clipped, material.pressure_scale_pa, out=row[:n], dtype=np.float64)
+        row[n] = np.nan
+        return self.grid.image_of_row(row)
+
     def physical(self, relative_images: np.ndarray) -> np.ndarray:
         """Relative change -> the layer's quantity (Pa for pressure, strain for stretch).
 
@@ -423,7 +443,9 @@ class LayerImager:
         within :attr:`Material.physical_range <eit_skin.patch.material.Material.physical_range>`;
         NaN (outside the sheet) stays NaN.
         """
-        clipped = np.clip(relative_images, *RELATIVE_CHANGE_RANGE)
+        low, high = RELATIVE_CHANGE_RANGE
+        clipped = np.maximum(relative_images, low)  # two ufuncs: np.clip's wrapper costs more
+        np.minimum(clipped, high, out=clipped)
         return self.layer.material.to_physical(clipped).astype(np.float32)
 
 

@@ -257,7 +257,7 @@ class LayerProcessor:
         values = self.imager.relative_change(frame, reference, self._fault_flags)
         touching = tracker.touching(values)
         tracker.track(frame, t_s, touching)
-        image = self.imager.images(self.imager.physical(values))
+        image = self.imager.physical_image(values)
         self.frames_imaged += 1
         faulty = tuple(int(e) for e in self._faulty)
         return LayerImages(t_s, values, image, touching, used, faulty)

@@ -21,6 +21,7 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
 
 from __future__ import annotations
 
+import array
 import sys
 import time
 from collections import deque
@@ -91,6 +92,7 @@ class LayerState:
     last_arrival: float | None = None  # time.monotonic() of the last frame, good or bad
     frames_topic: str = ""
     marker_topic: str = ""
+    image_msg: Image | None = None  # refilled per frame (:meth:`_publish_images`)
 
 
 class ReconstructionNode(Node):
@@ -255,11 +257,21 @@ class ReconstructionNode(Node):
         state.processing_ms.append((time.perf_counter() - started) * 1e3)
 
     def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
+        """Publish the float image (and the colour one to a viewer) of one frame.
+
+        The messages are built once per layer and refilled: ``publish`` serialises before it
+        returns, so reuse is safe, and it saves the message constructors' per-field checks.
+        """
         height, width = physical.shape
-        image = Image(header=header, height=height, width=width, encoding="32FC1")
-        image.is_bigendian = int(sys.byteorder == "big")
-        image.step = width * 4
-        image.data = np.ascontiguousarray(physical, dtype=np.float32).tobytes()
+        image = state.image_msg
+        if image is None or image.height != height or image.width != width:
+            image = state.image_msg = Image(height=height, width=width, encoding="32FC1")
+            image.is_bigendian = int(sys.byteorder == "big")
+            image.step = width * 4
+        image.header = header
+        data = array.array("B")
+        data.frombytes(memoryview(np.ascontiguousarray(physical, dtype=np.float32)).cast("B"))
+        image.data = data
         state.image_pub.publish(image)
         if state.colour_pub.get_subscription_count():  # rendered only for a viewer
             colour = Image(header=header, height=height, width=width, encoding="rgb8")
