@@ -7,8 +7,10 @@ simulator source publishing after shutdown) shows here with near certainty.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
+import select
 import signal
 import subprocess
 import sys
@@ -157,6 +159,44 @@ def test_eit_skin_run_stops_its_nodes_on_a_signal(
     assert not [pid for pid in children if Path(f"/proc/{pid}").exists()]
     for log in (out / "logs").iterdir():
         assert _clean(log.read_text()), log.read_text()
+
+
+def test_a_killed_eit_skin_run_leaves_no_node_behind(tmp_path: Path, env_cache: Path) -> None:
+    """`eit-skin run` killed outright (SIGKILL, the OOM killer): its nodes get SIGTERM from
+    the kernel, stop cleanly (exit 0 by their own handling) and close their recordings."""
+    probe = Probe("killed_run_probe")
+    topic = _image_topic("/face")
+    probe.subscribe(Image, topic)
+    run = subprocess.Popen(
+        [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(tmp_path)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=dict(os.environ),
+    )
+    children: list[int] = []
+    try:
+        _wait_for_image(probe, [topic], [run])
+        children = [
+            int(pid)
+            for pid in subprocess.run(
+                ["pgrep", "-P", str(run.pid)], capture_output=True, text=True
+            ).stdout.split()
+        ]
+        assert len(children) == 3, children
+        pidfds = [os.pidfd_open(pid) for pid in children]
+        run.kill()
+        run.wait()
+        for fd in pidfds:  # readable when that process has ended (not our child: no wait())
+            assert select.select([fd], [], [], EXIT_S)[0], "a node outlived its killed starter"
+            os.close(fd)
+    finally:
+        for pid in children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        probe.close()
+    for log in (tmp_path / "logs").iterdir():
+        text = log.read_text()
+        assert _clean(text), text
 
 
 @pytest.mark.parametrize("executable", ["eit_driver", "eit_reconstruction", "eit_classifier"])

@@ -7,6 +7,7 @@ as its console script with ``--ros-args`` remappings and parameters.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
 import signal
@@ -63,14 +64,41 @@ class RunningNode:
         return f"{self.spec.namespace}/{self.spec.name}"
 
 
+PR_SET_PDEATHSIG = 1
+"""prctl option (Linux): the signal a process gets when its parent dies."""
+
+
+def _stop_with_parent(parent: int) -> None:
+    """In a started node, between fork and exec: SIGTERM when the starter dies (Linux).
+
+    So a killed ``eit-skin run`` (SIGKILL, OOM killer) leaves no node graph behind. The
+    kernel ties this to the starting thread: :func:`start` is called from the main thread.
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != parent:  # the starter died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def start(spec: NodeSpec, log_dir: Path) -> RunningNode:
-    """Start one node; its stdout/stderr go to ``log_dir/<namespace>_<name>.log``."""
+    """Start one node; its stdout/stderr go to ``log_dir/<namespace>_<name>.log``.
+
+    On Linux the node gets SIGTERM (a clean stop) if this process dies without stopping it.
+    """
     log_dir.mkdir(parents=True, exist_ok=True)
     log_path = log_dir / f"{spec.namespace.strip('/').replace('/', '_')}_{spec.name}.log"
     command = [str(find_executable(spec.executable)), *ros_arguments(spec)]
     env = {**NODE_ENVIRONMENT, **os.environ}
+    parent = os.getpid()
+    on_linux = sys.platform.startswith("linux")
     with log_path.open("w") as log:
-        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+        process = subprocess.Popen(
+            command,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+            preexec_fn=(lambda: _stop_with_parent(parent)) if on_linux else None,
+        )
     return RunningNode(spec, process, log_path)
 
 
