@@ -63,7 +63,7 @@ def test_spin_nodes_delivers_messages_runs_timers_and_returns_on_shutdown(kind: 
 
 
 HUNG_CLEANUP = """
-import sys, threading, time
+import sys, threading
 from eit_skin.ros.node_runner import StopSignals
 StopSignals().report_hung_cleanup(float(sys.argv[1]))
 print("cleaning up", flush=True)

@@ -72,6 +72,27 @@ def _clean(log: str) -> bool:
     return not any(word in log for word in BAD_WORDS)
 
 
+def _start_face_run(out: Path, probe: Probe, output: int) -> tuple[subprocess.Popen, str]:
+    """`eit-skin run --patch face` with its stdout+stderr to ``output``; the probe watches
+    its image topic (returned)."""
+    topic = _image_topic("/face")
+    probe.subscribe(Image, topic)
+    run = subprocess.Popen(
+        [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(out)],
+        stdout=output,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ),
+    )
+    return run, topic
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid``."""
+    found = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
+    return [int(child) for child in found.stdout.split()]
+
+
 @pytest.mark.timeout(1200)
 def test_every_node_ends_cleanly_on_sigint_and_sigterm(tmp_path: Path, env_cache: Path) -> None:
     """10 graphs (2 batches of 5 at once, to save start-up time), each signalled at its own
@@ -131,20 +152,10 @@ def test_eit_skin_run_stops_its_nodes_on_a_signal(
     every node it started, writes its pictures and exits 0."""
     out = tmp_path / "out"
     probe = Probe("run_probe")
-    topic = _image_topic("/face")
-    probe.subscribe(Image, topic)
-    run = subprocess.Popen(
-        [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(out)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=dict(os.environ),
-    )
+    run, topic = _start_face_run(out, probe, subprocess.PIPE)
     try:
         _wait_for_image(probe, [topic], [run])
-        children = subprocess.run(
-            ["pgrep", "-P", str(run.pid)], capture_output=True, text=True
-        ).stdout.split()
+        children = _children(run.pid)
         assert len(children) == 3, children
         run.send_signal(sig)
         output, _ = run.communicate(timeout=EXIT_S)
@@ -165,23 +176,11 @@ def test_a_killed_eit_skin_run_leaves_no_node_behind(tmp_path: Path, env_cache: 
     """`eit-skin run` killed outright (SIGKILL, the OOM killer): its nodes get SIGTERM from
     the kernel, stop cleanly (exit 0 by their own handling) and close their recordings."""
     probe = Probe("killed_run_probe")
-    topic = _image_topic("/face")
-    probe.subscribe(Image, topic)
-    run = subprocess.Popen(
-        [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(tmp_path)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env=dict(os.environ),
-    )
+    run, topic = _start_face_run(tmp_path, probe, subprocess.DEVNULL)
     children: list[int] = []
     try:
         _wait_for_image(probe, [topic], [run])
-        children = [
-            int(pid)
-            for pid in subprocess.run(
-                ["pgrep", "-P", str(run.pid)], capture_output=True, text=True
-            ).stdout.split()
-        ]
+        children = _children(run.pid)
         assert len(children) == 3, children
         pidfds = [os.pidfd_open(pid) for pid in children]
         run.kill()
