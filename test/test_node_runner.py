@@ -97,3 +97,40 @@ def test_a_hung_cleanup_is_reported_with_its_stack_and_ends(how: str) -> None:
     assert process.returncode == (1 if how == "watchdog" else -signal.SIGTERM), stderr
     assert "in <module>" in stderr and "hread 0x" in stderr, stderr  # "Current thread 0x..."
     assert "KeyboardInterrupt" not in stderr, stderr
+
+
+STUCK_IN_NATIVE_CODE = """
+import ctypes, sys
+from eit_skin.ros.exit_timer import exit_after
+from eit_skin.ros.node_runner import _bound_dds_teardown
+if sys.argv[1] == "teardown":
+    _bound_dds_teardown(1.0)
+else:
+    assert exit_after(1.0, int(sys.argv[1]))
+print("stuck", flush=True)
+ctypes.PyDLL(None).sleep(600)  # native code keeping the GIL, as in the Fast DDS deadlock
+"""
+
+
+@pytest.mark.parametrize("how", ["teardown", "3"])
+def test_a_process_stuck_in_native_code_holding_the_gil_still_ends(how: str) -> None:
+    """The stacks of the stop's DDS phase: no Python can run once a thread sleeps in native
+    code with the GIL held, yet the native timer ends the process with the armed status (3
+    shows it is the timer's, not a normal exit), after the stacks when a teardown is bounded."""
+    import subprocess
+    import sys
+
+    process = subprocess.Popen(
+        [sys.executable, "-c", STUCK_IN_NATIVE_CODE, how],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        stdout, stderr = process.communicate(timeout=120)  # a ceiling: sleep(600) otherwise
+    finally:
+        process.kill()
+    assert stdout == "stuck\n", stderr
+    assert process.returncode == (0 if how == "teardown" else 3), stderr
+    if how == "teardown":  # the stack of the stuck thread went to the log first
+        assert "Timeout (0:00:01)!" in stderr and "in <module>" in stderr, stderr

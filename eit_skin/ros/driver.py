@@ -234,11 +234,15 @@ class DriverNode(Node):
         ]
         self.diagnostics.publish(msg)
 
-    def destroy_node(self) -> None:
+    def close_resources(self) -> None:
+        """Stop the serial reader thread and close the recording (idempotent)."""
         if isinstance(self.source, SerialSource):
             self.source.stop()
         if self.recorder is not None:
             self.recorder.close()
+
+    def destroy_node(self) -> None:
+        self.close_resources()
         super().destroy_node()
 
 

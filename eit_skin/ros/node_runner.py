@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from eit_skin.patch.model import PatchError
+from eit_skin.ros.exit_timer import exit_after
 from eit_skin.ros.parameters import UNSET_DOUBLES, ParameterTable
 
 
@@ -158,37 +159,36 @@ class StopSignals:
 
 
 SHUTDOWN_TIMEOUT_S = 15.0
-"""Ceiling of a node's clean-up after its stop signal, interpreter exit included."""
-DESTROY_TIMEOUT_S = 3.0
-"""Ceiling of ``destroy_node`` at shutdown (below launch's 5 s before SIGTERM)."""
+"""Ceiling (s) of a node's own clean-up after its stop signal (threads joined, files closed)."""
+DDS_TEARDOWN_TIMEOUT_S = 3.0
+"""Ceiling (s) of rclpy's part of the stop after that (entities, context, interpreter exit):
+below the 5 s ``ros2 launch`` waits before it sends SIGTERM."""
 
 
-def _destroyed_within(node: Node, timeout_s: float) -> bool:
-    """``node.destroy_node()`` on a helper thread; False if it has not returned in time.
+def _bound_dds_teardown(timeout_s: float) -> None:
+    """Whatever happens in rclpy/Fast DDS from now on, the process ends within ``timeout_s``.
 
-    In about one stop in a hundred under load, rclpy's ``Node.destroy_node`` never returns:
-    its ``destroy_when_not_in_use()`` waits on an entity the EventsExecutor still holds
-    (stacks from the node logs, docs/nodes.md). The node's own clean-up runs before that
-    call, so the caller may then exit the process without losing data.
+    Called once the node's own clean-up is done, so nothing is lost by ending here: if the
+    teardown has not finished after ``timeout_s``, every thread's stack goes to the log and,
+    0.5 s later, the process exits 0 from a native timer (:func:`exit_after`), which runs even
+    when a thread is stuck in native code holding the GIL (the Fast DDS deadlock seen in the
+    stress runs, docs/nodes.md). Without POSIX timers the 15 s watchdog stays in charge.
     """
-    done = threading.Event()
-
-    def destroy() -> None:
-        node.destroy_node()
-        done.set()
-
-    threading.Thread(target=destroy, name="destroy_node", daemon=True).start()
-    return done.wait(timeout_s)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if exit_after(timeout_s + 0.5, 0):
+        faulthandler.dump_traceback_later(timeout_s, exit=False)
 
 
 def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | None) -> int:
     """Spin a node until SIGINT/SIGTERM (exit 0); a bad configuration exits 2 with one line.
 
-    On a signal the node is destroyed first (its threads stopped, recordings closed), then
-    the context is shut down: no traceback, no publishing after shutdown. A clean-up that
-    hangs (seen once in several hundred stops, inside rclpy or the DDS layer) is reported,
-    never silent: SIGTERM or a watchdog after :data:`SHUTDOWN_TIMEOUT_S` ends it with every
-    thread's stack in the log (:meth:`StopSignals.report_hung_cleanup`).
+    On a signal the node's own resources go first (``close_resources()`` if it has one:
+    threads stopped, recordings closed), then rclpy destroys the node and shuts the context
+    down: no traceback, no publishing after shutdown. Neither step can hang silently: the
+    first is bounded by :data:`SHUTDOWN_TIMEOUT_S` (stacks in the log, exit 1, or SIGTERM
+    ends it: :meth:`StopSignals.report_hung_cleanup`), the second by
+    :data:`DDS_TEARDOWN_TIMEOUT_S` (stacks in the log, exit 0: :func:`_bound_dds_teardown`).
     """
     signals = StopSignals()
     node = None
@@ -206,18 +206,12 @@ def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | N
             pass
         finally:
             signals.report_hung_cleanup(SHUTDOWN_TIMEOUT_S)
-            if node is not None and not _destroyed_within(node, DESTROY_TIMEOUT_S):
-                # our own clean-up (threads joined, recordings closed) runs first in
-                # destroy_node; what hangs is rclpy's entity destruction after it
-                print(
-                    f"{executable}: rclpy's destroy_node did not return within "
-                    f"{DESTROY_TIMEOUT_S:.0f} s (rclpy waits on an entity still in use); "
-                    "files are closed, exiting",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                sys.stdout.flush()
-                os._exit(0)
+            if node is not None:
+                close_resources = getattr(node, "close_resources", None)
+                if close_resources is not None:
+                    close_resources()  # threads joined, recordings closed
+                _bound_dds_teardown(DDS_TEARDOWN_TIMEOUT_S)
+                node.destroy_node()
             if rclpy.ok():
                 rclpy.shutdown()
     return 0

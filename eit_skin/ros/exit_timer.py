@@ -1,0 +1,72 @@
+"""A process exit that needs neither the GIL nor any Python thread to run.
+
+At shutdown a node's last step, rclpy destroying its DDS entities, can deadlock inside Fast
+DDS (eProsima/Fast-DDS#6502: a receive thread holding the PDP mutex waits for the event thread,
+which waits for that mutex; seen about once in a few hundred stops when many nodes stop at
+once). The thread calling rclpy then blocks in native code while holding the GIL, so no Python
+code, not even a watchdog thread or a signal handler, can run again. :func:`exit_after` arms a
+POSIX timer whose ``SIGEV_THREAD`` notification is libc's ``_exit`` itself: the thread that
+glibc starts when the timer fires calls ``_exit(code)`` directly.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+
+_SIGEV_THREAD = 2
+_CLOCK_MONOTONIC = 1
+
+
+class _Sigval(ctypes.Union):
+    _fields_ = [("sival_int", ctypes.c_int), ("sival_ptr", ctypes.c_void_p)]
+
+
+class _Sigevent(ctypes.Structure):
+    """``struct sigevent`` with its SIGEV_THREAD members (64 bytes with the padding)."""
+
+    _fields_ = [
+        ("sigev_value", _Sigval),
+        ("sigev_signo", ctypes.c_int),
+        ("sigev_notify", ctypes.c_int),
+        ("sigev_notify_function", ctypes.c_void_p),
+        ("sigev_notify_attributes", ctypes.c_void_p),
+        ("_pad", ctypes.c_byte * 32),
+    ]
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+
+
+def exit_after(seconds: float, code: int = 0) -> bool:
+    """End the process with exit status ``code`` after ``seconds`` (s), whatever it is doing.
+
+    The notification function receives the timer's ``union sigval`` by value, which the C
+    calling conventions of Linux on x86-64 and arm64 pass in the first integer register:
+    ``_exit`` reads it as its ``int`` status. Nothing is flushed at that moment (call
+    ``sys.stdout.flush()`` before arming). Returns False, arming nothing, where POSIX timers
+    are missing (not Linux).
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    libc = ctypes.CDLL(None, use_errno=True)
+    try:
+        timer_create, timer_settime = libc.timer_create, libc.timer_settime
+    except AttributeError:  # glibc before 2.34 keeps them in librt
+        librt = ctypes.CDLL("librt.so.1", use_errno=True)
+        timer_create, timer_settime = librt.timer_create, librt.timer_settime
+    event = _Sigevent()
+    event.sigev_value.sival_ptr = code  # all 8 bytes defined; _exit reads the low int
+    event.sigev_notify = _SIGEV_THREAD
+    event.sigev_notify_function = ctypes.cast(libc._exit, ctypes.c_void_p).value
+    timer = ctypes.c_void_p()
+    if timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0:
+        return False
+    whole = int(seconds)
+    when = _Itimerspec(it_value=_Timespec(whole, int((seconds - whole) * 1e9)))
+    return timer_settime(timer, 0, ctypes.byref(when), None) == 0
