@@ -102,7 +102,13 @@ def start(spec: NodeSpec, log_dir: Path) -> RunningNode:
     return RunningNode(spec, process, log_path)
 
 
-def stop(nodes: list[RunningNode], timeout_s: float = 10.0) -> dict[str, int]:
+#: Wait (s) for a node after its SIGINT before SIGKILL: above the ceilings of its own
+#: clean-up (15 s) and of rclpy's teardown (3.5 s) in eit_skin.ros.node_runner, so a hung
+#: node's watchdog prints its stacks to its log before the kill.
+STOP_TIMEOUT_S = 20.0
+
+
+def stop(nodes: list[RunningNode], timeout_s: float = STOP_TIMEOUT_S) -> dict[str, int]:
     """SIGINT every node (like Ctrl-C in ros2 launch), then wait; returns exit codes."""
     for node in nodes:
         if node.process.poll() is None:
