@@ -21,6 +21,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import simulate_press_session
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -111,7 +112,7 @@ def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -
                     and probe.node.count_publishers(topics.calibrated_contacts) > 0
                 )
             ),
-            60,
+            EVENT_S,
         )
         assert linked and node.poll() is None, log.read_text()
         # the no-load reference: the presses' own unloaded frames, again until it is taken
@@ -131,7 +132,7 @@ def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -
                 k += 1
                 stamp = stamp_ns(msg)
                 publisher.publish(msg)
-                if probe.spin_until(lambda s=stamp: any(stamp_ns(m) == s for _, m in got), 10):
+                if probe.spin_until(lambda s=stamp: any(stamp_ns(m) == s for _, m in got), 30):
                     return next(m for _, m in got if stamp_ns(m) == stamp)
             raise AssertionError(log.read_text())
 
@@ -164,7 +165,7 @@ def test_a_calibration_of_another_patch_is_refused(tmp_path, calibrated) -> None
     params = {"patch_config": "arm", "cache_dir": str(cache), "calibration": str(model)}
     node = start_node("eit_reconstruction", "/arm_refusal_test", params, log)
     try:
-        code = node.wait(60)
+        code = node.wait(EVENT_S)
     finally:
         stop_node(node)
     text = log.read_text()

@@ -21,6 +21,7 @@ from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import layer_image_grid
 from test.patch_copies import shipped_patch_data, write_patch
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -96,10 +97,12 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
     log = tmp_path / "classifier.log"
     node = start_node("eit_classifier", case.namespace, {"patch_config": case.config}, log)
     try:
-        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs), 30), (
+        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs), EVENT_S), (
             log.read_text()
         )
-        assert probe.spin_until(lambda: probe.node.count_publishers(topics.touch_events) > 0, 10)
+        assert probe.spin_until(
+            lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
+        )
         probe.spin_for(0.5)
         rng = np.random.default_rng(0)
         xx, yy = np.meshgrid(grid.x, grid.y)
@@ -117,7 +120,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
             time.sleep(0.01)
         topic = topics.touch_events
         probe.spin_until(
-            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), 10
+            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
         )
         events = [m for _, m in probe.messages[topic]]
         assert events, log.read_text()
@@ -146,7 +149,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
                     - int(classifier_values(probe).get("unpaired", 0))
                     >= 50
                 ),
-                10,
+                EVENT_S,
             ), classifier_values(probe)
     finally:
         assert stop_node(node) == 0, log.read_text()
@@ -160,7 +163,7 @@ def test_patch_without_a_pressure_layer_is_refused(tmp_path) -> None:
     path = write_patch(tmp_path, data)
     log = tmp_path / "stretch_only.log"
     node = start_node("eit_classifier", "/stretch_only", {"patch_config": str(path)}, log)
-    assert node.wait(30) == 2
+    assert node.wait(EVENT_S) == 2
     text = log.read_text()
     assert "refusing to start" in text
     assert f"{path}: layers: no layer measures pressure (sleeve: stretch)" in text
@@ -171,7 +174,7 @@ def test_bad_patch_refuses_to_start(tmp_path) -> None:
     node = start_node(
         "eit_classifier", "/bad_cls_test", {"patch_config": str(tmp_path / "none.yaml")}, log
     )
-    assert node.wait(30) == 2
+    assert node.wait(EVENT_S) == 2
     assert "refusing to start" in log.read_text()
 
 
@@ -199,10 +202,13 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
     calibrated_xy = (case.centre[0] - 0.02, case.centre[1] + 0.055)
     try:
         linked = probe.spin_until(
-            lambda: pub.get_subscription_count() and calibrated_pub.get_subscription_count(), 30
+            lambda: pub.get_subscription_count() and calibrated_pub.get_subscription_count(),
+            EVENT_S,
         )
         assert linked, log.read_text()
-        assert probe.spin_until(lambda: probe.node.count_publishers(topics.touch_events) > 0, 10)
+        assert probe.spin_until(
+            lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
+        )
         rng = np.random.default_rng(0)
         xx, yy = np.meshgrid(grid.x, grid.y)
         cx, cy = case.centre
@@ -222,7 +228,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             probe.spin_for(0.015)
         topic = topics.touch_events
         probe.spin_until(
-            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), 10
+            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
         )
     finally:
         assert stop_node(node) == 0, log.read_text()
@@ -291,18 +297,20 @@ def test_images_that_stop_turn_the_diagnostics_error(tmp_path) -> None:
         return check
 
     try:
-        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()), 60)
+        assert probe.spin_until(
+            lambda: all(p.get_subscription_count() for p in pubs.values()), EVENT_S
+        )
         layers = [case.pressure]
         error = f"no image on {stretch_topic}"
         assert probe.spin_until(
-            after(0, lambda s: s.level[0] == 2 and s.message.startswith(error)), 60
+            after(0, lambda s: s.level[0] == 2 and s.message.startswith(error)), EVENT_S
         ), (status(), log.read_text())
         assert pressure_topic not in status().message
         ages = {kv.key: kv.value for kv in status().values}
         assert ages[f"last_image_age_s {patch_topics(patch).layers[case.stretch].image}"] == "never"
         seen = len(probe.messages[DIAGNOSTICS])
         layers = [case.pressure, case.stretch]
-        assert probe.spin_until(after(seen, lambda s: s.level[0] < 2), 60), status()
+        assert probe.spin_until(after(seen, lambda s: s.level[0] < 2), EVENT_S), status()
     finally:
         assert stop_node(node) == 0, log.read_text()
         probe.close()

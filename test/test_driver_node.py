@@ -20,6 +20,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.faults import FAULT_KINDS, Fault, parse_faults
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -40,7 +41,7 @@ def probe():
     probe.close()
 
 
-STARTUP_S = 60.0
+STARTUP_S = EVENT_S
 """Safety net of every wait below, which returns as soon as its event happens: a node process
 starting on a loaded machine (imports, discovery) can take tens of seconds."""
 
@@ -262,9 +263,9 @@ def test_every_fault_in_the_faults_help_parses(probe: Probe, tmp_path) -> None:
     )
     try:
         client = AsyncParameterClient(probe.node, "/arm/eit_driver")
-        assert client.wait_for_services(20), (tmp_path / "driver.log").read_text()
+        assert client.wait_for_services(EVENT_S), (tmp_path / "driver.log").read_text()
         future = client.describe_parameters(["faults"])
-        assert probe.spin_until(future.done, 20)
+        assert probe.spin_until(future.done, EVENT_S)
         (descriptor,) = future.result().descriptors
     finally:
         assert stop_node(node) == 0
@@ -285,7 +286,7 @@ def test_bad_patch_config_refuses_to_start(tmp_path) -> None:
         [str(BIN / "eit_driver"), "--ros-args", "-p", f"patch_config:={bad}"],
         capture_output=True,
         text=True,
-        timeout=30,
+        timeout=EVENT_S,
     )
     assert result.returncode == 2
     assert str(bad) in result.stderr and "layers" in result.stderr

@@ -16,13 +16,14 @@ from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.hardware.serial_link import SerialLink
 from eit_skin.hardware.wire import ValueEncoding
 from eit_skin.io.npz import save_frames_npz
+from test.patience import EVENT_S
 
 
 def source(i: int) -> np.ndarray:
     return np.random.default_rng(i).normal(0.0, 0.2, 208)
 
 
-def read_frames(link: SerialLink, n: int, timeout_s: float = 60.0) -> list:
+def read_frames(link: SerialLink, n: int, timeout_s: float = EVENT_S) -> list:
     """Poll until ``n`` frames came; ``timeout_s`` is a safety net for a loaded machine."""
     got = []
     deadline = time.monotonic() + timeout_s
@@ -32,7 +33,7 @@ def read_frames(link: SerialLink, n: int, timeout_s: float = 60.0) -> list:
     return got
 
 
-def wait_connected(link: SerialLink, timeout_s: float = 60.0) -> None:
+def wait_connected(link: SerialLink, timeout_s: float = EVENT_S) -> None:
     """Poll until connected; ``timeout_s`` is a safety net for a loaded machine."""
     deadline = time.monotonic() + timeout_s
     while not link.connected:
@@ -134,7 +135,7 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
         link.close()
     finally:
         os.kill(proc.pid, signal.SIGTERM)
-        out, _ = proc.communicate(timeout=10)
+        out, _ = proc.communicate(timeout=EVENT_S)
     assert proc.returncode == 0
     assert "sent" in out and not link_path.exists()
     seqs = [f.sequence for f in got]
@@ -162,7 +163,7 @@ def test_cli_without_frames_streams_the_simulator(tmp_path):
         link.close()
     finally:
         os.kill(proc.pid, signal.SIGTERM)
-        proc.communicate(timeout=10)
+        proc.communicate(timeout=EVENT_S)
     patch = load_patch(config_path("arm"))
     simulator = SkinSimulator(patch, "push", rate_hz=100, seed=3)
     layer = patch.layer("pressure")

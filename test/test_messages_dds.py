@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from test.patience import EVENT_S
+
 pytestmark = pytest.mark.ros
 
 PEER = Path(__file__).with_name("dds_peer.py")
@@ -24,10 +26,10 @@ def test_frame_and_event_cross_process_boundary() -> None:
     )
     pub = subprocess.Popen([sys.executable, str(PEER), "pub"], stderr=subprocess.PIPE, text=True)
     try:
-        out, err = echo.communicate(timeout=30)
+        out, err = echo.communicate(timeout=EVENT_S)
     finally:
         pub.terminate()
-        pub.wait(timeout=10)
+        pub.wait(timeout=EVENT_S)
         echo.kill()
     assert echo.returncode == 0, err
     got = json.loads(out.strip().splitlines()[-1])

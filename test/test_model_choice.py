@@ -27,6 +27,7 @@ from eit_skin.pipeline.model_choice import (
     phantom_set,
 )
 from test.patch_copies import small_disc_patch
+from test.patience import EVENT_S
 
 LOOSE, STRICT = 6.0, 1.5  # percent of R
 
@@ -191,7 +192,9 @@ def test_the_node_and_the_cli_build_the_same_chosen_model(tmp_path, monkeypatch,
     probe = Probe()
     try:
         client = probe.node.create_client(Trigger, "/target/eit_reconstruction/rezero")
-        ready = probe.spin_until(lambda: client.service_is_ready() or node.poll() is not None, 60)
+        ready = probe.spin_until(
+            lambda: client.service_is_ready() or node.poll() is not None, EVENT_S
+        )
         assert ready and node.poll() is None, log.read_text()
     finally:
         probe.close()

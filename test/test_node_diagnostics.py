@@ -15,10 +15,11 @@ from eit_skin.resources import config_path
 from eit_skin.ros.node_graph import ROBOT_PATCHES, patch_nodes
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
-STARTUP_S = 120.0
+STARTUP_S = EVENT_S
 """Ceiling of every wait below (each returns as soon as its event happens)."""
 
 

@@ -28,6 +28,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.sim.simulator import DriftModel, SkinSimulator
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -141,22 +142,25 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
                 (publisher.get_subscription_count() and image_sub.get_publisher_count())
                 or recon.poll() is not None
             ),
-            60,
+            EVENT_S,
         ), log.read_text()
         assert recon.poll() is None, log.read_text()
         images = probe.messages["/arm/pressure/image"]
+        unseen = []  # frames whose image DDS dropped (best effort) or had not shown in time
         for k, record in enumerate(records):
             # the 10 capture frames in one burst (the node's queue holds 20), then one frame
-            # at a time: published only once the node imaged the previous one, so no frame
-            # of this best-effort topic is dropped
+            # at a time, paced by its image: the node's input queue never overflows. An
+            # image lost on this best-effort topic only ends the pacing wait for its frame.
             publisher.publish(record.to_msg())
-            if imaged[k]:
-                assert probe.spin_until(
-                    lambda s=record.stamp_ns: bool(images) and stamp_of(images[-1][1]) >= s, 30
-                ), (k, log.read_text()[-2000:])
+            if imaged[k] and not probe.spin_until(
+                lambda s=record.stamp_ns: bool(images) and stamp_of(images[-1][1]) >= s, 10
+            ):
+                assert recon.poll() is None, log.read_text()[-2000:]
+                unseen.append(k)
+        # the node imaged every frame (its own count), whatever DDS delivered to the probe
         n_imaged = str(int(imaged.sum()))
         assert probe.spin_until(
-            lambda: diagnostics_of(probe).get("frames_imaged") == n_imaged, 10
+            lambda: diagnostics_of(probe).get("frames_imaged") == n_imaged, EVENT_S
         ), diagnostics_of(probe)
         status = diagnostics_of(probe)
     finally:
@@ -168,12 +172,12 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
         for _, m in images
     }
     stamps = np.array([r.stamp_ns for r in records])
-    assert sorted(online) == stamps[imaged].tolist()
+    assert set(online) <= set(stamps[imaged].tolist())  # no image of a frame not imaged
+    received = [int(k) for k in np.flatnonzero(imaged) if stamps[k] in online]
+    assert len(received) >= 0.98 * imaged.sum(), unseen  # DDS loses at most a few
     physical = offline["physical"]
     different = [
-        int(k)
-        for k in np.flatnonzero(imaged)
-        if not np.array_equal(online[stamps[k]], physical[k], equal_nan=True)
+        k for k in received if not np.array_equal(online[stamps[k]], physical[k], equal_nan=True)
     ]
     assert different == []  # frames whose images differ
 

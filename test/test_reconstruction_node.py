@@ -23,6 +23,7 @@ from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.scenario import resolve_scenario
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -46,7 +47,7 @@ def as_array(msg: Image) -> np.ndarray:
 
 def wait_ready(probe: Probe, namespace: str, node, log) -> None:
     client = probe.node.create_client(Trigger, f"{namespace}/eit_reconstruction/rezero")
-    ok = probe.spin_until(lambda: client.service_is_ready() or node.poll() is not None, 60)
+    ok = probe.spin_until(lambda: client.service_is_ready() or node.poll() is not None, EVENT_S)
     assert ok and node.poll() is None, log.read_text()
 
 
@@ -105,7 +106,7 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         end_frame = int(truth.t_end_s * RATE_HZ) + 25
         done = probe.spin_until(
             lambda: any(m.sequence >= end_frame for _, m in probe.messages["/arm/pressure/frames"]),
-            60,
+            EVENT_S,
         )
         assert done, driver_log.read_text() + recon_log.read_text()
         probe.spin_for(0.5)
@@ -162,13 +163,13 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         client = probe.node.create_client(Trigger, "/arm/eit_reconstruction/rezero")
         asked_ns = time.time_ns()
         future = client.call_async(Trigger.Request())
-        assert probe.spin_until(future.done, 60)  # safety net; it returns on the answer
+        assert probe.spin_until(future.done, EVENT_S)  # safety net; it returns on the answer
         assert future.result().success
         answered_ns = time.time_ns()
         stamp_ns = lambda m: m.header.stamp.sec * 10**9 + m.header.stamp.nanosec  # noqa: E731
         assert probe.spin_until(  # images of frames acquired 1 s after the answer
             lambda: stamp_ns(probe.messages["/arm/pressure/image"][-1][1]) > answered_ns + 10**9,
-            20,
+            EVENT_S,
         )
         seq = {stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
         around = sorted(seq[stamp_ns(m)] for _, m in probe.messages["/arm/pressure/image"]
@@ -183,7 +184,7 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         )
         assert probe.spin_until(
             lambda: float(diagnostics_of(probe, "pressure").get("reference_age_s", "nan")) < 5.0,
-            5,
+            EVENT_S,
         )
         assert diagnostics_of(probe, "pressure")["frames_rejected"] == "0"
     finally:
@@ -210,7 +211,7 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
             publisher.publish(wrong_pattern)
             probe.spin_for(0.1)
         assert probe.spin_until(
-            lambda: int(diagnostics_of(probe, "pressure").get("frames_rejected", 0)) >= 6, 10
+            lambda: int(diagnostics_of(probe, "pressure").get("frames_rejected", 0)) >= 6, EVENT_S
         )
         status = diagnostics_of(probe, "pressure")
         assert status["level"] == 1 and "expects" in status["message"]
@@ -231,7 +232,7 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
             good.sequence = i
             publisher.publish(good)
             probe.spin_for(0.02)
-        assert probe.spin_until(lambda: len(probe.messages["/arm/pressure/image"]) >= 5, 60)
+        assert probe.spin_until(lambda: len(probe.messages["/arm/pressure/image"]) >= 5, EVENT_S)
         image = as_array(probe.messages["/arm/pressure/image"][-1][1])
         assert np.nanmax(np.abs(image)) == 0.0  # frames equal to the reference image as zero
     finally:
@@ -293,7 +294,7 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
             300,
         ), (tmp_path / "sweep_driver.log").read_text()
         calibration.send_signal(signal.SIGINT)
-        stdout, _ = calibration.communicate(timeout=120)
+        stdout, _ = calibration.communicate(timeout=EVENT_S)
     finally:
         if calibration.poll() is None:
             calibration.kill()
@@ -338,7 +339,7 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
         last = int(8.5 * RATE_HZ)
         assert probe.spin_until(
             lambda: any(m.sequence >= last for _, m in probe.messages["/elbow/pressure/frames"]),
-            60,
+            EVENT_S,
         ), log.read_text()
         probe.spin_for(0.3)
     finally:

@@ -15,6 +15,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -23,7 +24,7 @@ TOPIC = patch_topics(load_patch(config_path("arm")), "/arm").layers["pressure"].
 
 def eit_skin(*args: str) -> str:
     result = subprocess.run(
-        [str(find_executable("eit-skin")), *args], capture_output=True, text=True, timeout=60
+        [str(find_executable("eit-skin")), *args], capture_output=True, text=True, timeout=EVENT_S
     )
     assert result.returncode == 0, result.stderr
     return result.stdout
@@ -68,7 +69,7 @@ def test_driver_replays_frames_identically(recording, tmp_path, realtime: bool) 
         tmp_path / "driver.log",
     )  # fmt: skip
     try:
-        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 100, 30), (
+        assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 100, EVENT_S), (
             tmp_path / "driver.log"
         ).read_text()
         probe.spin_for(0.3)

@@ -13,6 +13,7 @@ import pytest
 
 from eit_skin.hardware.serial_link import LinkState, SerialLink
 from eit_skin.hardware.wire import DeviceFrame, PatternId, encode_frame
+from test.patience import EVENT_S
 
 
 def frame(seq: int) -> DeviceFrame:
@@ -40,7 +41,7 @@ class Pty:
         os.close(self.slave)
 
 
-def poll_until(link: SerialLink, condition, timeout_s: float = 60.0) -> list:
+def poll_until(link: SerialLink, condition, timeout_s: float = EVENT_S) -> list:
     """Poll until ``condition(received)``; ``timeout_s`` is a safety net for a loaded machine."""
     received = []
     deadline = time.monotonic() + timeout_s
@@ -126,7 +127,7 @@ def test_thread_api_delivers_frames_and_state_changes(tmp_path):
 
     def wait_for(predicate) -> None:
         with changed:  # 60 s: a safety net for a loaded machine, not a bound on the link
-            assert changed.wait_for(predicate, timeout=60.0), (got, states)
+            assert changed.wait_for(predicate, timeout=EVENT_S), (got, states)
 
     link = SerialLink(str(path), backoff_initial_s=0.01, backoff_max_s=0.05)
     link.start(on_frames, on_state, poll_timeout_s=0.01)

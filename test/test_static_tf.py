@@ -13,11 +13,12 @@ from eit_skin.ros.driver import quaternion_from_rpy
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS
 from test.patch_copies import shipped_patch_data, write_patch
+from test.patience import EVENT_S
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed")
 pytestmark = pytest.mark.ros
 
-STARTUP_S = 120.0
+STARTUP_S = EVENT_S
 LATCHED = QoSProfile(
     depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
 )
