@@ -40,7 +40,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points
+from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points, proportional_columns
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
@@ -494,22 +494,50 @@ class ReconstructionMatrix:
     def _solve_finite_frame(self, v: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
         """One frame ``[M]`` against ``ref`` ``[M]`` (float64 V) in the fewest numpy calls.
 
-        The same numbers as the general path of :meth:`reconstruct` (same scale, same
-        float64 quotient rounded once to float32, same product); None when the reference or
-        the quotient is not finite (or overflows float32): the general path handles those.
-        A node calls this once per frame against a reference that drift moves every frame,
-        so nothing here is cached.
+        The numbers of the general path of :meth:`reconstruct` to float32 rounding: the same
+        float64 quotient ``(v - ref) / s_ref``, whose reciprocal channels are then combined
+        (:meth:`merged_matrix`, half the product for an adjacent protocol) and rounded once to
+        float32, and one ``sgemv``. None when the reference, the frame or the product is not
+        finite (or overflows float32): the general path handles those. A node calls this once
+        per frame against a reference that drift moves every frame, so nothing here is cached
+        but the merged matrix.
         """
+        a, index, weights, gemv = self.merged_matrix()
         ss = float(ref @ ref)
         if not math.isfinite(ss):
             return None
+        m = ref.size
         scale = np.abs(ref)
-        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(ref.size, 1)) or 1.0), out=scale)
-        x32 = np.empty(ref.size, dtype=np.float32)
-        np.divide(np.subtract(v, ref), scale, out=x32)  # finite ref: no invalid operation
-        if not math.isfinite(np.add.reduce(x32)):
-            return None
-        return x32 @ self._matrix32_t()
+        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(m, 1)) or 1.0), out=scale)
+        d = np.empty(m + 1)
+        d[m] = 0.0  # the zero input of unpaired channels
+        dm = d[:m]
+        np.subtract(v, ref, out=dm)
+        np.divide(dm, scale, out=dm)  # finite ref: no invalid operation
+        g = d.take(index, mode="wrap")
+        np.multiply(g, weights, out=g)
+        p = a.shape[1]
+        g0 = g[:p]
+        np.add(g0, g[p:], out=g0)
+        y = gemv(1.0, a, g0.astype(np.float32))  # no FP warning: NaN/Inf show in y[0]
+        return y if math.isfinite(y[0]) else None
+
+    def merged_matrix(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
+        """The matrix with its reciprocal channels merged (cached; every channel used).
+
+        Returns ``(a, index, weights, gemv)``: ``a`` float32 ``[N, P]`` column-major, ``index``
+        and ``weights`` ``[2P]`` (:func:`~eit_skin.fem.image_grid.proportional_columns`
+        flattened: ``x`` ``[M]`` with a zero appended maps to ``u = g[:P] + g[P:]``,
+        ``g = weights * x[index]``), and SciPy's float32 ``gemv`` (``a @ u`` is
+        ``gemv(1.0, a, u)``).
+        """
+        hit = self._cache.get("merged")
+        if hit is None:
+            inputs, weights = proportional_columns(np.asarray(self.matrix))
+            a = np.asfortranarray(np.asarray(self.matrix)[:, inputs[0]], dtype=np.float32)
+            gemv = sla.get_blas_funcs("gemv", dtype=np.float32)
+            hit = self._cache["merged"] = (a, inputs.ravel(), weights.ravel(), gemv)
+        return hit
 
     def _reference_scale(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(reference, reference_scale(reference))`` float64 ``[M]``, None unless finite.
