@@ -154,13 +154,13 @@ class ImageGrid:
         Returns:
             float32 ``[H, W]`` or ``[T, H, W]``, NaN outside the sheet and in holes.
         """
-        v = np.asarray(values, dtype=np.float32)
         n = self.matrix.shape[1]
-        if v.shape == (n,):  # one frame, the node's case: one copy and one gather
+        if np.shape(values) == (n,):  # one frame: one (casting) copy and one gather
             padded = np.empty(n + 1, dtype=np.float32)
-            padded[:n] = v
+            padded[:n] = values
             padded[n] = np.nan
             return self.image_of_row(padded)
+        v = np.asarray(values, dtype=np.float32)
         single = v.ndim == 1
         v2 = v[None, :] if single else v
         if v2.ndim != 2 or v2.shape[1] != self.matrix.shape[1]:
