@@ -33,6 +33,7 @@ in place of ``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -452,7 +453,7 @@ class ReconstructionMatrix:
         returned); default a new array.
         """
         if excluded is None:
-            image = self.frame_imager(grid, scale, floor, ceiling)(frames, reference, out)
+            image = self.frame_imager(grid, scale, floor, ceiling).image(frames, reference, out)
             if image is not None:
                 return image
         pixels = self.pixel_matrix(grid, scale, floor, ceiling)
@@ -621,8 +622,8 @@ class FrameImager:
     NaN/Inf need no check before the product: any non-finite input makes every product value
     non-finite (IEEE arithmetic, no term of a matrix-vector sum is skipped), so the first
     value tells, and the caller takes its exact path; ``sgemv``, unlike ``np.matmul``, raises
-    no floating-point warning for it. Not thread-safe: one per thread (a layer's frames are
-    imaged in one thread).
+    no floating-point warning for it. A call made while another thread uses the buffers
+    returns None (the caller's allocating path) instead of waiting.
 
     Attributes:
         pixels: the folded matrix (``K`` rows, ``P`` merged columns).
@@ -633,8 +634,8 @@ class FrameImager:
 
     __slots__ = (
         "_d", "_dm", "_frame_shape", "_g", "_g0", "_g1", "_gemv", "_high", "_index", "_key",
-        "_low", "_matrix", "_owner", "_ref", "_u", "_w", "_y", "_yk", "ceiling", "floor", "grid",
-        "n_channels", "pixels", "scale",
+        "_lock", "_low", "_matrix", "_owner", "_ref", "_u", "_w", "_y", "_yk", "ceiling",
+        "floor", "grid", "n_channels", "pixels", "scale",
     )  # fmt: skip
 
     def __init__(
@@ -666,6 +667,7 @@ class FrameImager:
         self._low = None if floor == -np.inf else np.full(k, floor, dtype=np.float32)
         self._high = None if ceiling == np.inf else np.full(k, ceiling, dtype=np.float32)
         self._key: bytes | None = None
+        self._lock = threading.Lock()
         self._ref = np.empty(m)
         self._w = np.empty(2 * p)
         # f2py's sgemv with positional arguments (keywords cost ~1.5 us per call); used only
@@ -674,16 +676,27 @@ class FrameImager:
         product = gemv(1.0, self._matrix, self._u, 0.0, self._yk, 0, 1, 0, 1, 0, 1)
         self._gemv = gemv if np.shares_memory(product, self._yk) else None
 
-    def __call__(
+    def image(
         self, frame: np.ndarray, reference: np.ndarray, out: np.ndarray | None = None
     ) -> np.ndarray | None:
         """Frame ``[M]`` V against ``reference`` ``[M]`` V -> float32 ``[H, W]``, or None.
 
-        None: not a single finite frame against a finite reference (the caller's exact path
-        handles it). ``out``: float32 C-contiguous ``[H, W]`` to write the image to.
+        None: not a single finite frame against a finite reference, or the buffers are in use
+        by another thread (the caller's general path handles it). ``out``: float32
+        C-contiguous ``[H, W]`` to write the image to.
         """
         if getattr(frame, "shape", None) != self._frame_shape:
             return None  # not one [M] frame (T frames, a list: the caller's general path)
+        if not self._lock.acquire(False):  # positional: a keyword costs 0.4 us
+            return None
+        try:
+            return self._image(frame, reference, out)
+        finally:
+            self._lock.release()
+
+    def _image(
+        self, frame: np.ndarray, reference: np.ndarray, out: np.ndarray | None
+    ) -> np.ndarray | None:
         ref = np.asarray(reference, dtype=np.float64)
         key = ref.tobytes()
         if key != self._key and not self._use_reference(ref, key):
