@@ -136,6 +136,11 @@ def test_single_frame_buffers_recover_from_bad_frames_and_write_into_out(s, matr
     out = np.empty(s.grid.shape, dtype=np.float32)
     assert matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling, out=out) is out
     np.testing.assert_array_equal(out, before)
+    plan = matrix.frame_imager(s.grid, scale, floor, ceiling)
+    with plan._lock:  # buffers busy (another thread): the allocating path, same image
+        assert plan.image(v, s.v0) is None
+        busy = matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling)
+    np.testing.assert_allclose(busy, before, rtol=0, atol=1e-6 * np.nanmax(np.abs(before)))
     drifted = s.v0 * 1.001
     want = _chain(matrix, s.grid, v, drifted, scale, floor)
     got = matrix.images(v, drifted, s.grid, scale, floor)
