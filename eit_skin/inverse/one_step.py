@@ -689,39 +689,34 @@ class FrameImager:
             return None  # not one [M] frame (T frames, a list: the caller's general path)
         if not self._lock.acquire(False):  # positional: a keyword costs 0.4 us
             return None
-        try:
-            return self._image(frame, reference, out)
+        try:  # one function body: a further call costs as much as a small numpy step
+            ref = np.asarray(reference, dtype=np.float64)
+            key = ref.tobytes()
+            if key != self._key and not self._use_reference(ref, key):
+                return None
+            g, g0, u, yk = self._g, self._g0, self._u, self._yk
+            np.subtract(frame, self._ref, out=self._dm)
+            self._d.take(self._index, out=g, mode="wrap")  # the method: np.take wraps it slowly
+            np.multiply(g, self._w, out=g)
+            np.add(g0, self._g1, out=g0)
+            u[...] = g0  # the float64 sum rounded once (cheaper than add's casting output)
+            if self._gemv is not None:
+                self._gemv(1.0, self._matrix, u, 0.0, yk, 0, 1, 0, 1, 0, 1)
+            else:
+                with np.errstate(all="ignore"):
+                    np.matmul(self._matrix, u, out=yk)
+            if not math.isfinite(yk[0]):
+                yk.fill(0.0)  # no NaN left behind for the next product (beta 0 may keep NaN)
+                return None
+            if self._low is not None:
+                np.maximum(yk, self._low, out=yk)
+            if self._high is not None:
+                np.minimum(yk, self._high, out=yk)
+            if out is None:
+                return self._y.take(self._owner, mode="wrap")
+            return self._y.take(self._owner, out=out, mode="wrap")
         finally:
             self._lock.release()
-
-    def _image(
-        self, frame: np.ndarray, reference: np.ndarray, out: np.ndarray | None
-    ) -> np.ndarray | None:
-        ref = np.asarray(reference, dtype=np.float64)
-        key = ref.tobytes()
-        if key != self._key and not self._use_reference(ref, key):
-            return None
-        g, g0, u, yk = self._g, self._g0, self._u, self._yk
-        np.subtract(frame, self._ref, out=self._dm)
-        self._d.take(self._index, out=g, mode="wrap")  # the method: np.take wraps it slowly
-        np.multiply(g, self._w, out=g)
-        np.add(g0, self._g1, out=g0)
-        u[...] = g0  # the float64 sum rounded once (cheaper than add's casting output)
-        if self._gemv is not None:
-            self._gemv(1.0, self._matrix, u, 0.0, yk, 0, 1, 0, 1, 0, 1)
-        else:
-            with np.errstate(all="ignore"):
-                np.matmul(self._matrix, u, out=yk)
-        if not math.isfinite(yk[0]):
-            yk.fill(0.0)  # no NaN left behind for the next product (beta = 0 may keep NaN)
-            return None
-        if self._low is not None:
-            np.maximum(yk, self._low, out=yk)
-        if self._high is not None:
-            np.minimum(yk, self._high, out=yk)
-        if out is None:
-            return self._y.take(self._owner, mode="wrap")
-        return self._y.take(self._owner, out=out, mode="wrap")
 
     def _use_reference(self, ref: np.ndarray, key: bytes) -> bool:
         """Weights for a new reference ``[M]``; False (nothing kept) unless it is finite."""
