@@ -141,6 +141,11 @@ def test_single_frame_buffers_recover_from_bad_frames_and_write_into_out(s, matr
         assert plan.image(v, s.v0) is None
         busy = matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling)
     np.testing.assert_allclose(busy, before, rtol=0, atol=1e-6 * np.nanmax(np.abs(before)))
+    other = ImageGrid.build(s.coarse.mesh, 16)  # alternating grids keep their imagers
+    small = matrix.images(v, s.v0, other, scale)
+    assert matrix.frame_imager(s.grid, scale, floor, ceiling) is plan
+    assert matrix.frame_imager(other, scale) is matrix.frame_imager(other, scale)
+    np.testing.assert_array_equal(matrix.images(v, s.v0, other, scale), small)
     drifted = s.v0 * 1.001
     want = _chain(matrix, s.grid, v, drifted, scale, floor)
     got = matrix.images(v, drifted, s.grid, scale, floor)

@@ -478,7 +478,10 @@ class ReconstructionMatrix:
         floor: float = -np.inf,
         ceiling: float = np.inf,
     ) -> FrameImager:
-        """The single-frame imager of :meth:`images` on ``grid`` (cached, the last one used)."""
+        """The single-frame imager of :meth:`images` on ``grid`` (cached per grid and unit).
+
+        The last one used is checked first (four comparisons, no key to build).
+        """
         plan = self._cache.get("frame_imager")
         if (
             plan is None
@@ -487,8 +490,12 @@ class ReconstructionMatrix:
             or plan.floor != floor
             or plan.ceiling != ceiling
         ):
-            pixels = self.pixel_matrix(grid, scale, floor, ceiling)
-            plan = FrameImager(pixels, grid, self.n_channels, scale, floor, ceiling)
+            key = ("frame_imager", id(grid), float(scale), float(floor), float(ceiling))
+            plan = self._cache.get(key)
+            if plan is None or plan.grid is not grid:
+                pixels = self.pixel_matrix(grid, scale, floor, ceiling)
+                plan = FrameImager(pixels, grid, self.n_channels, scale, floor, ceiling)
+                self._cache[key] = plan
             self._cache["frame_imager"] = plan
         return plan
 
