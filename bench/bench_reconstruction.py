@@ -215,9 +215,11 @@ def pyeit_case(mesh, protocol, frames, v0, phantoms, grid):
     ds = sign * ds
     unit, floor = sign * UNIT, FLOOR
 
-    def image():
-        x = np.real(solver.solve(f_py[0], v0_py, normalize=True))
-        return grid.to_image(np.maximum(unit * x, floor))
+    def image():  # the cheapest numpy route: unit and clip in place, one casting copy, gather
+        x = solver.solve(f_py[0], v0_py, normalize=True)  # float64 [N] (real data: real)
+        np.multiply(x, unit, out=x)
+        np.maximum(x, floor, out=x)
+        return grid.to_image(x)
 
     image_t = median_time(image, 30)
     return build, frame_t, image_t, merit(grid, ds, phantoms), image
@@ -823,17 +825,19 @@ def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> l
         "median of 50 (30 for pyEIT's element frame) single-frame calls; frame->image, ours and "
         "pyEIT's: median of 200 interleaved calls (ours, pyEIT's, ours, ...) so that the "
         "machine's load weighs on both alike; batched: 30 frames in one call, "
-        "median of 10, per frame. Frame->image: volts to the float32 64 x 64 image with a unit "
-        "factor, the pipeline's clip and NaN outside the sheet (`ReconstructionMatrix.images`: "
-        "one product with the matrix rows of the elements under pixels, folded once); element "
-        "frame: volts to element values only (`reconstruct`, what pyEIT's `solve` gives); "
-        "float32 image error: max deviation from the float64 chain over max |image|; "
-        "pyEIT frame->image: pyEIT's `solve` then the same unit, clip and float32 gather onto "
-        "the same pixels (`ImageGrid.to_image`), i.e. the same output as ours (before this "
-        "column the ratio was taken against pyEIT's element frame alone, which flattered "
-        "pyEIT by the imaging step); frame / pyEIT: our frame->image time over pyEIT's "
-        "frame->image time. Our matrix is float32 and column-major (OpenBLAS's faster "
-        "matrix-vector kernel); pyEIT's is float64, row-major, on all N elements. "
+        "median of 10, per frame. Frame->image, both sides: one frame of volts and the "
+        "reference in, a new float32 64 x 64 image out, with a unit factor, the pipeline's "
+        "clip and NaN outside the sheet; ours: `ReconstructionMatrix.images` (its cached "
+        "`FrameImager`: `(v - ref) / s_ref` with the reciprocal channels merged, 208 -> 104 "
+        "inputs, one float32 `sgemv` with the rows of the elements under pixels, clip, one "
+        "gather, in preallocated buffers); pyEIT's: its `solve(v, v0, normalize=True)` "
+        "(`(v - v0) / |v0|`, `-H dv`), the unit and the clip in place on its float64 element "
+        "values, then `ImageGrid.to_image` (one casting copy into a NaN-padded float32 row and "
+        "the same gather onto the same pixels), i.e. the same output as ours; element frame: "
+        "volts to element values only (`reconstruct`, what pyEIT's `solve` gives); float32 "
+        "image error: max deviation from the float64 chain over max |image|; frame / pyEIT: "
+        "our frame->image time over pyEIT's frame->image time. Our matrix is float32, "
+        "column-major, [K elements under pixels, 104]; pyEIT's float64, row-major, [N, 208]. "
         "Gauss-Newton: see its sections below. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
         "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",

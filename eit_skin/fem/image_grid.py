@@ -154,13 +154,13 @@ class ImageGrid:
         Returns:
             float32 ``[H, W]`` or ``[T, H, W]``, NaN outside the sheet and in holes.
         """
-        v = np.asarray(values, dtype=np.float32)
         n = self.matrix.shape[1]
-        if v.shape == (n,):  # one frame, the node's case: one copy and one gather
+        if np.shape(values) == (n,):  # one frame: one (casting) copy and one gather
             padded = np.empty(n + 1, dtype=np.float32)
-            padded[:n] = v
+            padded[:n] = values
             padded[n] = np.nan
             return self.image_of_row(padded)
+        v = np.asarray(values, dtype=np.float32)
         single = v.ndim == 1
         v2 = v[None, :] if single else v
         if v2.ndim != 2 or v2.shape[1] != self.matrix.shape[1]:
@@ -169,11 +169,17 @@ class ImageGrid:
             )
         h, w = self.shape
         padded = np.concatenate([v2, np.full((v2.shape[0], 1), np.nan, np.float32)], axis=1)
-        return np.take(padded, self._owner, axis=1).reshape(-1, h, w)[0 if single else slice(None)]
+        return np.take(padded, self._owner, axis=1, mode="wrap").reshape(-1, h, w)[
+            0 if single else slice(None)
+        ]
 
     def image_of_row(self, row: np.ndarray) -> np.ndarray:
-        """``[N + 1]`` float32 element values with NaN last -> ``[H, W]`` image (one gather)."""
-        return row.take(self._owner).reshape(self.shape)
+        """``[N + 1]`` float32 element values with NaN last -> ``[H, W]`` image (one gather).
+
+        The gathers use ``mode="wrap"``: every index is in range, and numpy's default mode
+        checks and buffers (a 4096-pixel gather takes ~6 us instead of ~4).
+        """
+        return row.take(self._owner, mode="wrap").reshape(self.shape)
 
     @cached_property
     def _owner(self) -> np.ndarray:
@@ -191,27 +197,86 @@ class ImageGrid:
         return owner
 
 
+#: Two input columns of a folded matrix whose columns are proportional to within this fraction
+#: of the column's norm share one column (:func:`proportional_columns`). Far below float32
+#: rounding (6e-8), so merging changes an image by less than storing the matrix in float32
+#: does; the reciprocal columns of a least-squares matrix agree to ~1e-10 (bench/REPORT.md).
+MERGE_TOLERANCE = 1e-8
+
+
+def proportional_columns(
+    a: np.ndarray, tolerance: float = MERGE_TOLERANCE
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of proportional columns of ``a`` ``[K, M]``: ``(inputs, weights)``, both ``[2, P]``.
+
+    ``a @ x == a[:, inputs[0]] @ (weights * x[inputs]).sum(0)`` (to ``tolerance``): merged
+    column ``p`` is ``a[:, inputs[0, p]]`` and multiplies ``x[inputs[0, p]] + c x[inputs[1, p]]``
+    with ``a[:, inputs[1, p]] = c a[:, inputs[0, p]]``. A column without a partner has
+    ``inputs[1, p] = M`` (a zero input appended by the caller) and weight 0; ``P <= M``.
+
+    A pair is two non-zero columns that are each other's most parallel column with residual
+    ``|a_j - c a_i| <= tolerance |a_j|``. Scale-free and exact in exact arithmetic for the
+    reciprocal measurements of a protocol (drive ``ab`` measure ``cd`` and drive ``cd`` measure
+    ``ab`` have the same sensitivity, so every least-squares matrix, weighted or not, combines
+    them only through ``x_i / s_i^2 + x_j / s_j^2``): half the columns for an adjacent protocol.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    m = a.shape[1]
+    g = a.T @ a
+    norm = np.sqrt(np.diag(g))
+    nonzero = norm > 0
+    safe = np.where(nonzero, norm, 1.0)
+    cosine = np.abs(g) / safe[:, None] / safe[None, :]
+    cosine[~nonzero, :] = -1.0
+    cosine[:, ~nonzero] = -1.0
+    np.fill_diagonal(cosine, -1.0)
+    best = np.argmax(cosine, axis=1) if m > 1 else np.zeros(m, dtype=np.intp)
+    i = np.arange(m)
+    candidate = np.flatnonzero(nonzero & (best[best] == i) & (i < best))
+    j = best[candidate]
+    c = g[candidate, j] / g[candidate, candidate]
+    residual = np.linalg.norm(a[:, j] - a[:, candidate] * c, axis=0)
+    ok = residual <= tolerance * norm[j]
+    first, second, c = candidate[ok], j[ok], c[ok]
+    partner = np.full(m, m, dtype=np.intp)
+    weight = np.zeros(m)
+    partner[first] = second
+    weight[first] = c
+    keep = np.ones(m, dtype=bool)
+    keep[second] = False
+    base = np.flatnonzero(keep)
+    inputs = np.stack([base, partner[base]])
+    weights = np.stack([np.ones(base.size), weight[base]])
+    return inputs, weights
+
+
 @dataclass(frozen=True, eq=False)
 class PixelMatrix:
     """A linear element operator folded onto an image grid: input -> image in one product.
 
     Only the rows of the ``K <= min(N, H*W)`` elements that lie under a pixel are kept, each
     multiplied by a constant unit ``scale`` (pascals per unit of the element value, say), in
-    float32; an image is one ``[K, M] @ [M]`` product, a clip to ``[floor, ceiling]`` and
-    one gather onto the ``H*W`` pixels (NaN outside the sheet and in holes). ``T`` inputs
-    are one matrix-matrix product. Folding onto pixels never pays: a ``[H*W, M]`` product
-    has at least as many rows as ``K`` and the gather costs ``H*W`` loads, not ``H*W*M``.
+    float32; columns that are proportional (the reciprocal channels of a protocol,
+    :func:`proportional_columns`) are merged, so the ``M`` inputs are first combined into
+    ``P <= M`` (``u = (weights * x[inputs]).sum(0)``, float64, rounded once to float32). An
+    image is one ``[K, P] @ [P]`` product, a clip to ``[floor, ceiling]`` and one gather onto
+    the ``H*W`` pixels (NaN outside the sheet and in holes). ``T`` inputs are one
+    matrix-matrix product. Folding onto pixels never pays: a ``[H*W, P]`` product has at least
+    as many rows as ``K`` and the gather costs ``H*W`` loads, not ``H*W*P``.
 
     The matrix is stored column-major (Fortran order): the matrix-vector product then runs
-    as ``M`` contiguous column updates, which OpenBLAS does 20-30 % faster than ``K`` row dot
-    products of length ``M`` (bench/REPORT.md); the batched product reads it as the
-    C-contiguous ``[M, K]`` transpose.
+    as ``P`` contiguous column updates, which OpenBLAS does 20-30 % faster than ``K`` row dot
+    products of length ``P`` (bench/REPORT.md); the batched product reads it as the
+    C-contiguous ``[P, K]`` transpose.
 
     Attributes:
-        matrix: ``[K, M]`` float32 ``scale * element_matrix[elements]``, Fortran order.
+        matrix: ``[K, P]`` float32 ``scale * element_matrix[elements][:, inputs[0]]``,
+            Fortran order.
         elements: ``[K]`` int64 the element of each row (ascending).
         owner: ``[H*W]`` intp row of each pixel, ``K`` where no element is (NaN).
         shape: ``(H, W)``.
+        inputs: ``[2, P]`` intp input indices combined into each column (``M``: none).
+        weights: ``[2, P]`` float64 their weights (first row 1).
         scale: the unit factor folded into ``matrix``.
         floor: lower bound of the output (after ``scale``); ``-inf``: none.
         ceiling: upper bound of the output (after ``scale``); ``inf``: none.
@@ -221,6 +286,8 @@ class PixelMatrix:
     elements: np.ndarray
     owner: np.ndarray
     shape: tuple[int, int]
+    inputs: np.ndarray
+    weights: np.ndarray
     scale: float = 1.0
     floor: float = -np.inf
     ceiling: float = np.inf
@@ -241,18 +308,21 @@ class PixelMatrix:
             raise ValueError(f"element_matrix must be [{n}, M], got {a.shape}")
         if not np.isfinite(scale) or scale == 0:
             raise ValueError(f"scale must be finite and non-zero, got {scale}")
+        if not floor <= ceiling:
+            raise ValueError(f"floor {floor} is above ceiling {ceiling}")
         element = grid._owner  # [H*W], N where no element is
         elements, owner = np.unique(element[element < n], return_inverse=True)
         pixel_row = np.full(element.size, elements.size, dtype=np.intp)
         pixel_row[element < n] = owner.ravel()
-        matrix = np.asfortranarray(a[elements] * scale, dtype=np.float32)
-        if not floor <= ceiling:
-            raise ValueError(f"floor {floor} is above ceiling {ceiling}")
+        folded = np.asarray(a[elements], dtype=np.float64) * scale
+        inputs, weights = proportional_columns(folded)
         return cls(
-            matrix,
+            np.asfortranarray(folded[:, inputs[0]], dtype=np.float32),
             elements.astype(np.int64),
             pixel_row,
             grid.shape,
+            inputs,
+            weights,
             float(scale),
             float(floor),
             float(ceiling),
@@ -268,21 +338,30 @@ class PixelMatrix:
         if self.ceiling < np.inf:
             np.minimum(y, self.ceiling, out=y)
 
+    def merge(self, x: np.ndarray) -> np.ndarray:
+        """Inputs ``[M]``/``[T, M]`` -> the merged inputs ``[P]``/``[T, P]`` float32.
+
+        ``weights * x[inputs]`` summed in float64 (from float64 ``x``), rounded once.
+        """
+        x64 = np.asarray(x, dtype=np.float64)
+        padded = np.concatenate([x64, np.zeros((*x64.shape[:-1], 1))], axis=-1)
+        return (padded[..., self.inputs] * self.weights).sum(axis=-2).astype(np.float32)
+
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Input ``[M]`` or ``[T, M]`` -> float32 image ``[H, W]`` or ``[T, H, W]``."""
-        x32 = np.asarray(x, dtype=np.float32)
+        u = self.merge(x)
         k = self.matrix.shape[0]
-        if x32.ndim == 1:
+        if u.ndim == 1:
             y = np.empty(k + 1, dtype=np.float32)
             y[k] = np.nan
-            np.matmul(self.matrix, x32, out=y[:k])
+            np.matmul(self.matrix, u, out=y[:k])
             self._clip(y[:k])
-            return y.take(self.owner).reshape(self.shape)
-        y = np.empty((x32.shape[0], k + 1), dtype=np.float32)
+            return y.take(self.owner, mode="wrap").reshape(self.shape)
+        y = np.empty((u.shape[0], k + 1), dtype=np.float32)
         y[:, k] = np.nan
-        np.matmul(x32, self.matrix.T, out=y[:, :k])
+        np.matmul(u, self.matrix.T, out=y[:, :k])
         self._clip(y[:, :k])
-        return y.take(self.owner, axis=1).reshape(-1, *self.shape)
+        return y.take(self.owner, axis=1, mode="wrap").reshape(-1, *self.shape)
 
     def from_elements(self, values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> the same images, without the product.
@@ -296,4 +375,4 @@ class PixelMatrix:
         y[..., k] = np.nan
         np.multiply(v[..., self.elements], np.float32(self.scale), out=y[..., :k])
         self._clip(y[..., :k])
-        return y.take(self.owner, axis=-1).reshape(*v.shape[:-1], *self.shape)
+        return y.take(self.owner, axis=-1, mode="wrap").reshape(*v.shape[:-1], *self.shape)

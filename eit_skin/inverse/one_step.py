@@ -33,13 +33,15 @@ in place of ``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 
-from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points
+from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points, proportional_columns
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
 from eit_skin.inverse.greit import GreitModel, training_set
@@ -437,49 +439,113 @@ class ReconstructionMatrix:
         floor: float = -np.inf,
         excluded: np.ndarray | None = None,
         ceiling: float = np.inf,
+        out: np.ndarray | None = None,
     ) -> np.ndarray:
         """Frames (volts) -> float32 images ``[H, W]``/``[T, H, W]``, NaN outside the sheet.
 
         Pixel value: ``scale`` times the relative change, clipped to ``[floor, ceiling]``.
         Frames with every channel usable are one product with :meth:`pixel_matrix`
-        (``[K, M]``, the ``K`` elements under pixels); others go through :meth:`reconstruct`
-        (left-out channels) and the same gather. Same values as ``scale *`` :meth:`reconstruct`
-        gridded, to float32 rounding.
+        (``[K, P]``, the ``K`` elements under pixels, reciprocal channels merged); one frame
+        runs in preallocated buffers (:class:`FrameImager`); others go through
+        :meth:`reconstruct` (left-out channels) and the same gather. Same values as
+        ``scale *`` :meth:`reconstruct` gridded, to float32 rounding. ``out``: optional
+        float32 C-contiguous ``[H, W]`` the image of a single frame is written to (and
+        returned); default a new array.
         """
+        if excluded is None:
+            image = self.frame_imager(grid, scale, floor, ceiling).image(frames, reference, out)
+            if image is not None:
+                return image
         pixels = self.pixel_matrix(grid, scale, floor, ceiling)
         if excluded is None and self.channels.size == self.n_channels:
             f = np.asarray(frames)
-            m = self.n_channels
-            if f.shape[-1:] == (m,) and f.ndim <= 2:
+            if f.shape[-1:] == (self.n_channels,) and f.ndim == 2:
                 ref_scale = self._reference_scale(reference)
                 # NaN/Inf anywhere in the frames makes their sum non-finite (so does an
                 # overflow of finite volts, which then takes the exact path below too)
                 if ref_scale is not None and math.isfinite(np.add.reduce(f, axis=None)):
-                    dv = np.subtract(f, ref_scale[0], dtype=np.float64)
-                    x32 = np.empty(f.shape, dtype=np.float32)
-                    np.divide(dv, ref_scale[1], out=x32)  # float64 quotient, rounded once
-                    return pixels.apply(x32)
-        return pixels.from_elements(self.reconstruct(frames, reference, excluded))
+                    return pixels.apply(np.subtract(f, ref_scale[0]) / ref_scale[1])
+        images = pixels.from_elements(self.reconstruct(frames, reference, excluded))
+        if out is not None and images.ndim == 2:
+            out[...] = images
+            return out
+        return images
+
+    def frame_imager(
+        self,
+        grid: ImageGrid,
+        scale: float = 1.0,
+        floor: float = -np.inf,
+        ceiling: float = np.inf,
+    ) -> FrameImager:
+        """The single-frame imager of :meth:`images` on ``grid`` (cached per grid and unit).
+
+        The last one used is checked first (four comparisons, no key to build).
+        """
+        plan = self._cache.get("frame_imager")
+        if (
+            plan is None
+            or plan.grid is not grid
+            or plan.scale != scale
+            or plan.floor != floor
+            or plan.ceiling != ceiling
+        ):
+            key = ("frame_imager", id(grid), float(scale), float(floor), float(ceiling))
+            plan = self._cache.get(key)
+            if plan is None or plan.grid is not grid:
+                pixels = self.pixel_matrix(grid, scale, floor, ceiling)
+                plan = FrameImager(pixels, grid, self.n_channels, scale, floor, ceiling)
+                self._cache[key] = plan
+            self._cache["frame_imager"] = plan
+        return plan
 
     def _solve_finite_frame(self, v: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
         """One frame ``[M]`` against ``ref`` ``[M]`` (float64 V) in the fewest numpy calls.
 
-        The same numbers as the general path of :meth:`reconstruct` (same scale, same
-        float64 quotient rounded once to float32, same product); None when the reference or
-        the quotient is not finite (or overflows float32): the general path handles those.
-        A node calls this once per frame against a reference that drift moves every frame,
-        so nothing here is cached.
+        The numbers of the general path of :meth:`reconstruct` to float32 rounding: the same
+        float64 quotient ``(v - ref) / s_ref``, whose reciprocal channels are then combined
+        (:meth:`merged_matrix`, half the product for an adjacent protocol) and rounded once to
+        float32, and one ``sgemv``. None when the reference, the frame or the product is not
+        finite (or overflows float32): the general path handles those. A node calls this once
+        per frame against a reference that drift moves every frame, so nothing here is cached
+        but the merged matrix.
         """
+        a, index, weights, gemv = self.merged_matrix()
         ss = float(ref @ ref)
         if not math.isfinite(ss):
             return None
+        m = ref.size
         scale = np.abs(ref)
-        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(ref.size, 1)) or 1.0), out=scale)
-        x32 = np.empty(ref.size, dtype=np.float32)
-        np.divide(np.subtract(v, ref), scale, out=x32)  # finite ref: no invalid operation
-        if not math.isfinite(np.add.reduce(x32)):
-            return None
-        return x32 @ self._matrix32_t()
+        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(m, 1)) or 1.0), out=scale)
+        d = np.empty(m + 1)
+        d[m] = 0.0  # the zero input of unpaired channels
+        dm = d[:m]
+        np.subtract(v, ref, out=dm)
+        np.divide(dm, scale, out=dm)  # finite ref: no invalid operation
+        g = d.take(index, mode="wrap")
+        np.multiply(g, weights, out=g)
+        p = a.shape[1]
+        g0 = g[:p]
+        np.add(g0, g[p:], out=g0)
+        y = gemv(1.0, a, g0.astype(np.float32))  # no FP warning: NaN/Inf show in y[0]
+        return y if math.isfinite(y[0]) else None
+
+    def merged_matrix(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
+        """The matrix with its reciprocal channels merged (cached; every channel used).
+
+        Returns ``(a, index, weights, gemv)``: ``a`` float32 ``[N, P]`` column-major, ``index``
+        and ``weights`` ``[2P]`` (:func:`~eit_skin.fem.image_grid.proportional_columns`
+        flattened: ``x`` ``[M]`` with a zero appended maps to ``u = g[:P] + g[P:]``,
+        ``g = weights * x[index]``), and SciPy's float32 ``gemv`` (``a @ u`` is
+        ``gemv(1.0, a, u)``).
+        """
+        hit = self._cache.get("merged")
+        if hit is None:
+            inputs, weights = proportional_columns(np.asarray(self.matrix))
+            a = np.asfortranarray(np.asarray(self.matrix)[:, inputs[0]], dtype=np.float32)
+            gemv = sla.get_blas_funcs("gemv", dtype=np.float32)
+            hit = self._cache["merged"] = (a, inputs.ravel(), weights.ravel(), gemv)
+        return hit
 
     def _reference_scale(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(reference, reference_scale(reference))`` float64 ``[M]``, None unless finite.
@@ -548,6 +614,126 @@ class ReconstructionMatrix:
                 op = self.without_channels(pattern) if pattern.any() else self
                 out[rows] = op.solve(dv[rows])
         return out[0] if single else out
+
+
+class FrameImager:
+    """One frame ``[M]`` V -> its image through a :class:`PixelMatrix`, in preallocated buffers.
+
+    Per frame: ``d = v - ref``; ``g = d[inputs]``; ``g *= w``; ``u = g[0] + g[1]`` (float64,
+    rounded once to float32); ``y = A u`` (BLAS ``sgemv`` into ``y``); clip; one gather of
+    ``y`` (NaN last) onto the ``[H, W]`` pixels: seven numpy calls and one BLAS call, nothing
+    allocated but the returned image. ``w = weights / s_ref[inputs]`` is computed once per
+    reference (cached while the reference's bytes stay the same): the one-step data
+    convention ``dv = (v - v_ref) / s_ref`` folded into the channel merge.
+
+    NaN/Inf need no check before the product: any non-finite input makes every product value
+    non-finite (IEEE arithmetic, no term of a matrix-vector sum is skipped), so the first
+    value tells, and the caller takes its exact path; ``sgemv``, unlike ``np.matmul``, raises
+    no floating-point warning for it. A call made while another thread uses the buffers
+    returns None (the caller's allocating path) instead of waiting.
+
+    Attributes:
+        pixels: the folded matrix (``K`` rows, ``P`` merged columns).
+        grid: the grid it was folded onto.
+        scale, floor, ceiling: as in :meth:`ReconstructionMatrix.images`.
+        n_channels: ``M``.
+    """
+
+    __slots__ = (
+        "_d", "_dm", "_frame_shape", "_g", "_g0", "_g1", "_gemv", "_high", "_index", "_key",
+        "_lock", "_low", "_matrix", "_owner", "_ref", "_u", "_w", "_y", "_yk", "ceiling",
+        "floor", "grid", "n_channels", "pixels", "scale",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        pixels: PixelMatrix,
+        grid: ImageGrid,
+        n_channels: int,
+        scale: float,
+        floor: float,
+        ceiling: float,
+    ) -> None:
+        self.pixels, self.grid = pixels, grid
+        self.scale, self.floor, self.ceiling = scale, floor, ceiling
+        self.n_channels = m = int(n_channels)
+        self._frame_shape = (m,)
+        self._matrix = pixels.matrix
+        self._owner = pixels.owner.reshape(pixels.shape)  # the gather gives [H, W] directly
+        k, p = pixels.matrix.shape
+        self._index = pixels.inputs.ravel()  # [2P] into d, whose last entry stays 0
+        self._d = np.zeros(m + 1)
+        self._dm = self._d[:m]
+        self._g = np.empty(2 * p)
+        self._g0, self._g1 = self._g[:p], self._g[p:]
+        self._u = np.zeros(p, dtype=np.float32)
+        self._y = np.zeros(k + 1, dtype=np.float32)
+        self._y[k] = np.nan
+        self._yk = self._y[:k]
+        # full-length bounds: a ufunc without broadcasting costs less per call
+        self._low = None if floor == -np.inf else np.full(k, floor, dtype=np.float32)
+        self._high = None if ceiling == np.inf else np.full(k, ceiling, dtype=np.float32)
+        self._key: bytes | None = None
+        self._lock = threading.Lock()
+        self._ref = np.empty(m)
+        self._w = np.empty(2 * p)
+        # f2py's sgemv with positional arguments (keywords cost ~1.5 us per call); used only
+        # if it writes into y in place, as it does for a contiguous float32 y
+        gemv = sla.get_blas_funcs("gemv", dtype=np.float32)
+        product = gemv(1.0, self._matrix, self._u, 0.0, self._yk, 0, 1, 0, 1, 0, 1)
+        self._gemv = gemv if np.shares_memory(product, self._yk) else None
+
+    def image(
+        self, frame: np.ndarray, reference: np.ndarray, out: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """Frame ``[M]`` V against ``reference`` ``[M]`` V -> float32 ``[H, W]``, or None.
+
+        None: not a single finite frame against a finite reference, or the buffers are in use
+        by another thread (the caller's general path handles it). ``out``: float32
+        C-contiguous ``[H, W]`` to write the image to.
+        """
+        if getattr(frame, "shape", None) != self._frame_shape:
+            return None  # not one [M] frame (T frames, a list: the caller's general path)
+        if not self._lock.acquire(False):  # positional: a keyword costs 0.4 us
+            return None
+        try:  # one function body: a further call costs as much as a small numpy step
+            ref = np.asarray(reference, dtype=np.float64)
+            key = ref.tobytes()
+            if key != self._key and not self._use_reference(ref, key):
+                return None
+            g, g0, u, yk = self._g, self._g0, self._u, self._yk
+            np.subtract(frame, self._ref, out=self._dm)
+            self._d.take(self._index, out=g, mode="wrap")  # the method: np.take wraps it slowly
+            np.multiply(g, self._w, out=g)
+            np.add(g0, self._g1, out=g0)
+            u[...] = g0  # the float64 sum rounded once (cheaper than add's casting output)
+            if self._gemv is not None:
+                self._gemv(1.0, self._matrix, u, 0.0, yk, 0, 1, 0, 1, 0, 1)
+            else:
+                with np.errstate(all="ignore"):
+                    np.matmul(self._matrix, u, out=yk)
+            if not math.isfinite(yk[0]):
+                yk.fill(0.0)  # no NaN left behind for the next product (beta 0 may keep NaN)
+                return None
+            if self._low is not None:
+                np.maximum(yk, self._low, out=yk)
+            if self._high is not None:
+                np.minimum(yk, self._high, out=yk)
+            if out is None:
+                return self._y.take(self._owner, mode="wrap")
+            return self._y.take(self._owner, out=out, mode="wrap")
+        finally:
+            self._lock.release()
+
+    def _use_reference(self, ref: np.ndarray, key: bytes) -> bool:
+        """Weights for a new reference ``[M]``; False (nothing kept) unless it is finite."""
+        if ref.shape != (self.n_channels,) or not np.isfinite(ref).all():
+            return False
+        s = np.append(reference_scale(ref), 1.0)  # the zero input's scale
+        np.divide(self.pixels.weights.ravel(), s[self._index], out=self._w)
+        self._ref[:] = ref
+        self._key = key
+        return True
 
 
 def _matrix(
