@@ -107,7 +107,7 @@ for rnd in range(ROUNDS):
                 print(n.log_path.read_text()[-6000:], flush=True)
             else:
                 log = n.log_path.read_text()
-                if "Timeout (" in log:  # rclpy's teardown was cut by the native exit timer
+                if "teardown not done" in log:  # rclpy's teardown was cut by the native exit timer
                     bounded += 1
                     print(f"BOUNDED {n.label}\n{log[-3000:]}", flush=True)
                 elif "Traceback" in log or "FATAL" in log:

@@ -43,30 +43,54 @@ class _Itimerspec(ctypes.Structure):
     _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
 
 
-def exit_after(seconds: float, code: int = 0) -> bool:
-    """End the process with exit status ``code`` after ``seconds`` (s), whatever it is doing.
+_ARMED: list[object] = []  # the messages' buffers, alive until the process ends
 
-    The notification function receives the timer's ``union sigval`` by value, which the C
-    calling conventions of Linux on x86-64 and arm64 pass in the first integer register:
-    ``_exit`` reads it as its ``int`` status. Nothing is flushed at that moment (call
-    ``sys.stdout.flush()`` before arming). Returns False, arming nothing, where POSIX timers
-    are missing (not Linux).
-    """
+
+def _posix_timers() -> tuple[ctypes.CDLL, object, object] | None:
     if not sys.platform.startswith("linux"):
-        return False
+        return None
     libc = ctypes.CDLL(None, use_errno=True)
     try:
-        timer_create, timer_settime = libc.timer_create, libc.timer_settime
+        return libc, libc.timer_create, libc.timer_settime
     except AttributeError:  # glibc before 2.34 keeps them in librt
         librt = ctypes.CDLL("librt.so.1", use_errno=True)
-        timer_create, timer_settime = librt.timer_create, librt.timer_settime
+        return libc, librt.timer_create, librt.timer_settime
+
+
+def _call_after(seconds: float, function: object, argument: int) -> bool:
+    """Arm a one-shot timer calling the C ``function(argument)`` from a new native thread."""
+    timers = _posix_timers()
+    if timers is None:
+        return False
+    _, timer_create, timer_settime = timers
     event = _Sigevent()
-    event.sigev_value.sival_ptr = code  # all 8 bytes defined; _exit reads the low int
+    event.sigev_value.sival_ptr = argument  # all 8 bytes defined; an int reads the low half
     event.sigev_notify = _SIGEV_THREAD
-    event.sigev_notify_function = ctypes.cast(libc._exit, ctypes.c_void_p).value
+    event.sigev_notify_function = ctypes.cast(function, ctypes.c_void_p).value
     timer = ctypes.c_void_p()
     if timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0:
         return False
     whole = int(seconds)
     when = _Itimerspec(it_value=_Timespec(whole, int((seconds - whole) * 1e9)))
     return timer_settime(timer, 0, ctypes.byref(when), None) == 0
+
+
+def exit_after(seconds: float, code: int = 0, message: str = "") -> bool:
+    """End the process with exit status ``code`` after ``seconds`` (s), whatever it is doing.
+
+    The notification function receives the timer's ``union sigval`` by value, which the C
+    calling conventions of Linux on x86-64 and arm64 pass in the first integer register:
+    ``_exit`` reads it as its ``int`` status. A ``message`` goes to stderr (libc ``warnx``:
+    "<program>: <message>", unbuffered) 50 ms before. Nothing else is flushed then (flush
+    Python's streams before arming). Returns False, arming nothing, where POSIX timers are
+    missing (not Linux).
+    """
+    timers = _posix_timers()
+    if timers is None:
+        return False
+    libc = timers[0]
+    if message:
+        text = ctypes.create_string_buffer(message.replace("%", "percent").encode())
+        _ARMED.append(text)
+        _call_after(max(0.0, seconds - 0.05), libc.warnx, ctypes.addressof(text))
+    return _call_after(seconds, libc._exit, code)

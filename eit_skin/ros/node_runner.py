@@ -7,6 +7,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
@@ -123,8 +124,11 @@ class StopSignals:
     def __init__(self) -> None:
         self.requested = threading.Event()
         self.spinning = False
+        self.first_signal_s: float | None = None  # time.monotonic() of the first signal
 
     def _handle(self, signum: int, frame: object) -> None:
+        if self.first_signal_s is None:
+            self.first_signal_s = time.monotonic()
         self.requested.set()
         if not self.spinning:
             raise KeyboardInterrupt
@@ -160,24 +164,30 @@ class StopSignals:
 
 SHUTDOWN_TIMEOUT_S = 15.0
 """Ceiling (s) of a node's own clean-up after its stop signal (threads joined, files closed)."""
-DDS_TEARDOWN_TIMEOUT_S = 3.0
-"""Ceiling (s) of rclpy's part of the stop after that (entities, context, interpreter exit):
-below the 5 s ``ros2 launch`` waits before it sends SIGTERM."""
+STOP_DEADLINE_S = 4.5
+"""Time (s) from the stop signal by which the process has ended, unless its own clean-up
+still runs: below the 5 s ``ros2 launch`` waits before it sends SIGTERM."""
+MIN_TEARDOWN_S = 0.5
+"""Time (s) rclpy's teardown gets at least, after a clean-up that used up the deadline."""
 
 
-def _bound_dds_teardown(timeout_s: float) -> None:
+def _bound_dds_teardown(timeout_s: float, executable: str) -> None:
     """Whatever happens in rclpy/Fast DDS from now on, the process ends within ``timeout_s``.
 
-    Called once the node's own clean-up is done, so nothing is lost by ending here: if the
-    teardown has not finished after ``timeout_s``, every thread's stack goes to the log and,
-    0.5 s later, the process exits 0 from a native timer (:func:`exit_after`), which runs even
-    when a thread is stuck in native code holding the GIL (the Fast DDS deadlock seen in the
-    stress runs, docs/nodes.md). Without POSIX timers the 15 s watchdog stays in charge.
+    Called once the node's own clean-up is done, so nothing is lost by ending here. A
+    teardown that has not finished by then (a loaded machine, or the Fast DDS deadlock of
+    docs/nodes.md "Stopping") is cut by a native timer (:func:`exit_after`) with exit 0 and
+    one line on stderr; the timer runs even when a thread is stuck in native code holding the
+    GIL. Without POSIX timers the 15 s watchdog stays in charge.
     """
     sys.stdout.flush()
     sys.stderr.flush()
-    if exit_after(timeout_s + 0.5, 0):
-        faulthandler.dump_traceback_later(timeout_s, exit=False)
+    exit_after(
+        timeout_s,
+        0,
+        f"{executable}: rclpy/DDS teardown not done {STOP_DEADLINE_S:.1f} s after the stop signal; "
+        "files are closed, exiting 0 (docs/nodes.md, Stopping)",
+    )
 
 
 def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | None) -> int:
@@ -188,7 +198,8 @@ def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | N
     down: no traceback, no publishing after shutdown. Neither step can hang silently: the
     first is bounded by :data:`SHUTDOWN_TIMEOUT_S` (stacks in the log, exit 1, or SIGTERM
     ends it: :meth:`StopSignals.report_hung_cleanup`), the second by
-    :data:`DDS_TEARDOWN_TIMEOUT_S` (stacks in the log, exit 0: :func:`_bound_dds_teardown`).
+    :data:`STOP_DEADLINE_S` after the signal (one line on stderr, exit 0:
+    :func:`_bound_dds_teardown`).
     """
     signals = StopSignals()
     node = None
@@ -210,7 +221,9 @@ def run_node(make_node: Callable[[], Node], executable: str, args: list[str] | N
                 close_resources = getattr(node, "close_resources", None)
                 if close_resources is not None:
                     close_resources()  # threads joined, recordings closed
-                _bound_dds_teardown(DDS_TEARDOWN_TIMEOUT_S)
+                since = signals.first_signal_s or time.monotonic()  # or a context shutdown
+                left = STOP_DEADLINE_S - (time.monotonic() - since)
+                _bound_dds_teardown(max(MIN_TEARDOWN_S, left), executable)
                 node.destroy_node()
             if rclpy.ok():
                 rclpy.shutdown()
