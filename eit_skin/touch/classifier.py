@@ -599,6 +599,8 @@ class TouchClassifier:
         ):
             raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
         self.faulty: tuple[int, ...] = ()
+        self._noise_samples = 1.0  # independent frames behind the noise map
+        self._strong = False  # a contact of the latest frame stands out of the noise estimate
 
     # ------------------------------------------------------------------ electrode faults
     def set_faulty_electrodes(self, electrodes) -> None:
@@ -672,6 +674,7 @@ class TouchClassifier:
                 )
                 self._noise_var = sigma**2
                 self._noise_floor = self.config.noise_floor_fraction * estimate_noise(averaged)
+                self._noise_samples = len(averaged) / n_avg
             else:
                 sigma = estimate_noise(averaged)
         if self._calibration_stretch:
@@ -726,6 +729,8 @@ class TouchClassifier:
                 detected = self._times[-min(run, len(self._times))]
         contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
+        if self._touch is None:
+            self._strong = bool(contacts) and self._stands_out(signal, parts > 0)
         self._touched = parts > 0
         if self._margin_px and contacts:
             self._touched = ndimage.binary_dilation(self._touched, iterations=self._margin_px)
@@ -765,6 +770,25 @@ class TouchClassifier:
         band = self.config.offset_deadband * float(np.median(self.segmenter.noise_sigma))
         return math.copysign(max(abs(offset) - band, 0.0), offset)
 
+    def _stands_out(self, signal: np.ndarray, mask: np.ndarray) -> bool:
+        """Whether a contact pixel of ``signal`` ``[H, W]`` (``mask``) clears the START bar.
+
+        The per-pixel noise map comes from few frames (0.5 s of calibration: ~12 independent
+        averaged frames), and a pixel's estimate can be half its true noise; then a 3-sigma
+        excursion over two frames reads 6 sigma and makes a contact. A contact STARTs a touch
+        only if it exceeds ``k_high`` by the estimate's uncertainty as well, ``1 + sqrt(2 /
+        n)`` for ``n`` independent frames behind it (x1.41 after calibration, x1.06 after
+        ~20 s of learning), the inflation of the pooled detector's noise. Segmentation and
+        shapes keep the plain map.
+        """
+        if self._noise_var is None:
+            return True
+        inflation = 1.0 + math.sqrt(2.0 / max(self._noise_samples, 1.0))
+        bar = self.config.segmentation.k_high * inflation
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = signal[mask] / self.segmenter.noise_sigma[mask]
+        return bool(np.any(z >= bar))
+
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
         peak, x, y, major, minor, _ = blob_moments(
@@ -795,6 +819,8 @@ class TouchClassifier:
         ok = np.isfinite(signal)
         self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
+        step = 1.0 / self.config.average_frames  # independent frames behind the estimate
+        self._noise_samples = min(self._noise_samples + step, max(2.0 * step / alpha, 1.0))
 
     def _follow_baseline(self, dt: float, pressure, stretch) -> None:
         alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
@@ -819,11 +845,12 @@ class TouchClassifier:
                 self._observe_contacts(None, t_s, contacts, stretch_peak)
                 # a contact must stay in place (one track) for start_frames frames: noise
                 # crossing the threshold at random places in consecutive frames is no touch
-                starts += [
-                    tr.first_seen_s
-                    for tr in self.tracker.tracks
-                    if tr.missed == 0 and tr.frames >= cfg.start_frames
-                ]
+                if self._strong:
+                    starts += [
+                        tr.first_seen_s
+                        for tr in self.tracker.tracks
+                        if tr.missed == 0 and tr.frames >= cfg.start_frames
+                    ]
             else:
                 self._run = 0
             if not starts:
