@@ -444,6 +444,7 @@ class _Touch:
         self.id = touch_id
         self.t_start_s = t_s
         self.t_last_s = t_s
+        self.t_contact_s = t_s  # the latest frame with a segmented contact
         self.t_last_update_s = t_s
         self.counts: list[int] = []
         self.shapes = ShapeHistory()
@@ -954,6 +955,15 @@ class TouchClassifier:
                     return self._maybe_update(touch, t_s)
                 if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
                     return self._end(touch, t_s)
+            # the pooled image still sees it (a weak touch's contacts come and go under
+            # heavy noise), for at most confirm_s after its last contact
+            if (
+                self.detector is not None
+                and self.detector.hit
+                and t_s - touch.t_contact_s < cfg.confirm_s - 1e-9
+            ):
+                touch.t_last_s = t_s
+                return []
             if t_s - touch.t_last_s >= cfg.end_hold_s - 1e-9:
                 return self._end(touch, t_s)
             return []
@@ -990,7 +1000,7 @@ class TouchClassifier:
             self.tracker.update(t_s, contacts)
         if touch is None:
             return
-        touch.t_last_s = t_s
+        touch.t_last_s = touch.t_contact_s = t_s
         touch.last_contacts = contacts
         touch.counts.append(len(contacts))
         if shape is not None:
