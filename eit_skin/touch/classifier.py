@@ -176,8 +176,8 @@ class ClassifierConfig:
         fault_radius: an event whose centroid lies within this many single-finger spreads of a
             faulty electrode has its confidence multiplied by ``fault_confidence``.
         fault_confidence: confidence factor near a faulty electrode, (0, 1].
-        start_roughness: while the whole sheet flickers (:data:`FLICKER`, on average over a
-            touch candidate's frames: a degrading electrode's noise before the pipeline's
+        start_roughness: while the whole sheet flickers (:data:`FLICKER`, in any of a touch
+            candidate's frames: a degrading electrode's noise before the pipeline's
             fault check names it), a candidate STARTs only if its raw image changes by less
             than this fraction of itself (:meth:`TouchClassifier._follow_roughness`). Noise
             gives at least 1, a press, release or stroke a fraction. 0 disables the check
@@ -856,8 +856,10 @@ class TouchClassifier:
         limit = self.config.start_roughness
         if limit <= 0 or not self._rough:
             return True
-        change, level, flicker = np.sum(self._rough, axis=0)
-        if flicker < FLICKER * len(self._rough):
+        change, level, _ = np.sum(self._rough, axis=0)
+        # the largest over the candidate's frames: a fault's first frame is one noisy frame
+        # of the three in its second difference (a sixth of the flicker of the next ones)
+        if max(r[2] for r in self._rough) < FLICKER:
             return True
         return bool(change < limit * level)
 
