@@ -57,6 +57,13 @@ _MAX_CALIBRATION_FRAMES = 10_000
 """Calibration ends after this many frames even if ``calibration_s`` has not passed (a
 memory bound against stamps that do not advance)."""
 
+FLICKER = 2.0
+"""A sheet flickers when the median over its pixels of the raw image's second difference in
+time, squared, exceeds this many times its noise variance (6 v for a pixel of raw noise
+variance v): noise alone gives about 0.45 (the median of a chi-square with one degree of
+freedom), smooth touches 0.4-1 (a ramp has no second difference), a degrading electrode's
+channels 2-8 (median 6-7.5 over its first second on every patch, tuning seed)."""
+
 LABELS = ("push", "rub", "pinch", "grab")
 """Touch labels, in the order of ``eit_skin_msgs/TouchEvent`` (PUSH=0 ... GRAB=3)."""
 STATES = ("start", "update", "end")
@@ -169,6 +176,12 @@ class ClassifierConfig:
         fault_radius: an event whose centroid lies within this many single-finger spreads of a
             faulty electrode has its confidence multiplied by ``fault_confidence``.
         fault_confidence: confidence factor near a faulty electrode, (0, 1].
+        start_roughness: while the whole sheet flickers (:data:`FLICKER`, in any of a touch
+            candidate's frames: a degrading electrode's noise before the pipeline's
+            fault check names it), a candidate STARTs only if its raw image changes by less
+            than this fraction of itself (:meth:`TouchClassifier._follow_roughness`). Noise
+            gives at least 1, a press, release or stroke a fraction. 0 disables the check
+            (issue 18).
     """
 
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -207,6 +220,7 @@ class ClassifierConfig:
     offset_deadband: float = 1.0
     fault_radius: float = 2.0
     fault_confidence: float = 0.5
+    start_roughness: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -237,6 +251,7 @@ class ClassifierConfig:
             "offset_deadband",
             "fault_radius",
             "pinch_narrowing",
+            "start_roughness",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -429,6 +444,7 @@ class _Touch:
         self.id = touch_id
         self.t_start_s = t_s
         self.t_last_s = t_s
+        self.t_contact_s = t_s  # the latest frame with a segmented contact
         self.t_last_update_s = t_s
         self.counts: list[int] = []
         self.shapes = ShapeHistory()
@@ -599,6 +615,10 @@ class TouchClassifier:
         ):
             raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
         self.faulty: tuple[int, ...] = ()
+        self._noise_samples = 1.0  # independent frames behind the noise map
+        self._strong = False  # a contact of the latest frame stands out of the noise estimate
+        self._raws: list[np.ndarray] = []  # the latest average_frames + 1 raw frames
+        self._rough: list[tuple[float, float, float]] = []  # per candidate frame
 
     # ------------------------------------------------------------------ electrode faults
     def set_faulty_electrodes(self, electrodes) -> None:
@@ -672,6 +692,7 @@ class TouchClassifier:
                 )
                 self._noise_var = sigma**2
                 self._noise_floor = self.config.noise_floor_fraction * estimate_noise(averaged)
+                self._noise_samples = len(averaged) / n_avg
             else:
                 sigma = estimate_noise(averaged)
         if self._calibration_stretch:
@@ -708,6 +729,7 @@ class TouchClassifier:
         if self.segmenter is None:
             self._calibrate(t_s, pressure, stretch)
             self._t_prev = t_s
+            self._raws = [*self._raws[-self.config.average_frames :], pressure]
             self.last_contacts = []
             return []
         dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
@@ -716,7 +738,9 @@ class TouchClassifier:
         if self.config.average_frames == 1:
             self._recent = [pressure]
         signal = np.mean(self._recent, axis=0) - self.baseline
-        signal = signal - self._sheet_offset(signal)
+        offset = self._sheet_offset(signal)
+        signal = signal - offset
+        self._raws = [*self._raws[-self.config.average_frames :], pressure]
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = None  # time of the first frame of a pooled detection, if there is one
         if self.detector is not None:
@@ -726,6 +750,9 @@ class TouchClassifier:
                 detected = self._times[-min(run, len(self._times))]
         contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
+        if self._touch is None:
+            self._strong = bool(contacts) and self._stands_out(signal, parts > 0)
+            self._follow_roughness(pressure, offset, parts > 0, bool(contacts))
         self._touched = parts > 0
         if self._margin_px and contacts:
             self._touched = ndimage.binary_dilation(self._touched, iterations=self._margin_px)
@@ -765,6 +792,77 @@ class TouchClassifier:
         band = self.config.offset_deadband * float(np.median(self.segmenter.noise_sigma))
         return math.copysign(max(abs(offset) - band, 0.0), offset)
 
+    def _stands_out(self, signal: np.ndarray, mask: np.ndarray) -> bool:
+        """Whether a contact pixel of ``signal`` ``[H, W]`` (``mask``) clears the START bar.
+
+        The per-pixel noise map comes from few frames (0.5 s of calibration: ~12 independent
+        averaged frames), and a pixel's estimate can be half its true noise; then a 3-sigma
+        excursion over two frames reads 6 sigma and makes a contact. A contact STARTs a touch
+        only if it exceeds ``k_high`` by the estimate's uncertainty as well, ``1 + sqrt(2 /
+        n)`` for ``n`` independent frames behind it (x1.41 after calibration, x1.06 after
+        ~20 s of learning), the inflation of the pooled detector's noise. Segmentation and
+        shapes keep the plain map.
+        """
+        if self._noise_var is None:
+            return True
+        inflation = 1.0 + math.sqrt(2.0 / max(self._noise_samples, 1.0))
+        bar = self.config.segmentation.k_high * inflation
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = signal[mask] / self.segmenter.noise_sigma[mask]
+        return bool(np.any(z >= bar))
+
+    def _follow_roughness(
+        self, pressure: np.ndarray, offset: float, mask: np.ndarray, contacts: bool
+    ) -> None:
+        """Sheet flicker and a touch candidate's roughness from the latest raw frame.
+
+        Raw frames ``p`` ``[H, W]``, per-pixel raw noise variance ``v`` (the averaged map's
+        times ``average_frames``). **Flicker**: the median over the sheet of ``(p_k -
+        2 p_(k-1) + p_(k-2))^2 / (6 v)`` (:data:`FLICKER`; a touch covers less than half of
+        the sheet, and its smooth ramps have little second difference).
+        **Roughness** of a candidate (the contact pixels, or the pooled detector's hits before
+        any contact), summed over its frames: ``sum (p_k - p_(k-n))^2 - 2 v`` against ``sum
+        (p_k - baseline - offset)^2 - v``, ``n = average_frames``: ``p_(k-n)`` is the frame
+        just before those the contacts were segmented in, independent of that selection, so
+        noise gives at least 1 however it was selected; a press, release or stroke changes
+        by a fraction of itself.
+        """
+        cfg = self.config
+        if cfg.start_roughness <= 0 or self._noise_var is None:
+            return
+        if len(self._raws) <= cfg.average_frames:
+            return
+        var = self.segmenter.noise_sigma**2 * cfg.average_frames
+        bend = pressure - 2.0 * self._raws[-2] + self._raws[-3]  # second difference in time
+        ok = np.isfinite(bend)
+        flicker = float(np.median(bend[ok] ** 2 / (6.0 * var[ok]))) if ok.any() else 0.0
+        hits = self.detector is not None and self.detector.hit
+        if not contacts and not hits:
+            self._rough = []
+            return
+        if not contacts:
+            mask = self.detector.z > self.detector.k
+        before = self._raws[0]
+        ok = mask & np.isfinite(pressure) & np.isfinite(before)
+        if not ok.any():
+            return
+        noise = float(np.sum(var[ok]))
+        change = float(np.sum((pressure[ok] - before[ok]) ** 2)) - 2.0 * noise
+        level = float(np.sum((pressure[ok] - self.baseline[ok] - offset) ** 2)) - noise
+        self._rough = [*self._rough[-cfg.lookback_frames :], (change, level, flicker)]
+
+    def _smooth_enough(self) -> bool:
+        """No START while the sheet flickers and the candidate is as rough as noise."""
+        limit = self.config.start_roughness
+        if limit <= 0 or not self._rough:
+            return True
+        change, level, _ = np.sum(self._rough, axis=0)
+        # the largest over the candidate's frames: a fault's first frame is one noisy frame
+        # of the three in its second difference (a sixth of the flicker of the next ones)
+        if max(r[2] for r in self._rough) < FLICKER:
+            return True
+        return bool(change < limit * level)
+
     def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
         peak, x, y, major, minor, _ = blob_moments(
@@ -795,6 +893,8 @@ class TouchClassifier:
         ok = np.isfinite(signal)
         self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
+        step = 1.0 / self.config.average_frames  # independent frames behind the estimate
+        self._noise_samples = min(self._noise_samples + step, max(2.0 * step / alpha, 1.0))
 
     def _follow_baseline(self, dt: float, pressure, stretch) -> None:
         alpha = 1.0 - math.exp(-dt / self.config.baseline_tau_s)
@@ -819,19 +919,21 @@ class TouchClassifier:
                 self._observe_contacts(None, t_s, contacts, stretch_peak)
                 # a contact must stay in place (one track) for start_frames frames: noise
                 # crossing the threshold at random places in consecutive frames is no touch
-                starts += [
-                    tr.first_seen_s
-                    for tr in self.tracker.tracks
-                    if tr.missed == 0 and tr.frames >= cfg.start_frames
-                ]
+                if self._strong:
+                    starts += [
+                        tr.first_seen_s
+                        for tr in self.tracker.tracks
+                        if tr.missed == 0 and tr.frames >= cfg.start_frames
+                    ]
             else:
                 self._run = 0
-            if not starts:
+            if not starts or not self._smooth_enough():
                 return []
             t_first = min(starts)
             touch = self._touch = _Touch(self._next_id, t_first)
             self._next_id += 1
             self._run = 0
+            self._rough = []
             before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
             touch.shapes = ShapeHistory(before[before["t_s"] >= t_first - 1e-9])
             self._run_shapes = []
@@ -855,6 +957,15 @@ class TouchClassifier:
                     return self._maybe_update(touch, t_s)
                 if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
                     return self._end(touch, t_s)
+            # the pooled image still sees it (a weak touch's contacts come and go under
+            # heavy noise), for at most confirm_s after its last contact
+            if (
+                self.detector is not None
+                and self.detector.hit
+                and t_s - touch.t_contact_s < cfg.confirm_s - 1e-9
+            ):
+                touch.t_last_s = t_s
+                return []
             if t_s - touch.t_last_s >= cfg.end_hold_s - 1e-9:
                 return self._end(touch, t_s)
             return []
@@ -891,7 +1002,7 @@ class TouchClassifier:
             self.tracker.update(t_s, contacts)
         if touch is None:
             return
-        touch.t_last_s = t_s
+        touch.t_last_s = touch.t_contact_s = t_s
         touch.last_contacts = contacts
         touch.counts.append(len(contacts))
         if shape is not None:
