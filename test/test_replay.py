@@ -86,7 +86,7 @@ def test_driver_replays_frames_identically(recording, tmp_path, realtime: bool) 
         assert stamp == pytest.approx(t[i], abs=1e-6)
         assert msg.header.frame_id == "arm_skin_link" and msg.sequence == i
     spread = received[-1][0] - received[0][0]
-    if realtime:
-        assert 1.7 < spread < 2.6  # the recording spans 1.98 s
-    else:
-        assert spread < 1.0
+    if realtime:  # the recording spans 1.98 s: never faster (a loaded machine may be slower)
+        assert spread > 1.7
+    else:  # as fast as it goes: well under the recording's own span
+        assert spread < 1.7
