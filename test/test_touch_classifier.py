@@ -71,6 +71,17 @@ def test_push_gives_start_updates_end_with_its_centroid_and_timing() -> None:
     assert 0.5 < end.confidence <= 1.0
 
 
+def test_images_sharing_a_stamp_are_classified_without_error() -> None:
+    """Two boards' images may carry one acquisition time (dt = 0 between steps): the noise
+    follower has nothing to learn then, and the push is still one push."""
+    t, images = sequence(
+        lambda t: ([(0.01, -0.005)], 5000.0 * envelope(t, ONSET_S, RELEASE_S)), 3.0
+    )
+    events = classify_stream(np.repeat(t, 2), np.repeat(images, 2, axis=0), X, Y)
+    _, _, end = one_touch(events)
+    assert end.label == "push"
+
+
 def test_rub_is_a_contact_that_travels() -> None:
     def script(t):
         x = -0.015 + 0.02 * np.clip((t - ONSET_S - 0.1) / 1.0, 0, 1)  # 20 mm sideways

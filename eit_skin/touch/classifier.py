@@ -884,6 +884,8 @@ class TouchClassifier:
         if self.config.noise_tau_s <= 0:
             return
         alpha = 1.0 - math.exp(-dt / self.config.noise_tau_s)
+        if alpha <= 0.0:  # no time passed (two boards' images with one stamp): nothing to learn
+            return
         if self.detector is not None:
             if not self.detector.quiet:  # possibly a weak touch building up: not noise
                 return
