@@ -57,11 +57,8 @@ def _posix_timers() -> tuple[ctypes.CDLL, object, object] | None:
         return libc, librt.timer_create, librt.timer_settime
 
 
-def _call_after(seconds: float, function: object, argument: int) -> bool:
+def _call_after(timers: tuple, seconds: float, function: object, argument: int) -> bool:
     """Arm a one-shot timer calling the C ``function(argument)`` from a new native thread."""
-    timers = _posix_timers()
-    if timers is None:
-        return False
     _, timer_create, timer_settime = timers
     event = _Sigevent()
     event.sigev_value.sival_ptr = argument  # all 8 bytes defined; an int reads the low half
@@ -92,5 +89,5 @@ def exit_after(seconds: float, code: int = 0, message: str = "") -> bool:
     if message:
         text = ctypes.create_string_buffer(message.replace("%", "percent").encode())
         _ARMED.append(text)
-        _call_after(max(0.0, seconds - 0.05), libc.warnx, ctypes.addressof(text))
-    return _call_after(seconds, libc._exit, code)
+        _call_after(timers, max(0.0, seconds - 0.05), libc.warnx, ctypes.addressof(text))
+    return _call_after(timers, seconds, libc._exit, code)
