@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -62,6 +64,16 @@ def test_spin_nodes_delivers_messages_runs_timers_and_returns_on_shutdown(kind: 
         context.try_shutdown()
 
 
+def _python_child(script: str, argument: str) -> subprocess.Popen:
+    """``python -c script argument`` with its stdout and stderr piped (text)."""
+    return subprocess.Popen(
+        [sys.executable, "-c", script, argument],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
 HUNG_CLEANUP = """
 import sys, threading
 from eit_skin.ros.node_runner import StopSignals
@@ -76,16 +88,9 @@ def test_a_hung_cleanup_is_reported_with_its_stack_and_ends(how: str) -> None:
     """A node stuck in its clean-up after the first signal: a second SIGINT is ignored,
     SIGTERM (or the watchdog) ends it with every thread's stack printed, never a hang."""
     import signal
-    import subprocess
-    import sys
 
     timeout_s = "2.0" if how == "watchdog" else "600"
-    process = subprocess.Popen(
-        [sys.executable, "-c", HUNG_CLEANUP, timeout_s],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    process = _python_child(HUNG_CLEANUP, timeout_s)
     try:
         assert process.stdout.readline() == "cleaning up\n"
         process.send_signal(signal.SIGINT)  # ignored: the clean-up goes on
@@ -117,15 +122,7 @@ def test_a_process_stuck_in_native_code_holding_the_gil_still_ends(how: str) -> 
     """The stop's DDS phase stuck: no Python can run once a thread sleeps in native code with
     the GIL held, yet the native timer ends the process with the armed status (3 shows it is
     the timer's, not a normal exit), saying why when it cuts a node's teardown."""
-    import subprocess
-    import sys
-
-    process = subprocess.Popen(
-        [sys.executable, "-c", STUCK_IN_NATIVE_CODE, how],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    process = _python_child(STUCK_IN_NATIVE_CODE, how)
     try:
         stdout, stderr = process.communicate(timeout=120)  # a ceiling: sleep(600) otherwise
     finally:
