@@ -124,6 +124,22 @@ def interleaved_medians(fns, n):
     return [float(np.median(t_fn)) for t_fn in times]
 
 
+def copy_bandwidth() -> float:
+    """Memory bandwidth of this core, bytes/s: ``np.copyto`` of 64 MiB (read + write), median
+    of 5 (the floor a frame's bytes can be moved at; caches do not hold 128 MiB)."""
+    src = np.ones(16 * 2**20, dtype=np.float32)
+    dst = np.empty_like(src)
+    return 2 * src.nbytes / median_time(lambda: np.copyto(dst, src), 5)
+
+
+def memory_floor_s(rm, grid, n_channels: int, batch: int, bandwidth: float) -> float:
+    """Least time, s, to move one frame's bytes at ``bandwidth``: the folded pixel matrix read
+    once per call of ``batch`` frames, the frame (float64 ``[M]``) read and the float32
+    ``[H, W]`` image written."""
+    matrix = rm.pixel_matrix(grid, UNIT, FLOOR).matrix.nbytes
+    return (matrix / batch + 8 * n_channels + 4 * grid.inside.size) / bandwidth
+
+
 def merit(grid, values, phantoms):
     """max PE / R, mean RES, mean RNG, max SD over the phantoms."""
     imgs = grid.to_image(values)
@@ -139,7 +155,7 @@ def merit(grid, values, phantoms):
     )
 
 
-def greit_case(mesh, protocol, frames, v0, phantoms, grid):
+def greit_case(mesh, protocol, frames, v0, phantoms, grid, bandwidth: float = float("nan")):
     """The shipped method (GREIT-trained matrix) on ``mesh``: build, times, error.
 
     Frames ``[T, M]`` V, phantoms ``[(c, v)]``. Returns a dict: ``forward``, ``matrix``,
@@ -148,7 +164,8 @@ def greit_case(mesh, protocol, frames, v0, phantoms, grid):
     :meth:`ReconstructionMatrix.images`); ``element_frame_s`` / ``element_batched_s``: frame
     -> element values only (:meth:`ReconstructionMatrix.reconstruct`, pyEIT's output);
     ``image_error``: max |float32 image - float64 chain| / max |image| over the frames;
-    ``merit``: :func:`merit` of the element values.
+    ``merit``: :func:`merit` of the element values; ``frame_floor_s`` / ``batched_floor_s``:
+    :func:`memory_floor_s` at ``bandwidth`` bytes/s (NaN if not given).
     """
     t = time.perf_counter()
     fwd = ForwardModel(mesh, protocol, 1e-4)
@@ -170,6 +187,8 @@ def greit_case(mesh, protocol, frames, v0, phantoms, grid):
         "element_batched_s": median_time(lambda: rm.reconstruct(frames, v0), 10) / len(frames),
         "image_error": float(np.nanmax(np.abs(fast - exact)) / np.nanmax(np.abs(exact))),
         "merit": merit(grid, rm.reconstruct(frames, v0), phantoms),
+        "frame_floor_s": memory_floor_s(rm, grid, v0.size, 1, bandwidth),
+        "batched_floor_s": memory_floor_s(rm, grid, v0.size, len(frames), bandwidth),
     }
 
 
@@ -660,12 +679,14 @@ def main() -> None:
             phantoms.append((c, v))
     frames = np.stack([v for _, v in phantoms])
     print(f"data mesh {fine.mesh.n_triangles} triangles, {len(phantoms)} phantoms", flush=True)
+    bandwidth = copy_bandwidth()
+    print(f"copy bandwidth {bandwidth / 1e9:.1f} GB/s", flush=True)
     press = moving_press(fine, v0, ONLINE_FRAMES, ONLINE_RATE_HZ)
     rows, gn_rows, online, records = [], [], [], []
     for h in sizes:
         mesh = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(mesh, 64)
-        g = greit_case(mesh, protocol, frames, v0, phantoms, grid)
+        g = greit_case(mesh, protocol, frames, v0, phantoms, grid, bandwidth)
         fwd, build, frame_t, batch_t, ours = (
             g["forward"],
             g["build_s"],
@@ -718,7 +739,7 @@ def main() -> None:
         row = (mesh.n_triangles, build, frame_t * 1e3, batch_t * 1e3, gn_ms[0][0], gn_ms[0][1])
         row += (*ours, py_build, py_frame * 1000.0, *py, build_l, *lap, *gn_ms[1])
         row += (g["element_frame_s"] * 1e3, g["element_batched_s"] * 1e3, g["image_error"])
-        row += (py_image * 1e3,)
+        row += (py_image * 1e3, g["frame_floor_s"] * 1e3, g["batched_floor_s"] * 1e3)
         rows.append(row)
         print("  ".join(f"{x:.4g}" for x in row), flush=True)
     if args.frame_only:
@@ -726,7 +747,7 @@ def main() -> None:
             write_json(args.json, records)
         replace_section(
             OUT / "REPORT.md",
-            frame_section(rows, args.quick, fine.mesh.n_triangles, frame_only=True),
+            frame_section(rows, args.quick, fine.mesh.n_triangles, bandwidth, frame_only=True),
         )
         return
     sweep = []
@@ -754,6 +775,7 @@ def main() -> None:
         fwd.mesh.n_triangles,
         fine.mesh.n_triangles,
         args.quick,
+        bandwidth,
     )
 
 
@@ -798,7 +820,9 @@ def write_json(path: Path, rows: list[dict]) -> None:
     Path(path).write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n")
 
 
-def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> list[str]:
+def frame_section(
+    rows, quick: bool, data_n: int, bandwidth: float, frame_only: bool = False
+) -> list[str]:
     """The report's first section: machine, method and the per-mesh frame table."""
     only = " (this section only; the sections below are from an earlier run)"
     flags = "".join(f" {a}" for a in sys.argv[1:] if a.startswith("--") and a != "--json")
@@ -840,14 +864,18 @@ def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> l
         "column-major, [K elements under pixels, 104]; pyEIT's float64, row-major, [N, 208]. "
         "Gauss-Newton: see its sections below. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
-        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max).",
+        "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max). "
+        f"Memory floor: the least time to move one frame's bytes at this core's copy bandwidth "
+        f"({bandwidth / 1e9:.1f} GB/s, `np.copyto` of 64 MiB): the folded float32 pixel matrix "
+        "(read once per call: per frame single, over 30 frames batched), the float64 frame "
+        "in and the float32 image out; x floor = measured time over that floor.",
         "",
         "| triangles | build s | frame->image ms | batched image ms/frame | frame / pyEIT "
         "| element frame ms | batched element ms/frame | float32 image error | max PE | RES "
         "| RNG | SD | Laplace build s | Laplace PE | Laplace RES | Laplace RNG | pyEIT build s "
         "| pyEIT frame ms | pyEIT frame->image ms | pyEIT max PE | pyEIT RES | pyEIT RNG "
-        "| pyEIT SD |",
-        "|" + "---|" * 23,
+        "| pyEIT SD | memory floor: frame / batched µs | x floor: frame / batched |",
+        "|" + "---|" * 25,
     ]
     for r in rows:
         lines.append(
@@ -855,12 +883,13 @@ def frame_section(rows, quick: bool, data_n: int, frame_only: bool = False) -> l
             f"{r[23]:.3f} | {r[24]:.4f} | {r[25]:.1e} | {r[6]:.4f} | {r[7]:.3f} | "
             f"{r[8]:.2f} | {r[9]:.2f} | {r[16]:.3f} | {r[17]:.4f} | {r[18]:.3f} | {r[19]:.2f} | "
             f"{r[10]:.2f} | {r[11]:.3f} | {r[26]:.3f} | {r[12]:.4f} | {r[13]:.3f} | {r[14]:.2f} | "
-            f"{r[15]:.2f} |"
+            f"{r[15]:.2f} | {r[27] * 1e3:.1f} / {r[28] * 1e3:.1f} | "
+            f"{r[2] / r[27]:.1f} / {r[3] / r[28]:.1f} |"
         )
     return lines
 
 
-def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
+def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick, bandwidth):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -893,7 +922,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick):
     ax[2].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(OUT / "reconstruction.png", dpi=90)
-    lines = frame_section(rows, quick, data_n)
+    lines = frame_section(rows, quick, data_n, bandwidth)
     lines += [
         "",
         f"## Inverse-mesh sweep (forward mesh {sweep_fwd} triangles, same data)",
