@@ -104,6 +104,32 @@ def test_a_hung_cleanup_is_reported_with_its_stack_and_ends(how: str) -> None:
     assert "KeyboardInterrupt" not in stderr, stderr
 
 
+STUCK_AT_EXIT = """
+import ctypes
+from eit_skin.ros.exit_timer import exit_after
+libc = ctypes.CDLL(None)
+# a C exit handler that blocks, as a C++ static destructor joining a DDS thread can: it runs
+# after the interpreter has finalised and freed every Python object
+assert libc.__cxa_atexit(ctypes.cast(libc.pause, ctypes.c_void_p), None, None) == 0
+assert exit_after(1.0, 3, "the message of a teardown stuck at exit")
+print("exiting", flush=True)
+"""
+
+
+def test_the_timer_message_survives_the_interpreter_finalising() -> None:
+    """A process stuck after Python has finalised (every Python object freed) still writes the
+    armed message intact, then ends with the armed status: the text lives in C memory (a
+    Python buffer printed allocator garbage there)."""
+    process = _python_child(STUCK_AT_EXIT, "")
+    try:
+        stdout, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert stdout == "exiting\n", stderr
+    assert process.returncode == 3, stderr
+    assert stderr.endswith(": the message of a teardown stuck at exit\n"), stderr
+
+
 STUCK_IN_NATIVE_CODE = """
 import ctypes, sys
 from eit_skin.ros.exit_timer import exit_after

@@ -43,9 +43,6 @@ class _Itimerspec(ctypes.Structure):
     _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
 
 
-_ARMED: list[object] = []  # the messages' buffers, alive until the process ends
-
-
 def _posix_timers() -> tuple[ctypes.CDLL, object, object] | None:
     if not sys.platform.startswith("linux"):
         return None
@@ -87,7 +84,22 @@ def exit_after(seconds: float, code: int = 0, message: str = "") -> bool:
         return False
     libc = timers[0]
     if message:
-        text = ctypes.create_string_buffer(message.replace("%", "percent").encode())
-        _ARMED.append(text)
-        _call_after(timers, max(0.0, seconds - 0.05), libc.warnx, ctypes.addressof(text))
+        _call_after(timers, max(0.0, seconds - 0.05), libc.warnx, _c_string(libc, message))
     return _call_after(timers, seconds, libc._exit, code)
+
+
+def _c_string(libc: ctypes.CDLL, text: str) -> int:
+    """Address of a NUL-terminated copy of ``text`` in C memory that is never freed.
+
+    Not a Python-owned buffer: the timer may fire while the interpreter finalises, after it
+    has cleared the modules and freed their objects (a teardown stuck at exit); a freed
+    buffer then printed allocator garbage. One small leak per armed message.
+    """
+    data = text.replace("%", "percent").encode() + b"\0"
+    malloc = libc.malloc
+    malloc.restype, malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    address = malloc(len(data))
+    if not address:
+        raise MemoryError("exit_after: no memory for the message")
+    ctypes.memmove(address, data, len(data))
+    return address
