@@ -168,8 +168,14 @@ class SkinMonitor(Node):
                 self.pending_snapshots.append((view, view.touch_best, label))
             view.touch_best = None
 
-    def save_pending_snapshots(self) -> None:
-        while self.pending_snapshots:
+    def save_pending_snapshots(self, limit: int | None = None) -> None:
+        """Write the pending touch pictures, at most ``limit`` of them (None: all).
+
+        A picture takes a few seconds on a loaded machine; the run loop writes one per pass
+        so that touches arriving faster than that cannot keep it from its duration check.
+        """
+        while self.pending_snapshots and (limit is None or limit > 0):
+            limit = None if limit is None else limit - 1
             view, images, label = self.pending_snapshots.pop(0)
             self.snapshots += 1
             path = self.out / f"{view.name}_{self.snapshots:02d}_{label}.png"
@@ -233,7 +239,8 @@ def save_snapshot(view: PatchView, images: dict[str, np.ndarray], title: str, pa
     plt.close(fig)
 
 
-def _views(specs: list[NodeSpec]) -> list[PatchView]:
+def patch_views(specs: list[NodeSpec]) -> list[PatchView]:
+    """One :class:`PatchView` per reconstruction node of ``specs`` (its patch's topics)."""
     views = []
     for spec in specs:
         if spec.executable != "eit_reconstruction":
@@ -310,7 +317,7 @@ def _run(
     """:func:`run_skin` once rclpy is up and the signals are handled."""
     logs = out / "logs"
     stop_requested = signals.requested
-    monitor = SkinMonitor(_views(specs), out, script_frames or {})
+    monitor = SkinMonitor(patch_views(specs), out, script_frames or {})
     nodes: list[RunningNode] = []
     executor: SingleThreadedExecutor | None = None
     code = 0
@@ -330,7 +337,7 @@ def _run(
         spinner.start()
         while not _finished(monitor, duration_s) and not stop_requested.is_set():
             time.sleep(0.02)
-            monitor.save_pending_snapshots()
+            monitor.save_pending_snapshots(limit=1)
             if monitor.t0 is None:  # the clock starts with the first frame of any patch
                 if any(view.frames for view in monitor.views):
                     monitor.t0 = time.monotonic()
