@@ -172,6 +172,17 @@ def test_eit_skin_run_stops_its_nodes_on_a_signal(
         assert _clean(log.read_text()), log.read_text()
 
 
+def _threads_of(pid: int) -> str:
+    """State and kernel wait channel of each thread of ``pid`` (why it has not ended)."""
+    lines = []
+    for task in sorted(Path(f"/proc/{pid}/task").glob("*")):
+        with contextlib.suppress(OSError):
+            stat = (task / "stat").read_text()
+            name, state = stat[stat.index("(") + 1 : stat.rindex(")")], stat.split(") ")[1][0]
+            lines.append(f"{task.name} {name} {state} {(task / 'wchan').read_text()}")
+    return "\n".join(lines) or f"no /proc/{pid}/task"
+
+
 def test_a_killed_eit_skin_run_leaves_no_node_behind(tmp_path: Path, env_cache: Path) -> None:
     """`eit-skin run` killed outright (SIGKILL, the OOM killer): its nodes get SIGTERM from
     the kernel, stop cleanly (exit 0 by their own handling) and close their recordings."""
@@ -185,8 +196,10 @@ def test_a_killed_eit_skin_run_leaves_no_node_behind(tmp_path: Path, env_cache: 
         pidfds = [os.pidfd_open(pid) for pid in children]
         run.kill()
         run.wait()
-        for fd in pidfds:  # readable when that process has ended (not our child: no wait())
-            assert select.select([fd], [], [], EXIT_S)[0], "a node outlived its killed starter"
+        for pid, fd in zip(children, pidfds, strict=True):
+            # readable when that process has ended (not our child: no wait())
+            ended = select.select([fd], [], [], EXIT_S)[0]
+            assert ended, f"a node outlived its killed starter:\n{_threads_of(pid)}"
             os.close(fd)
     finally:
         for pid in children:
