@@ -363,10 +363,8 @@ class PooledDetector:
     a detection is ``run.max() >= frames``, checked by the caller. A first crossing whose
     neighbourhood was above ``k / 2`` in the previous frame, with the two z-scores averaging
     ``k`` or more, counts that frame too (run 2): a press rising fast from below ``k`` is
-    detected a frame earlier, while two frames of noise must still average ``k``: ``2k /
-    sqrt(3)`` standard deviations of the two-frame sum under the classifier's 2-frame running
-    mean (consecutive images correlated 0.5), a 6.4-sigma tail at ``k`` = 5.5 against 6.6 for
-    two separate crossings (docs/classifier.md, 4a).
+    detected a frame earlier, while two frames of noise must still average ``k`` (about
+    ``k sqrt(2/3)`` sigmas of the two-frame sum for the classifier's 2-frame running mean).
 
     Args:
         inside: ``[H, W]`` bool, pixels on the sheet.
