@@ -157,3 +157,26 @@ def test_a_process_stuck_in_native_code_holding_the_gil_still_ends(how: str) -> 
     assert process.returncode == (0 if how == "teardown" else 3), stderr
     if how == "teardown":  # one line says why, then exit 0
         assert "stuck_node: rclpy/DDS teardown not done" in stderr, stderr
+
+
+SIGNAL_DURING_EXIT = """
+import atexit, os, signal, sys, time, types
+from eit_skin.ros import entry
+def main():  # a node that stopped cleanly; its process then gets a late SIGTERM while exiting
+    atexit.register(lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(0.2)))
+    return 0
+sys.modules["eit_skin.ros.classifier"] = types.SimpleNamespace(main=main)
+sys.exit(entry.classifier())
+"""
+
+
+def test_a_signal_during_the_interpreter_exit_is_quiet() -> None:
+    """A launch's second SIGINT or a dying starter's SIGTERM that lands while a stopped node's
+    interpreter exits: exit 0 and nothing on stderr (it raised SystemExit inside an atexit
+    handler and printed a traceback)."""
+    process = _python_child(SIGNAL_DURING_EXIT, "")
+    try:
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert (process.returncode, stderr) == (0, ""), stderr

@@ -29,7 +29,15 @@ def _run(module: str) -> int:
     faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _stop_while_importing)
-    return importlib.import_module(f"eit_skin.ros.{module}").main()
+    try:
+        return importlib.import_module(f"eit_skin.ros.{module}").main()
+    finally:
+        # the node has stopped (its own handling restored ours on the way out): a late
+        # signal, a launch's second SIGINT or a dying starter's SIGTERM, must not raise
+        # SystemExit inside the interpreter's exit handlers (a traceback in the log); the
+        # exit itself is bounded by the node runner's exit timer
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
 
 
 def driver() -> int:
