@@ -51,26 +51,33 @@ def wait_ready(probe: Probe, namespace: str, node, log) -> None:
     assert ok and node.poll() is None, log.read_text()
 
 
-def diagnostics_of(probe: Probe, layer: str) -> dict[str, str]:
+def _latest_status(probe: Probe, layer: str):
+    """``(message, status)`` of the newest diagnostics about ``layer``; ``(None, None)``."""
     for _, msg in reversed(probe.messages["/diagnostics"]):
         for status in msg.status:
             if status.name.endswith(f"eit_reconstruction: {layer}"):
-                return {"message": status.message, "level": status.level[0]} | {
-                    kv.key: kv.value for kv in status.values
-                }
-    return {}
+                return msg, status
+    return None, None
+
+
+def diagnostics_of(probe: Probe, layer: str) -> dict[str, str]:
+    _, status = _latest_status(probe, layer)
+    if status is None:
+        return {}
+    return {"message": status.message, "level": status.level[0]} | {
+        kv.key: kv.value for kv in status.values
+    }
 
 
 def reference_taken_s(probe: Probe, layer: str) -> float:
     """When the layer's current reference was acquired (frame time, s), by its latest
     diagnostics (stamp minus ``reference_age_s``); NaN before any. Unlike the age itself,
     it does not grow while a loaded node lags behind the driver."""
-    for _, msg in reversed(probe.messages["/diagnostics"]):
-        for status in msg.status:
-            if status.name.endswith(f"eit_reconstruction: {layer}"):
-                age = {kv.key: kv.value for kv in status.values}.get("reference_age_s", "nan")
-                return _stamp_ns(msg) * 1e-9 - float(age)
-    return float("nan")
+    msg, status = _latest_status(probe, layer)
+    if status is None:
+        return float("nan")
+    age = {kv.key: kv.value for kv in status.values}.get("reference_age_s", "nan")
+    return _stamp_ns(msg) * 1e-9 - float(age)
 
 
 def _stamp_ns(msg) -> int:
@@ -144,19 +151,12 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         imaged = wait_for_image_of(probe, "/arm", int(truth.t_end_s * RATE_HZ))
         assert imaged, recon_log.read_text()[-2000:]
         images = probe.messages["/arm/pressure/image"]
-        frames = {
-            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m.sequence
-            for _, m in probe.messages["/arm/pressure/frames"]
-        }
-        stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in images]
+        frames = {_stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
+        stamps = [_stamp_ns(m) for _, m in images]
         # image stamps are the frames' acquisition times (the probe may miss the first frames)
         assert len(set(stamps) & set(frames)) > 0.9 * len(stamps)
         stamps = [s for s in stamps if s in frames]
-        images = [
-            (t, m)
-            for t, m in images
-            if m.header.stamp.sec * 10**9 + m.header.stamp.nanosec in frames
-        ]
+        images = [(t, m) for t, m in images if _stamp_ns(m) in frames]
         assert all(m.header.frame_id == patch.frame_id for _, m in images)
 
         arrays = [as_array(m) for _, m in images]
@@ -201,20 +201,19 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         assert probe.spin_until(future.done, EVENT_S)  # safety net; it returns on the answer
         assert future.result().success
         answered_ns = time.time_ns()
-        stamp_ns = lambda m: m.header.stamp.sec * 10**9 + m.header.stamp.nanosec  # noqa: E731
         assert probe.spin_until(  # images of frames acquired 1 s after the answer
-            lambda: stamp_ns(probe.messages["/arm/pressure/image"][-1][1]) > answered_ns + 10**9,
+            lambda: _stamp_ns(probe.messages["/arm/pressure/image"][-1][1]) > answered_ns + 10**9,
             EVENT_S,
         )
-        seq = {stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
-        around = sorted(seq[stamp_ns(m)] for _, m in probe.messages["/arm/pressure/image"]
-                        if stamp_ns(m) > asked_ns - 3 * 10**9 and stamp_ns(m) in seq)  # fmt: skip
+        seq = {_stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
+        around = sorted(seq[_stamp_ns(m)] for _, m in probe.messages["/arm/pressure/image"]
+                        if _stamp_ns(m) > asked_ns - 3 * 10**9 and _stamp_ns(m) in seq)  # fmt: skip
         # frames queued before the request are still imaged (a loaded node lags behind the
         # driver), then the capture leaves a gap of reference_frames frames
         assert max(np.diff(around)) > patch.layer("pressure").solver.reference_frames, (
             around,
             asked_ns,
-            [(stamp_ns(m), m.sequence) for _, m in probe.messages["/arm/pressure/frames"][-80:]],
+            [(_stamp_ns(m), m.sequence) for _, m in probe.messages["/arm/pressure/frames"][-80:]],
             recon_log.read_text()[-1500:],
         )
         assert probe.spin_until(  # the new reference's frames, however far the node lags
@@ -383,13 +382,9 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
         assert stop_node(recon) == 0
         probe.close()
 
-    seq = {
-        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m.sequence
-        for _, m in probe.messages["/elbow/pressure/frames"]
-    }
+    seq = {_stamp_ns(m): m.sequence for _, m in probe.messages["/elbow/pressure/frames"]}
     stamped = [
-        (seq.get(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), m)
-        for _, m in probe.messages["/elbow/pressure/image"]
+        (seq.get(_stamp_ns(m)), m) for _, m in probe.messages["/elbow/pressure/image"]
     ]  # the probe may miss the first frames while it discovers the driver
     images = [(k / RATE_HZ, as_array(m)) for k, m in stamped if k is not None]
     bent_quiet = [a for t, a in images if 4.3 < t < push.t_start_s - 0.1]
