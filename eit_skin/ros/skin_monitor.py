@@ -174,8 +174,9 @@ class SkinMonitor(Node):
         A picture takes a few seconds on a loaded machine; the run loop writes one per pass
         so that touches arriving faster than that cannot keep it from its duration check.
         """
-        while self.pending_snapshots and (limit is None or limit > 0):
-            limit = None if limit is None else limit - 1
+        written = 0
+        while self.pending_snapshots and (limit is None or written < limit):
+            written += 1
             view, images, label = self.pending_snapshots.pop(0)
             self.snapshots += 1
             path = self.out / f"{view.name}_{self.snapshots:02d}_{label}.png"
