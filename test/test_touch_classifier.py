@@ -388,6 +388,29 @@ def test_pooling_a_white_noise_image_divides_its_noise_as_the_kernel_says() -> N
     assert np.median(detector.noise[24:40, 24:40]) == pytest.approx(expected, rel=0.1)
 
 
+def test_a_rising_press_counts_the_frame_before_its_crossing_when_the_two_average_k() -> None:
+    # pooled z-scores at the blob's centre set exactly (noise-free blobs on a calibrated map)
+    inside = np.ones((64, 64), dtype=bool)
+    k = 5.0
+    detector = PooledDetector(inside, kernel_px=4.0, k=k)
+    detector.calibrate(SIGMA_PA * np.random.default_rng(14).standard_normal((200, 64, 64)))
+    i = np.arange(64) - 32.0
+    blob = np.exp(-(i[:, None] ** 2 + i[None, :] ** 2) / (2 * 3.0**2))
+    per_unit = detector.pool(blob)[32, 32] / detector.noise[32, 32]
+
+    def runs(levels):
+        detector.reset()
+        return [detector.update(blob * (level * k / per_unit)) for level in levels]
+
+    assert runs([0.0, 0.8, 1.3]) == [0, 0, 2]  # 0.8 k + 1.3 k >= 2 k: the 0.8 k frame counts
+    assert runs([0.0, 0.4, 1.3]) == [0, 0, 1]  # 0.4 k is below k / 2: a first crossing
+    assert runs([0.0, 0.7, 1.2]) == [0, 0, 1]  # 1.9 k: a first crossing
+    assert runs([0.0, 0.0, 2.5]) == [0, 0, 1]  # one frame, however strong, is one frame
+    assert runs([0.0, 1.1, 1.3, 1.4]) == [0, 1, 2, 3]  # crossings count as before
+    detector.rising = False  # noise not as calibrated (the classifier's call): two crossings
+    assert runs([0.0, 0.8, 1.3, 1.3]) == [0, 0, 1, 2]
+
+
 def test_weak_slow_touch_starts_within_150_ms_only_with_the_pooled_detector() -> None:
     # 60 Pa = 6 pixel sigmas at full force, 0.3 s linear press: one pixel of the 2-frame mean
     # (sigma 10 / sqrt(2) Pa) crosses k_high = 6 sigmas only at 71 % of the ramp (> 210 ms);

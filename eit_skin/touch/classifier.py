@@ -619,6 +619,7 @@ class TouchClassifier:
         self._strong = False  # a contact of the latest frame stands out of the noise estimate
         self._raws: list[np.ndarray] = []  # the latest average_frames + 1 raw frames
         self._rough: list[tuple[float, float, float]] = []  # per candidate frame
+        self._flicker = 0.0  # the sheet's flicker in the latest frame it was computed for
 
     # ------------------------------------------------------------------ electrode faults
     def set_faulty_electrodes(self, electrodes) -> None:
@@ -744,6 +745,9 @@ class TouchClassifier:
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = None  # time of the first frame of a pooled detection, if there is one
         if self.detector is not None:
+            # the rising-press credit assumes the calibrated noise: not with an electrode
+            # left out of the images, nor after a frame in which the sheet flickered
+            self.detector.rising = not self.faulty and self._flicker < FLICKER
             run = self.detector.update(signal)
             self._armed = self._armed or not self.detector.hit
             if self._armed and run >= self.config.start_frames:
@@ -836,6 +840,7 @@ class TouchClassifier:
         bend = pressure - 2.0 * self._raws[-2] + self._raws[-3]  # second difference in time
         ok = np.isfinite(bend)
         flicker = float(np.median(bend[ok] ** 2 / (6.0 * var[ok]))) if ok.any() else 0.0
+        self._flicker = flicker
         hits = self.detector is not None and self.detector.hit
         if not contacts and not hits:
             self._rough = []
