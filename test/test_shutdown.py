@@ -74,11 +74,14 @@ def _clean(log: str) -> bool:
 
 def _start_face_run(out: Path, probe: Probe, output: int) -> tuple[subprocess.Popen, str]:
     """`eit-skin run --patch face` with its stdout+stderr to ``output``; the probe watches
-    its image topic (returned)."""
+    its image topic (returned). An hour's ``--duration``: the run never ends by itself
+    (one script pass could end while a slow machine still starts the test's probe), so the
+    signal always finds its nodes running."""
     topic = _image_topic("/face")
     probe.subscribe(Image, topic)
+    command = [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(out)]
     run = subprocess.Popen(
-        [str(find_executable("eit-skin")), "run", "--patch", "face", "--out", str(out)],
+        [*command, "--duration", "3600"],
         stdout=output,
         stderr=subprocess.STDOUT,
         text=True,
