@@ -11,6 +11,7 @@ FLAG_INVALID that are still finite (the export writes NaN there).
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -145,10 +146,24 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
             EVENT_S,
         ), log.read_text()
         assert recon.poll() is None, log.read_text()
+        # our writer matching the node's reader does not mean the reader has matched us yet:
+        # a best-effort reader drops what comes before, and a lost capture frame makes the
+        # node capture later frames than the command. Frame 0 goes again until the node
+        # reports a frame (its diagnostics: last_frame_age_s), 5 s apart (a late first copy
+        # would make the node capture it twice, and the images differ: the test fails).
+        first = records[0].to_msg()
+        deadline = time.monotonic() + EVENT_S
+        while True:
+            publisher.publish(first)
+            if probe.spin_until(
+                lambda: diagnostics_of(probe).get("last_frame_age_s", "never") != "never", 5.0
+            ):
+                break
+            assert time.monotonic() < deadline and recon.poll() is None, log.read_text()
         images = probe.messages["/arm/pressure/image"]
         unseen = []  # frames whose image DDS dropped (best effort) or had not shown in time
-        for k, record in enumerate(records):
-            # the 10 capture frames in one burst (the node's queue holds 20), then one frame
+        for k, record in enumerate(records[1:], start=1):
+            # the other 9 capture frames in one burst (the node's queue holds 20), then one frame
             # at a time, paced by its image: the node's input queue never overflows. An
             # image lost on this best-effort topic only ends the pacing wait for its frame.
             publisher.publish(record.to_msg())
