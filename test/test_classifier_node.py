@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +63,21 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     return msg
 
 
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def wait_for_contacts(probe: Probe, contacts: list, image: Image) -> None:
+    """Pace images by the classifier: once calibrated, it answers every image with its
+    ``contacts`` (same stamp), so the next image waits for them and a busy machine drops
+    none (touch latencies are asserted in image time); a lost image only ends the wait
+    (5 s). Before that, 20 ms (50 Hz)."""
+    if contacts:
+        probe.spin_until(lambda: stamp_ns(contacts[-1][1]) >= stamp_ns(image), 5.0)
+    else:
+        probe.spin_for(0.02)
+
+
 def classifier_values(probe: Probe) -> dict[str, str]:
     """The values of the classifier's latest diagnostics status ({} before the first)."""
     for _, msg in reversed(probe.messages[DIAGNOSTICS]):
@@ -108,6 +122,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         xx, yy = np.meshgrid(grid.x, grid.y)
         cx, cy = case.centre
         blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        contacts = probe.messages[topics.contacts]  # the list the probe appends to
         for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
             if case.stretch is not None:  # first, stamped 7 ms later as by a second board
                 strain = 1e-4 * rng.standard_normal(stretch_grid.shape)
@@ -115,9 +130,9 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
                 stretch.header.stamp.nanosec += 7_000_000
                 stretch_pub.publish(stretch)
             touch = 30 <= k < 80
-            pub.publish(image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob))
-            probe.spin_for(0.01)
-            time.sleep(0.01)
+            msg = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
+            pub.publish(msg)
+            wait_for_contacts(probe, contacts, msg)
         topic = topics.touch_events
         probe.spin_until(
             lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
@@ -213,6 +228,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
         xx, yy = np.meshgrid(grid.x, grid.y)
         cx, cy = case.centre
         blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        contacts = probe.messages[topics.contacts]  # the list the probe appends to
         for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
             touch = 30 <= k < 80
             image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
@@ -225,7 +241,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             calibrated_pub.publish(array)
             probe.spin_for(0.005)
             pub.publish(image)
-            probe.spin_for(0.015)
+            wait_for_contacts(probe, contacts, image)
         topic = topics.touch_events
         probe.spin_until(
             lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
