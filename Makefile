@@ -25,7 +25,11 @@ export PYTHONDONTWRITEBYTECODE := 1
 .PHONY: setup demo test lint bench colcon clean
 .DEFAULT_GOAL := demo
 
-setup: $(VENV)/.stamp-package
+# The set-up steps run two at a time (the message build beside ros2-tools' builds).
+SETUP_STAMPS := $(VENV)/.stamp-package
+
+setup:
+	@$(MAKE) --no-print-directory -s -j2 $(SETUP_STAMPS)
 
 $(BIN)/python:
 	@echo "[setup] creating virtual environment in .venv"
@@ -58,7 +62,9 @@ $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg package.xml
 # ../shared/ros2-tools when that folder exists; without it the launch tests skip.
 ROS2_TOOLS := $(abspath $(CURDIR)/../shared/ros2-tools)
 ifneq ($(wildcard $(ROS2_TOOLS)/install.sh),)
-setup: $(VENV)/.stamp-ros2-tools
+SETUP_STAMPS += $(VENV)/.stamp-ros2-tools
+# one installer into the venv at a time: eit_skin's after ros2-tools'
+$(VENV)/.stamp-package: | $(VENV)/.stamp-ros2-tools
 
 $(VENV)/.stamp-ros2-tools: $(VENV)/.stamp-deps $(ROS2_TOOLS)/install.sh
 	@echo "[setup] installing launch, launch_testing and ros2 (log in build/ros2-tools.log)"
@@ -71,8 +77,11 @@ endif
 demo: setup
 	$(BIN)/eit-skin run --out $(BUILD)/demo
 
+# Two pytest workers (2-core CI machines), each test file on one worker so its module
+# fixtures are built once; every worker claims its own DDS domain (test/conftest.py).
+TEST_WORKERS ?= 2
 test: setup
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
