@@ -69,15 +69,16 @@ def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
-def preroll(probe: Probe, send: Callable[[int], Image], log: Path) -> None:
-    """Quiet frames stamped before the test's own (``send(k)``, k < 0), 20 ms apart, until
-    the classifier's diagnostics count an image. Our writer matching the node's best-effort
-    reader does not mean the reader has matched us; what it drops until then would move
-    its calibration (the first 0.5 s of images it gets) into the touch."""
-    for k in range(-500, 0):
+def preroll(probe: Probe, send: Callable[[int, bool], Image], log: Path) -> int:
+    """Quiet frames ``send(k, False)`` for k = 0, 1, ... (20 ms apart) until the classifier's
+    diagnostics count an image; returns the next k, where the test's scene starts (its
+    stamps go on without a gap). Our writer matching the node's best-effort reader does not
+    mean the reader has matched us; what it drops until then would move its calibration
+    (the first 0.5 s of images it gets) into the touch."""
+    for k in range(500):
         if int(classifier_values(probe).get("images", "0")):
-            return
-        send(k)
+            return k
+        send(k, False)
         probe.spin_for(0.02)
     raise AssertionError(f"the classifier counted no image in 10 s\n{log.read_text()}")
 
@@ -138,21 +139,20 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         cx, cy = case.centre
         blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
 
-        def send(k: int) -> Image:
+        def send(k: int, touch: bool) -> Image:
             if case.stretch is not None:  # first, stamped 7 ms later as by a second board
                 strain = 1e-4 * rng.standard_normal(stretch_grid.shape)
                 stretch = image_msg(stretch_grid, k, strain)
                 stretch.header.stamp.nanosec += 7_000_000
                 stretch_pub.publish(stretch)
-            touch = 30 <= k < 80
             msg = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
             pub.publish(msg)
             return msg
 
-        preroll(probe, send, log)
+        first = preroll(probe, send, log)
         contacts = probe.messages[topics.contacts]  # the list the probe appends to
-        for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
-            wait_for_contacts(probe, contacts, send(k))
+        for j in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
+            wait_for_contacts(probe, contacts, send(first + j, 30 <= j < 80))
         topic = topics.touch_events
         probe.spin_until(
             lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
@@ -165,7 +165,9 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         assert {e.id for e in events} == {events[0].id}
         start, end = events[0], events[-1]
         assert (
-            start.header.stamp.sec * 1e9 + start.header.stamp.nanosec - (1000e9 + 30 * 20e6)
+            start.header.stamp.sec * 1e9
+            + start.header.stamp.nanosec
+            - (1000e9 + (first + 30) * 20e6)
             <= 150e6
         )
         assert end.label == TouchEvent.PUSH and end.patch == patch.name
@@ -251,12 +253,11 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
         cx, cy = case.centre
         blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
 
-        def send(k: int) -> Image:
-            touch = 30 <= k < 80
+        def send(k: int, touch: bool) -> Image:
             image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
             array = ContactArray(header=image.header, patch=patch.name)
             if touch:  # the reconstruction publishes the calibrated press before the image
-                confidence = 0.01 if k == 55 else 0.5
+                confidence = 0.01 if k == first + 55 else 0.5
                 item = Contact(layer=case.pressure, confidence=confidence, depth_m=0.004)
                 item.centroid.x, item.centroid.y = calibrated_xy
                 array.contacts.append(item)
@@ -265,10 +266,10 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             pub.publish(image)
             return image
 
-        preroll(probe, send, log)
+        first = preroll(probe, send, log)
         contacts = probe.messages[topics.contacts]  # the list the probe appends to
-        for k in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
-            wait_for_contacts(probe, contacts, send(k))
+        for j in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
+            wait_for_contacts(probe, contacts, send(first + j, 30 <= j < 80))
         topic = topics.touch_events
         probe.spin_until(
             lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
@@ -279,7 +280,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
     events = [m for _, m in probe.messages[topic] if m.state != TouchEvent.END]
     assert events, log.read_text()
     for e in events:
-        k = round((e.header.stamp.sec - 1000) * 50 + e.header.stamp.nanosec / 20e6)
+        k = round((e.header.stamp.sec - 1000) * 50 + e.header.stamp.nanosec / 20e6) - first
         xy = (e.centroid.x, e.centroid.y)
         if 30 <= k < 80 and k != 55:
             assert xy == pytest.approx(calibrated_xy, abs=1e-6), k
