@@ -64,6 +64,32 @@ def test_spin_nodes_delivers_messages_runs_timers_and_returns_on_shutdown(kind: 
         context.try_shutdown()
 
 
+@pytest.mark.parametrize("kind", ["events", "single"])
+def test_a_shutdown_just_before_the_executor_waits_ends_spin_nodes_quietly(
+    kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The race another thread's shutdown can win: spin_nodes has seen the context ok, and
+    the context shuts down before the executor builds its wait set (rclpy then raises
+    RCLError "the given context is not valid"; seen once in a 3-copy run). Here the
+    shutdown is put exactly there: spin_nodes returns as for any shutdown."""
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node("raced", context=context)
+        executor = make_executor(kind, context)
+        original = type(executor).spin_once
+
+        def shut_down_first(self, timeout_sec=None):
+            context.try_shutdown()
+            return original(self, timeout_sec)
+
+        monkeypatch.setattr(type(executor), "spin_once", shut_down_first)
+        spin_nodes([node], kind)
+        assert not context.ok()
+    finally:
+        context.try_shutdown()
+
+
 def _python_child(script: str, argument: str) -> subprocess.Popen:
     """``python -c script argument`` with its stdout and stderr piped (text)."""
     return subprocess.Popen(

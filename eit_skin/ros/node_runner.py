@@ -92,7 +92,8 @@ def spin_nodes(
 
     A loop of short ``spin_once`` calls, because the EventsExecutor's ``spin()`` of the
     Kilted wheels neither ran our timers nor returned on shutdown; the loop returns within
-    0.2 s of a shutdown (another thread) or of ``stop`` being set (a signal).
+    0.2 s of a shutdown (another thread, whatever moment it lands) or of ``stop`` being set
+    (a signal).
     """
     context = nodes[0].context
     executor = make_executor(kind, context)
@@ -103,6 +104,11 @@ def spin_nodes(
             executor.spin_once(timeout_sec=0.2)
     except ExternalShutdownException:
         pass  # the context was shut down while waiting: the normal way out
+    except Exception:
+        # shut down after the loop's check but before the executor built its wait set:
+        # rclpy raises RCLError ("the given context is not valid"), the same way out
+        if context.ok():
+            raise
     finally:
         executor.shutdown(timeout_sec=1.0)
 
