@@ -139,7 +139,7 @@ def test_cli_streams_an_npz_file_on_a_symlink(tmp_path):
     assert proc.returncode == 0
     assert "sent" in out and not link_path.exists()
     seqs = [f.sequence for f in got]
-    assert seqs == list(range(seqs[0], seqs[0] + 20))
+    assert len(seqs) >= 20 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
     for f in got:
         np.testing.assert_array_equal(f.voltages_v, frames[f.sequence % 7].astype(np.float32))
 
