@@ -85,8 +85,10 @@ def test_driver_replays_frames_identically(recording, tmp_path, realtime: bool) 
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         assert stamp == pytest.approx(t[i], abs=1e-6)
         assert msg.header.frame_id == "arm_skin_link" and msg.sequence == i
+    # arrival times at the probe: a busy probe can take the first frame late and the rest on
+    # time (1.69 s of 1.98 once, in a 3-copy run), so the bar between the modes is 1 s
     spread = received[-1][0] - received[0][0]
-    if realtime:  # the recording spans 1.98 s: never faster (a loaded machine may be slower)
-        assert spread > 1.7
-    else:  # as fast as it goes: well under the recording's own span
-        assert spread < 1.7
+    if realtime:  # the recording spans 1.98 s: never that much faster
+        assert spread > 1.0
+    else:  # as fast as it goes: 100 frames, well under the recording's own span
+        assert spread < 1.0
