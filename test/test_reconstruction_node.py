@@ -109,7 +109,18 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
     or a wrong measurement order while leaving room for noise.
     """
     patch = load_patch(config_path("arm"))
-    truth = resolve_scenario("push", patch, 0, None).truth(RATE_HZ)[0]
+    # the built-in push (5 N), 1 s later: the driver streams once its writer has matched both
+    # readers, but a reader can match it later and miss the first frames (a 3-copy run kept
+    # 4 quiet images of ~20); the extra second of quiet leaves room for that
+    push = resolve_scenario("push", patch, 0, None).truth(RATE_HZ)[0]
+    script = tmp_path / "push.yaml"
+    x, y = push.contacts[0]
+    script.write_text(
+        f"touches:\n  - touch: push\n    at: {push.t_start_s + 1.0!r}\n"
+        f"    duration: {push.t_end_s - push.t_start_s!r}\n    force_n: 5.0\n"
+        f"    position: [{float(x)!r}, {float(y)!r}]\n"
+    )
+    truth = resolve_scenario(str(script), patch).truth(RATE_HZ)[0]
     probe = Probe()
     probe.subscribe(Image, "/arm/pressure/image")
     probe.subscribe(Image, "/arm/stretch/image")
@@ -135,7 +146,7 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
             # start once both the reconstruction node and this probe listen
             {
                 "patch_config": "arm",
-                "scenario": "push",
+                "scenario": str(script),
                 "loop": False,
                 "rate_hz": RATE_HZ,
                 "wait_for_subscribers": 2,
