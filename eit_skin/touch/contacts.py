@@ -456,14 +456,15 @@ class PooledDetector:
         if self.noise is None:
             raise RuntimeError("PooledDetector.update before calibrate")
         self.pooled = self.pool(signal)
-        before = ndimage.maximum_filter(self.z, size=3, mode="constant")
+        # the previous frame's neighbourhood: needed by the rising-press rule only
+        before = ndimage.maximum_filter(self.z, size=3, mode="constant") if self.rising else None
         with np.errstate(invalid="ignore"):
             self.z = np.where(self.inside, self.pooled / self.noise, 0.0)
         hit = self.z > self.k
         run = ndimage.maximum_filter(self.run, size=3, mode="constant")
         # a rising touch: a previous frame above k / 2 whose z-score and this one's average k
         # or more counts as a crossing (one frame earlier for a press that starts fast)
-        if self.rising:
+        if before is not None:
             rising = hit & (run == 0) & (before > 0.5 * self.k) & (before + self.z >= 2 * self.k)
             run = run + rising
         self.run = np.where(hit, run + 1, 0)
