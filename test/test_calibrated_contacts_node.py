@@ -18,7 +18,7 @@ from eit_skin.hardware.sources import pattern_name
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import simulate_press_session
 from test.patience import EVENT_S
@@ -60,10 +60,6 @@ def frame_msg(layer, k: int, voltages: np.ndarray) -> EitFrame:
         voltages=np.asarray(voltages, np.float32),
         channel_flags=np.zeros(0, np.uint8),
     ).to_msg()
-
-
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
 def reference_ready(probe: Probe) -> bool:

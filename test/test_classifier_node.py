@@ -17,7 +17,7 @@ from sensor_msgs.msg import Image
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import layer_image_grid
@@ -63,10 +63,6 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     msg.step = 4 * msg.width
     msg.data = values.tobytes()
     return msg
-
-
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def preroll(probe: Probe, send: Callable[[int, bool], list], log: Path) -> int:

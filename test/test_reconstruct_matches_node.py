@@ -27,7 +27,7 @@ from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.sim.simulator import DriftModel, SkinSimulator
 from test.patience import EVENT_S
 
@@ -107,10 +107,6 @@ def reconstruct_offline(records, tmp_path, cache_dir, drift_s: float) -> dict[st
         return dict(data)
 
 
-def stamp_of(msg) -> int:
-    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-
-
 def diagnostics_of(probe: Probe) -> dict[str, str]:
     for _, msg in reversed(probe.messages["/diagnostics"]):
         for status in msg.status:
@@ -168,7 +164,7 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
             # image lost on this best-effort topic only ends the pacing wait for its frame.
             publisher.publish(record.to_msg())
             if imaged[k] and not probe.spin_until(
-                lambda s=record.stamp_ns: bool(images) and stamp_of(images[-1][1]) >= s, 10
+                lambda s=record.stamp_ns: bool(images) and stamp_ns(images[-1][1]) >= s, 10
             ):
                 assert recon.poll() is None, log.read_text()[-2000:]
                 unseen.append(k)
@@ -183,7 +179,7 @@ def test_reconstruct_gives_the_nodes_images_bit_for_bit(tmp_path, cache_dir, rec
         probe.close()
 
     online = {
-        stamp_of(m): np.frombuffer(bytes(m.data), np.float32).reshape(m.height, m.width)
+        stamp_ns(m): np.frombuffer(bytes(m.data), np.float32).reshape(m.height, m.width)
         for _, m in images
     }
     stamps = np.array([r.stamp_ns for r in records])

@@ -20,7 +20,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
-from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.scenario import resolve_scenario
 from test.patience import EVENT_S
@@ -77,11 +77,7 @@ def reference_taken_s(probe: Probe, layer: str) -> float:
     if status is None:
         return float("nan")
     age = {kv.key: kv.value for kv in status.values}.get("reference_age_s", "nan")
-    return _stamp_ns(msg) * 1e-9 - float(age)
-
-
-def _stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+    return stamp_ns(msg) * 1e-9 - float(age)
 
 
 def wait_for_image_of(probe: Probe, namespace: str, sequence: int) -> bool:
@@ -93,9 +89,9 @@ def wait_for_image_of(probe: Probe, namespace: str, sequence: int) -> bool:
 
     def caught_up() -> bool:
         frames = probe.messages[f"{namespace}/pressure/frames"]
-        numbered = {_stamp_ns(m): m.sequence for _, m in frames}
+        numbered = {stamp_ns(m): m.sequence for _, m in frames}
         images = probe.messages[f"{namespace}/pressure/image"]
-        return any(numbered.get(_stamp_ns(m), -1) >= sequence for _, m in images)
+        return any(numbered.get(stamp_ns(m), -1) >= sequence for _, m in images)
 
     return probe.spin_until(caught_up, EVENT_S)
 
@@ -162,12 +158,12 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         imaged = wait_for_image_of(probe, "/arm", int(truth.t_end_s * RATE_HZ))
         assert imaged, recon_log.read_text()[-2000:]
         images = probe.messages["/arm/pressure/image"]
-        frames = {_stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
-        stamps = [_stamp_ns(m) for _, m in images]
+        frames = {stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
+        stamps = [stamp_ns(m) for _, m in images]
         # image stamps are the frames' acquisition times (the probe may miss the first frames)
         assert len(set(stamps) & set(frames)) > 0.9 * len(stamps)
         stamps = [s for s in stamps if s in frames]
-        images = [(t, m) for t, m in images if _stamp_ns(m) in frames]
+        images = [(t, m) for t, m in images if stamp_ns(m) in frames]
         assert all(m.header.frame_id == patch.frame_id for _, m in images)
 
         arrays = [as_array(m) for _, m in images]
@@ -213,18 +209,18 @@ def test_push_image_peaks_where_the_finger_was(tmp_path, cache_dir) -> None:
         assert future.result().success
         answered_ns = time.time_ns()
         assert probe.spin_until(  # images of frames acquired 1 s after the answer
-            lambda: _stamp_ns(probe.messages["/arm/pressure/image"][-1][1]) > answered_ns + 10**9,
+            lambda: stamp_ns(probe.messages["/arm/pressure/image"][-1][1]) > answered_ns + 10**9,
             EVENT_S,
         )
-        seq = {_stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
-        around = sorted(seq[_stamp_ns(m)] for _, m in probe.messages["/arm/pressure/image"]
-                        if _stamp_ns(m) > asked_ns - 3 * 10**9 and _stamp_ns(m) in seq)  # fmt: skip
+        seq = {stamp_ns(m): m.sequence for _, m in probe.messages["/arm/pressure/frames"]}
+        around = sorted(seq[stamp_ns(m)] for _, m in probe.messages["/arm/pressure/image"]
+                        if stamp_ns(m) > asked_ns - 3 * 10**9 and stamp_ns(m) in seq)  # fmt: skip
         # frames queued before the request are still imaged (a loaded node lags behind the
         # driver), then the capture leaves a gap of reference_frames frames
         assert max(np.diff(around)) > patch.layer("pressure").solver.reference_frames, (
             around,
             asked_ns,
-            [(_stamp_ns(m), m.sequence) for _, m in probe.messages["/arm/pressure/frames"][-80:]],
+            [(stamp_ns(m), m.sequence) for _, m in probe.messages["/arm/pressure/frames"][-80:]],
             recon_log.read_text()[-1500:],
         )
         assert probe.spin_until(  # the new reference's frames, however far the node lags
@@ -393,9 +389,9 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
         assert stop_node(recon) == 0
         probe.close()
 
-    seq = {_stamp_ns(m): m.sequence for _, m in probe.messages["/elbow/pressure/frames"]}
+    seq = {stamp_ns(m): m.sequence for _, m in probe.messages["/elbow/pressure/frames"]}
     stamped = [
-        (seq.get(_stamp_ns(m)), m) for _, m in probe.messages["/elbow/pressure/image"]
+        (seq.get(stamp_ns(m)), m) for _, m in probe.messages["/elbow/pressure/image"]
     ]  # the probe may miss the first frames while it discovers the driver
     images = [(k / RATE_HZ, as_array(m)) for k, m in stamped if k is not None]
     bent_quiet = [a for t, a in images if 4.3 < t < push.t_start_s - 0.1]

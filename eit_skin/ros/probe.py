@@ -20,6 +20,11 @@ from eit_skin.ros.node_graph import NodeSpec
 BIN = Path(sys.executable).parent
 
 
+def stamp_ns(msg: Any) -> int:
+    """A stamped message's ``header.stamp`` as integer nanoseconds (the frames' convention)."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 def start_node(
     executable: str, namespace: str, params: dict[str, Any], log: Path
 ) -> subprocess.Popen:
