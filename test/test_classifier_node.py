@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,18 +66,30 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     return msg
 
 
-def preroll(probe: Probe, send: Callable[[int, bool], list], log: Path) -> int:
-    """Quiet frames ``send(k, False)`` for k = 0, 1, ... (20 ms apart) until the classifier's
-    diagnostics count an image; returns the next k, where the test's scene starts (its
-    stamps go on without a gap). Our writer matching the node's best-effort reader does not
-    mean the reader has matched us; what it drops until then would move its calibration
-    (the first 0.5 s of images it gets) into the touch."""
-    for k in range(500):
-        if int(classifier_values(probe).get("images", "0")):
+def preroll(probe: Probe, send: Callable[[int, bool], list], contacts: list, log: Path) -> int:
+    """Quiet frames ``send(k, False)`` for k = 0, 1, ... until the classifier has calibrated
+    and answers with ``contacts``; returns the next k, where the test's scene starts (its
+    stamps go on without a gap), so every frame of the scene is paced by
+    :func:`wait_for_contacts`.
+
+    Until the classifier's diagnostics count an image, a frame every 20 ms (our writer
+    matching the node's best-effort reader does not mean the reader has matched us). Then
+    each frame waits for the count to grow (at most 1 s): a busy machine that let frames
+    pile up in the reader's queue dropped a third of them, and a scene sent un-paced while
+    the classifier still calibrated lost its touch onset."""
+    deadline = time.monotonic() + EVENT_S
+    k = 0
+    while time.monotonic() < deadline:
+        if contacts:
             return k
+        seen = images(probe)
         send(k, False)
-        probe.spin_for(0.02)
-    raise AssertionError(f"the classifier counted no image in 10 s\n{log.read_text()}")
+        k += 1
+        if not seen:
+            probe.spin_for(0.02)
+        else:
+            probe.spin_until(lambda seen=seen: contacts or images(probe) > seen, 1.0)
+    raise AssertionError(f"the classifier answered no image in {EVENT_S} s\n{log.read_text()}")
 
 
 def wait_for_contacts(probe: Probe, contacts: list, sent: list[tuple]) -> None:
@@ -85,16 +98,18 @@ def wait_for_contacts(probe: Probe, contacts: list, sent: list[tuple]) -> None:
     none (touch latencies are asserted in image time). ``sent``: the ``(publisher,
     message)`` pairs of this frame, the image last; published again when no answer came in
     1 s (best effort: a busy machine lost images at the onset under pytest -n 2), at most 5
-    times. Before calibration, 20 ms (50 Hz)."""
-    if not contacts:
-        probe.spin_for(0.02)
-        return
+    times."""
     image = sent[-1][1]
     for _ in range(5):
         if probe.spin_until(lambda: stamp_ns(contacts[-1][1]) >= stamp_ns(image), 1.0):
             return
         for publisher, message in sent:
             publisher.publish(message)
+
+
+def images(probe: Probe) -> int:
+    """The classifier's latest count of images processed (0 before its first status)."""
+    return int(classifier_values(probe).get("images", "0"))
 
 
 def classifier_values(probe: Probe) -> dict[str, str]:
@@ -128,7 +143,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         )
         pubs.append(stretch_pub)
     log = tmp_path / "classifier.log"
-    params = {"patch_config": case.config, "diagnostics_period_s": 0.1}
+    params = {"patch_config": case.config, "diagnostics_period_s": 0.02}
     node = start_node("eit_classifier", case.namespace, params, log)
     try:
         assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs), EVENT_S), (
@@ -154,8 +169,8 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
                 publisher.publish(message)
             return [*sent, (pub, msg)]
 
-        first = preroll(probe, send, log)
         contacts = probe.messages[topics.contacts]  # the list the probe appends to
+        first = preroll(probe, send, contacts, log)
         for j in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
             wait_for_contacts(probe, contacts, send(first + j, 30 <= j < 80))
         topic = topics.touch_events
@@ -241,7 +256,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
     calibrated_pub = probe.node.create_publisher(ContactArray, topics.calibrated_contacts, 10)
     log = tmp_path / "classifier.log"
     namespace = topics.namespace
-    params = {"patch_config": case.config, "diagnostics_period_s": 0.1}
+    params = {"patch_config": case.config, "diagnostics_period_s": 0.02}
     node = start_node("eit_classifier", namespace, params, log)
     calibrated_xy = (case.centre[0] - 0.02, case.centre[1] + 0.055)
     try:
@@ -271,8 +286,8 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             pub.publish(image)
             return [(calibrated_pub, array), (pub, image)]
 
-        first = preroll(probe, send, log)
         contacts = probe.messages[topics.contacts]  # the list the probe appends to
+        first = preroll(probe, send, contacts, log)
         for j in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
             wait_for_contacts(probe, contacts, send(first + j, 30 <= j < 80))
         topic = topics.touch_events
