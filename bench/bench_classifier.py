@@ -40,6 +40,7 @@ from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import PostureTrack
 from eit_skin.touch.classifier import LABELS, ClassifierConfig, classify_stream
+from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import single_contact_spread
 
 RATE_HZ = 50.0
@@ -71,10 +72,12 @@ class Run:
     x: np.ndarray
     y: np.ndarray
     truth: list[dict]
+    volts: np.ndarray | None = None  # [T, M] V, the first (pressure) layer's raw frames
 
 
 def _key(patch: Patch, *parts) -> str:
-    text = json.dumps([[ly.content_hash for ly in patch.layers], *parts])
+    # "frames": the recordings keep the raw frames of the pressure layer (shape_z)
+    text = json.dumps([[ly.content_hash for ly in patch.layers], "frames", *parts])
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -91,7 +94,8 @@ def simulate(
     if path.is_file():
         with np.load(path) as d:
             stretch = d["stretch"] if d["stretch"].size else None
-            return Run(d["t"], d["pressure"], stretch, d["x"], d["y"], json.loads(str(d["truth"])))
+            truth = json.loads(str(d["truth"]))
+            return Run(d["t"], d["pressure"], stretch, d["x"], d["y"], truth, d["volts"])
     faults = (FAULT,) if kind == "fault" else ()
     if kind == "idle":
         sim = SkinSimulator(patch, "idle", RATE_HZ, seed=seed)
@@ -121,6 +125,7 @@ def simulate(
             rel = imager.relative_change(lr.frames, reference, lr.flags[0])
         imgs[layer.name] = (imager.physical(imager.images(rel)), imager.grid)
     pressure, grid = imgs[patch.layers[0].name]
+    volts = rec.layers[patch.layers[0].name].frames
     stretch = imgs["stretch"][0] if "stretch" in imgs else None
     truth = [{"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s} for tr in rec.truth]
     data_dir.mkdir(parents=True, exist_ok=True)
@@ -132,16 +137,28 @@ def simulate(
         x=grid.x,
         y=grid.y,
         truth=json.dumps(truth),
+        volts=volts,
     )
-    return Run(rec.t, pressure, stretch, grid.x, grid.y, truth)
+    return Run(rec.t, pressure, stretch, grid.x, grid.y, truth, volts)
 
 
-def evaluate(runs: list[Run], spread: np.ndarray, config: ClassifierConfig | None = None):
-    """(rows, unmatched END events) over touch runs."""
+def evaluate(
+    runs: list[Run], spread: np.ndarray, config: ClassifierConfig | None = None, channels=None
+):
+    """(rows, unmatched END events) over touch runs; ``channels``: the pressure layer's
+    ``[M, E]`` channel-electrode map, given to hand the classifier the raw frames too."""
     rows, extra = [], 0
     for run in runs:
         events = classify_stream(
-            run.t, run.pressure, run.x, run.y, run.stretch, config, contact_spread_m=spread
+            run.t,
+            run.pressure,
+            run.x,
+            run.y,
+            run.stretch,
+            config,
+            contact_spread_m=spread,
+            volts=None if channels is None else run.volts,
+            channel_electrodes=channels,
         )
         r, false = score(events, run.truth)
         rows += r
@@ -194,13 +211,21 @@ def main() -> None:
 
         imager = LayerImager.build(patch.layers[0], args.cache_dir)
         spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+        channels = channel_electrodes(imager.protocol)
         runs = [sim("touch", s, args.seconds) for s in seeds]
-        rows, extra = evaluate(runs, spread)
+        rows, extra = evaluate(runs, spread, None, channels)
         idle = sim("idle", idle_seed, args.idle_seconds)
         idle_events = [
             e
             for e in classify_stream(
-                idle.t, idle.pressure, idle.x, idle.y, idle.stretch, contact_spread_m=spread
+                idle.t,
+                idle.pressure,
+                idle.x,
+                idle.y,
+                idle.stretch,
+                contact_spread_m=spread,
+                volts=idle.volts,
+                channel_electrodes=channels,
             )
             if e.state == "end"
         ]
@@ -233,7 +258,7 @@ def main() -> None:
             conditions.append((f"{FAULT}, fault-tolerant imaging", "fault", fault_seeds))
         for title, kind, kind_seeds in conditions:
             runs = [sim(kind, s, args.seconds) for s in kind_seeds]
-            rows_c, _ = evaluate(runs, spread)
+            rows_c, _ = evaluate(runs, spread, None, channels)
             cm_c = confusion(rows_c)
             acc = float(np.trace(cm_c[:, :4]) / max(cm_c.sum(), 1))
             line = (

@@ -34,6 +34,7 @@ import numpy as np
 import touch_learned
 from touch_scoring import balanced_accuracy, confusion, match, recalls, score
 
+from eit_skin.frames import EXCLUDING_FLAGS
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
@@ -44,6 +45,7 @@ from eit_skin.sim.drift import DriftModel
 from eit_skin.sim.scenario import HARD_SCENES, Scenario, hard_scenario, random_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import LABELS, TouchClassifier, classifier_layers
+from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import single_contact_spread
 
 RATE_HZ = 50.0
@@ -55,20 +57,22 @@ LATENCY_TARGET_S = 0.100
 OVERRUN_S = 0.5
 DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 """Part of the cached scenes' key: 3 since the pipeline's fault check names noisy electrodes
-(the imaged frames and faulty sets of earlier versions are stale)."""
+(the imaged frames and faulty sets of earlier versions are stale); 4 since the raw frames of
+the pressure layer are kept too (the classifier's ``shape_z``)."""
 
 
 @dataclass
 class Run:
-    """Images, faulty-electrode sets and truth of one scene."""
+    """Images, raw frames, faulty-electrode sets and truth of one scene."""
 
     t: np.ndarray
     pressure: np.ndarray
     stretch: np.ndarray | None
     faulty: np.ndarray  # [T, E] bool
     truth: list[dict]
+    volts: np.ndarray | None = None  # [T, M] V, the pressure layer's frames (NaN: flagged)
 
 
 def _key(patch: Patch, *parts) -> str:
@@ -100,11 +104,12 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
     if path.is_file():
         with np.load(path) as d:
             stretch = d["stretch"] if d["stretch"].size else None
-            return Run(d["t"], d["pressure"], stretch, d["faulty"], json.loads(str(d["truth"])))
+            truth = json.loads(str(d["truth"]))
+            return Run(d["t"], d["pressure"], stretch, d["faulty"], truth, d["volts"])
     sim = _simulator(patch, scene, seed, seconds)
     rec = sim.run(duration_s=seconds)
     pressure_layer, stretch_layer = classifier_layers(patch)
-    out, faulty = {}, None
+    out, faulty, volts = {}, None, None
     for layer in (pressure_layer, stretch_layer):
         if layer is None:
             continue
@@ -134,6 +139,9 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
         out[layer.name] = images
         if layer is pressure_layer:
             faulty = bad
+            volts = (
+                np.where(lr.flags & EXCLUDING_FLAGS, np.nan, frames) if lr.flags.size else frames
+            )
     stretch = out[stretch_layer.name] if stretch_layer is not None else None
     truth = [
         {"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s + tr.settle_s}
@@ -147,16 +155,37 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
         stretch=np.zeros(0) if stretch is None else stretch,
         faulty=faulty,
         truth=json.dumps(truth),
+        volts=volts,
     )
-    return Run(rec.t, out[pressure_layer.name], stretch, faulty, truth)
+    return Run(rec.t, out[pressure_layer.name], stretch, faulty, truth, volts)
 
 
-def classify(run: Run, x, y, spread, electrodes_m, config=None, faults: bool = True, features=None):
+def classify(
+    run: Run,
+    x,
+    y,
+    spread,
+    electrodes_m,
+    config=None,
+    faults: bool = True,
+    features=None,
+    channels=None,
+):
     """Every event of one scene; the pipeline's faulty electrodes fed each frame.
 
     ``features``: a dict that receives each touch's final features (by touch id).
+    ``channels``: ``[M, E]`` bool channel-electrode map of the pressure layer; with it the
+    scene's raw frames go to the classifier too (``shape_z``).
     """
-    clf = TouchClassifier(x, y, config, contact_spread_m=spread, electrodes_m=electrodes_m)
+    clf = TouchClassifier(
+        x,
+        y,
+        config,
+        contact_spread_m=spread,
+        electrodes_m=electrodes_m,
+        channel_electrodes=channels,
+    )
+    volts = run.volts if channels is not None else None
     events, last = [], None
     for k in range(len(run.t)):
         bad = tuple(np.flatnonzero(run.faulty[k])) if faults else ()
@@ -164,7 +193,9 @@ def classify(run: Run, x, y, spread, electrodes_m, config=None, faults: bool = T
             clf.set_faulty_electrodes(bad)
             last = bad
         stretch = None if run.stretch is None else run.stretch[k]
-        new = clf.step(float(run.t[k]), run.pressure[k], stretch)
+        new = clf.step(
+            float(run.t[k]), run.pressure[k], stretch, None if volts is None else volts[k]
+        )
         events += new
         _keep_features(new, clf, features)
     new = clf.finish()
@@ -195,6 +226,7 @@ def evaluate(patch_name: str, seeds, seconds: float, data: Path, cache: Path, fa
     imager = LayerImager.build(layer, cache_dir=cache)
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     electrodes = np.array([e.center for e in layer.electrodes])
+    channels = channel_electrodes(imager.protocol)
     per_scene, touches = {}, []
     for scene in SCENES:
         rows, false, quiet = [], [], 0.0
@@ -202,7 +234,7 @@ def evaluate(patch_name: str, seeds, seconds: float, data: Path, cache: Path, fa
             run = simulate(patch, scene, seed, seconds, data, cache)
             feats = {}
             events = classify(
-                run, imager.grid.x, imager.grid.y, spread, electrodes, None, faults, feats
+                run, imager.grid.x, imager.grid.y, spread, electrodes, None, faults, feats, channels
             )
             r, f = score(events, run.truth)
             rows += r

@@ -6,7 +6,8 @@ Both label the same segmented touches (the classifier's END events matched to th
 so only the decision differs. numpy only; the model is a ``[F + 1, 4]`` weight matrix.
 
 Inputs per touch (:data:`FEATURES`, all scale-free): ``spread``, ``major``, ``travel``,
-``closing``, ``trend`` (signed, clipped to +-20) and ``narrowing`` of
+``closing``, ``trend`` (signed, clipped to +-20), ``narrowing`` and ``shape_z`` (as
+``arcsinh(z)``: it spans 0 to thousands; 0 where it is NaN) of
 :class:`~eit_skin.touch.classifier.TouchFeatures`, standardised with the training set's
 mean and standard deviation. Balanced classes (each touch weighted by 1 / its class count),
 L2 penalty ``L2``, full-batch gradient descent.
@@ -18,7 +19,7 @@ import numpy as np
 
 from eit_skin.touch.classifier import LABELS
 
-FEATURES = ("spread", "major", "travel", "closing", "trend", "narrowing")
+FEATURES = ("spread", "major", "travel", "closing", "trend", "narrowing", "shape_z")
 L2 = 1e-2
 STEPS = 3000
 RATE = 0.5
@@ -28,6 +29,8 @@ def feature_matrix(features: list) -> np.ndarray:
     """``[N, F]`` from :class:`TouchFeatures` records."""
     x = np.array([[getattr(f, name) for name in FEATURES] for f in features], dtype=float)
     x[:, FEATURES.index("trend")] = np.clip(x[:, FEATURES.index("trend")], -20, 20)
+    z = x[:, FEATURES.index("shape_z")]
+    x[:, FEATURES.index("shape_z")] = np.where(np.isfinite(z), np.arcsinh(z), 0.0)
     return x.reshape(-1, len(FEATURES))
 
 

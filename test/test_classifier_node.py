@@ -16,7 +16,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.frames import FrameRecord
+from eit_skin.hardware.sources import pattern_name
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
@@ -208,6 +211,96 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
                 ),
                 EVENT_S,
             ), classifier_values(probe)
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+
+
+def frame_msg(layer, k: int, voltages: np.ndarray):
+    """Raw frame ``k`` of the layer, stamped like :func:`image_msg` ``k``."""
+    return FrameRecord(
+        stamp_ns=1000 * 10**9 + (k // 50) * 10**9 + (k % 50) * 20_000_000,
+        frame_id="skin_link",
+        patch="elbow",
+        layer=layer.name,
+        n_electrodes=layer.n_electrodes,
+        drive_pattern=pattern_name(layer),
+        current_a=1e-3,
+        sequence=k,
+        voltages=np.asarray(voltages, np.float32),
+        channel_flags=np.zeros(0, np.uint8),
+    ).to_msg()
+
+
+def test_raw_frames_of_the_same_stamp_tell_a_close_pinch_from_a_push(tmp_path) -> None:
+    """A still blob in the images whose raw frames close like a pinch (a pattern growing to
+    60 noise units over the hold, beyond what the blob's amplitude explains) is a pinch: the
+    node pairs each image with the frame of its stamp. A frame of the wrong size is counted
+    and left out."""
+    case = elbow(tmp_path)
+    patch = load_patch(config_path(case.config))
+    layer = patch.layer(case.pressure)
+    topics = patch_topics(patch, "/elbow_frames_test")
+    grid = layer_image_grid(layer)
+    m = build_protocol(layer.protocol, layer.n_electrodes).n_measurements
+    probe = Probe("classifier_frames_probe")
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    probe.subscribe(TouchEvent, topics.touch_events, reliable)
+    probe.subscribe(ContactArray, topics.contacts, 10)
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
+    pub = probe.node.create_publisher(
+        Image, topics.layers[case.pressure].image, qos_profile_sensor_data
+    )
+    frames_pub = probe.node.create_publisher(
+        type(frame_msg(layer, 0, np.zeros(m))),
+        topics.layers[case.pressure].frames,
+        qos_profile_sensor_data,
+    )
+    log = tmp_path / "classifier.log"
+    params = {"patch_config": case.config, "diagnostics_period_s": 0.02}
+    node = start_node("eit_classifier", "/elbow_frames_test", params, log)
+    try:
+        assert probe.spin_until(
+            lambda: pub.get_subscription_count() and frames_pub.get_subscription_count(), EVENT_S
+        ), log.read_text()
+        rng = np.random.default_rng(1)
+        xx, yy = np.meshgrid(grid.x, grid.y)
+        cx, cy = case.centre
+        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        sigma = 1e-5 * (1 + rng.random(m))
+        reference = 0.01 + 0.05 * rng.random(m)
+        push = rng.normal(size=m)
+        push *= 400.0 / np.linalg.norm(push)
+        closing = rng.normal(size=m)
+        closing /= np.linalg.norm(closing)
+        frames_pub.publish(frame_msg(layer, 0, np.zeros(m + 1)))  # wrong size: counted
+        first = 0
+
+        def send(k: int, touch: bool) -> list[tuple]:
+            j = k - first
+            grow = 60.0 * np.clip((j - 32) / 46.0, 0.0, 1.0) if touch else 0.0
+            x = touch * push + grow * closing + rng.normal(size=m)
+            frame = frame_msg(layer, k, reference + sigma * x)
+            image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
+            sent = [(frames_pub, frame), (pub, image)]
+            for publisher, message in sent:
+                publisher.publish(message)
+            return sent
+
+        contacts = probe.messages[topics.contacts]
+        first = preroll(probe, send, contacts, log)
+        for j in range(110):  # 0.6 s quiet, 1.0 s touch, 0.6 s quiet at 50 Hz
+            wait_for_contacts(probe, contacts, send(first + j, 30 <= j < 80))
+        topic = topics.touch_events
+        assert probe.spin_until(
+            lambda: any(m.state == TouchEvent.END for _, m in probe.messages[topic]), EVENT_S
+        ), log.read_text()
+        end = [msg for _, msg in probe.messages[topic] if msg.state == TouchEvent.END]
+        assert [e.label for e in end] == [TouchEvent.PINCH], classifier_values(probe)
+        assert probe.spin_until(
+            lambda: int(classifier_values(probe).get("frames_paired", 0)) >= 100, EVENT_S
+        ), classifier_values(probe)
+        assert classifier_values(probe)["frames_rejected"] == "1"
     finally:
         assert stop_node(node) == 0, log.read_text()
         probe.close()

@@ -9,7 +9,8 @@ reference, drift tracking, fault checks; the same options as ``eit-skin reconstr
 per FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame),
 ``confidence``, ``centroid`` ([x, y] m, patch frame). The electrodes the pipeline's fault
 checks leave out go to the classifier with every image
-(:meth:`~eit_skin.touch.classifier.TouchClassifier.set_faulty_electrodes`). Frame times:
+(:meth:`~eit_skin.touch.classifier.TouchClassifier.set_faulty_electrodes`), and so does
+each imaged frame itself (its raw channels tell a close pinch from a push). Frame times:
 ``--rate`` when given, else the file's ``t``. The first ``calibration_s`` (0.5 s) of images
 must be free of touch: they give the noise level. Errors: one line on stderr, exit status 1.
 """
@@ -83,6 +84,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
     from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
     from eit_skin.touch.classifier import TouchClassifier, classifier_layers
+    from eit_skin.touch.frame_evidence import channel_electrodes
     from eit_skin.touch.shapes import single_contact_spread
 
     if args.rate is not None and not args.rate > 0:
@@ -113,7 +115,11 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
     classifier = TouchClassifier(
-        imager.grid.x, imager.grid.y, contact_spread_m=spread, electrodes_m=electrodes
+        imager.grid.x,
+        imager.grid.y,
+        contact_spread_m=spread,
+        electrodes_m=electrodes,
+        channel_electrodes=channel_electrodes(imager.protocol),
     )
     t0 = None
     for times, pressure in _images(imager, reader, args, runs):
@@ -125,7 +131,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
             image = None if extra is None else extra.image
             # the electrodes the imaging left out: less confidence near them
             classifier.set_faulty_electrodes(images.faulty_electrodes)
-            for event in classifier.step(t - t0, images.image, image):
+            for event in classifier.step(t - t0, images.image, image, images.frame_v):
                 if event.state == "end":
                     yield event
     yield from classifier.finish()

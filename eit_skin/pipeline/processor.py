@@ -72,6 +72,8 @@ class LayerImages:
         channels_used: channels that went into the image (of M).
         faulty_electrodes: electrodes left out of this image (found faulty by the latest
             fault check), sorted indices; what the touch classifier needs to know.
+        frame_v: ``[M]`` the frame that was imaged, V, flagged channels NaN (the touch
+            classifier's raw evidence: ``TouchClassifier.step(volts=...)``).
     """
 
     t_s: float
@@ -80,6 +82,7 @@ class LayerImages:
     touching: bool
     channels_used: int
     faulty_electrodes: tuple[int, ...] = ()
+    frame_v: np.ndarray | None = None
 
 
 class LayerProcessor:
@@ -260,7 +263,7 @@ class LayerProcessor:
         image = self.imager.physical_image(values)
         self.frames_imaged += 1
         faulty = tuple(int(e) for e in self._faulty)
-        return LayerImages(t_s, values, image, touching, used, faulty)
+        return LayerImages(t_s, values, image, touching, used, faulty, frame)
 
     def process(
         self, frames_v: np.ndarray, t_s: np.ndarray, flags: np.ndarray | None = None

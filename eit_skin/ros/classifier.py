@@ -19,6 +19,12 @@ mesh; the single-finger spread map comes from the reconstruction cache:
 :func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
 must be free of touch (noise and baseline). Method and parameters: docs/classifier.md.
 
+Raw frames: the node also subscribes (sensor-data QoS) to the pressure layer's
+``<layer>/frames`` and hands each image the frame of the same ``header.stamp`` (flagged
+channels NaN): the classifier's ``shape_z`` tells a close pinch from a push on the raw
+channels (docs/classifier.md). An image whose frame has not arrived is classified without it;
+frames of another size are counted (``frames_rejected``) and left out.
+
 Calibrated positions: when the reconstruction publishes ``calibrated_contacts`` (its
 ``calibration`` parameter), an event's centroid is the calibrated press of the same
 ``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then; otherwise
@@ -37,7 +43,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.calibration.online import MIN_CONFIDENCE
+from eit_skin.frames import excluded_channels
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
@@ -55,6 +63,7 @@ from eit_skin.touch.classifier import (
     classifier_layers,
 )
 from eit_skin.touch.contacts import SegmentationConfig
+from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import contact_geometry
 
@@ -99,6 +108,8 @@ class ClassifierNode(Node):
         spread = geometry.spread_m
         geometry_s = time.perf_counter() - started
         noise = float(p["noise_pa"]) or None
+        protocol = build_protocol(layer.protocol, layer.n_electrodes)
+        self.n_channels = protocol.n_measurements
         self.classifier = TouchClassifier(
             self.grid.x,
             self.grid.y,
@@ -106,13 +117,22 @@ class ClassifierNode(Node):
             noise,
             contact_spread_m=spread,
             electrodes_m=np.array([e.center for e in layer.electrodes], dtype=np.float64),
+            channel_electrodes=channel_electrodes(protocol),
         )
+        self._frames: dict[int, np.ndarray] = {}  # stamp ns -> raw frame [M] V, oldest first
         self.pressure_layer = layer.name
         self.has_stretch = stretch is not None
         self.pairer: StampPairer[tuple[Image, np.ndarray], np.ndarray] = StampPairer(
             int(float(p["pair_slop_s"]) * 1e9), int(float(p["pair_timeout_s"]) * 1e9)
         )
-        self.counts = {"images": 0, "rejected": 0, "events": 0, "bad_fault_reports": 0}
+        self.counts = {
+            "images": 0,
+            "rejected": 0,
+            "events": 0,
+            "bad_fault_reports": 0,
+            "frames_paired": 0,
+            "frames_rejected": 0,
+        }
         self.image_timeout_s = float(p["image_timeout_s"])
         self.started = time.monotonic()
         self._busy_s = 0.0
@@ -130,6 +150,11 @@ class ClassifierNode(Node):
             )
             self.create_timer(0.02, self._flush_unpaired)
         self.image_topics = list(self.last_image)
+        from eit_skin_msgs.msg import EitFrame
+
+        self.create_subscription(
+            EitFrame, topics.layers[layer.name].frames, self._on_frame, qos_profile_sensor_data
+        )
         from eit_skin_msgs.msg import ContactArray, TouchEvent
 
         self._msgs = (TouchEvent, ContactArray)
@@ -198,6 +223,29 @@ class ClassifierNode(Node):
         for (msg, image), stretch in pairs:
             self._process(msg, image, stretch)
 
+    def _on_frame(self, msg) -> None:
+        """Keep the pressure layer's raw frame until the image of its stamp comes."""
+        m = self.n_channels
+        flags = msg.channel_flags
+        if len(msg.voltages) != m or len(flags) not in (0, m):
+            self.counts["frames_rejected"] += 1
+            return
+        frame = np.asarray(msg.voltages, dtype=np.float64)
+        if len(flags):
+            frame[excluded_channels(np.frombuffer(bytes(flags), np.uint8), m)] = np.nan
+        self._frames[self._stamp_ns(msg)] = frame
+        while len(self._frames) > 100:  # images stopped coming: keep the latest 2 s
+            self._frames.pop(next(iter(self._frames)))
+
+    def _frame_for(self, stamp: int) -> np.ndarray | None:
+        """The raw frame of ``stamp`` (and forget every older one), or None."""
+        frame = self._frames.pop(stamp, None)
+        while self._frames and next(iter(self._frames)) < stamp:
+            self._frames.pop(next(iter(self._frames)))
+        if frame is not None:
+            self.counts["frames_paired"] += 1
+        return frame
+
     def _on_calibrated(self, msg) -> None:
         if msg.contacts and msg.contacts[0].confidence >= MIN_CONFIDENCE:
             c = msg.contacts[0].centroid
@@ -212,7 +260,8 @@ class ClassifierNode(Node):
         t_s = self._stamp_ns(msg) * 1e-9
         # the classifier uses only the stretch peak: a flat vector serves
         stretch_2d = None if stretch is None else stretch.reshape(1, -1)
-        events = self.classifier.step(t_s, pressure, stretch_2d)
+        volts = self._frame_for(self._stamp_ns(msg))
+        events = self.classifier.step(t_s, pressure, stretch_2d, volts)
         self._publish_events(msg.header, events)
         _, ContactArray = self._msgs
         if self.classifier.calibrated:

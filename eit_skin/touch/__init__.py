@@ -3,7 +3,7 @@
 Modules: ``contacts`` (noise, segmentation, tracking, early detection), ``shapes`` (blob
 moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: events and labels),
 ``pairing`` (:class:`StampPairer`: pressure and stretch images of the same moment, also from
-two boards).
+two boards), ``frame_evidence`` (the raw frames' shape change over a touch: a close pinch).
 """
 
 from __future__ import annotations

@@ -25,7 +25,9 @@ see docs/classifier.md):
 * rules: ``closing >= pinch_closing`` -> pinch; ``spread >= grab_spread`` -> grab;
   ``travel >= rub_travel`` -> rub; a significant steady narrowing (``trend >= pinch_trend``
   and ``narrowing >= pinch_narrowing``) -> pinch; ``major >= grab_major`` (a long blob:
-  fingers along an arc) -> grab; else push.
+  fingers along an arc) -> grab; with the raw frames of the pressure layer, a pattern that
+  changes steadily while the touch holds (``shape_z >= pinch_shape_z``,
+  :mod:`~eit_skin.touch.frame_evidence`: a close pinch) -> pinch; else push.
 
 The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
 the evidence so far and may revise it; END carries the final label.
@@ -51,6 +53,7 @@ from eit_skin.touch.contacts import (
     estimate_noise,
     estimate_noise_map,
 )
+from eit_skin.touch.frame_evidence import FrameEvidence, shape_change_z
 from eit_skin.touch.shapes import BLOB_FRACTION, FINGER_RADIUS_M, blob_moments
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -126,6 +129,14 @@ class ClassifierConfig:
             ``pinch_closing`` but steadily over its closing (issue 18).
         pinch_narrowing: ... and only if that fitted narrowing over the strong frames is at
             least this many single-finger spreads (a long press's negligible creep is no pinch).
+        pinch_shape_z: a still touch (after every grab and rub rule) whose raw boundary
+            frames change their pattern steadily over its plateau, beyond what its
+            amplitude, its centroid's motion and a sheet-wide drift explain, with a
+            z-score of at least this (noise standard units,
+            :func:`~eit_skin.touch.frame_evidence.shape_change_z`) is a pinch: a close
+            pinch's closing, too small for the image shape (issue 18). Needs the raw
+            frames of the pressure layer (``volts`` in :meth:`TouchClassifier.step`);
+            0 disables.
         travel_fraction: frames whose peak is at least this fraction of the touch's largest
             enter ``travel`` (a quarter: the whole stroke, press and release included).
         grab_spread: blob spread (geometric mean of the principal spreads) that makes a grab,
@@ -199,6 +210,7 @@ class ClassifierConfig:
     pinch_closing: float = 0.3
     pinch_trend: float = 3.0
     pinch_narrowing: float = 0.05
+    pinch_shape_z: float = 5.0
     travel_fraction: float = 0.25
     grab_spread: float = 1.35
     grab_major: float = 1.45
@@ -251,6 +263,7 @@ class ClassifierConfig:
             "offset_deadband",
             "fault_radius",
             "pinch_narrowing",
+            "pinch_shape_z",
             "start_roughness",
         ):
             if not getattr(self, name) >= 0:
@@ -344,6 +357,9 @@ class TouchFeatures:
         narrowing: that fitted narrowing from the first to the last strong frame, in
             single-finger spreads.
         major: median major spread of the blob, in single-finger spreads.
+        shape_z: still-touch shape-change z-score of the raw frames over the plateau
+            (:func:`~eit_skin.touch.frame_evidence.shape_change_z`); NaN without raw frames
+            or with too few plateau frames.
     """
 
     count: int
@@ -356,6 +372,7 @@ class TouchFeatures:
     trend: float = 0.0
     narrowing: float = 0.0
     major: float = 1.0
+    shape_z: float = math.nan
 
 
 def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, float]:
@@ -379,6 +396,9 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
         return "pinch", margin(f.trend, c.pinch_trend)
     if f.major >= c.grab_major:
         return "grab", margin(f.major, c.grab_major)
+    shape_z = f.shape_z if c.pinch_shape_z > 0 and math.isfinite(f.shape_z) else None
+    if shape_z is not None and shape_z >= c.pinch_shape_z:
+        return "pinch", margin(shape_z, c.pinch_shape_z)
     ratio = f.stretch_ratio
     if ratio is not None and c.stretch_ratio_rub > 0 and ratio >= c.stretch_ratio_rub:
         return "pinch", 0.5 * margin(ratio, c.stretch_ratio_rub)
@@ -388,6 +408,7 @@ def decide(features: TouchFeatures, config: ClassifierConfig) -> tuple[str, floa
         margin(f.spread, c.grab_spread),
         margin(max(f.trend, 0.0), c.pinch_trend),
         margin(f.major, c.grab_major),
+        1.0 if shape_z is None else margin(shape_z, c.pinch_shape_z),
     )
     return "push", conf
 
@@ -455,6 +476,7 @@ class _Touch:
         self.label = "push"
         self.confidence = 0.5
         self.detect_centroid_m = (0.0, 0.0)
+        self.changes: list[np.ndarray | None] = []  # whitened raw frame per shape record
 
     def count(self, min_frames: int) -> int:
         if not self.counts:
@@ -557,6 +579,9 @@ class TouchClassifier:
             ``config.contact_spread_m``.
         electrodes_m: ``[E, 2]`` electrode centres of the pressure layer, m (patch frame), so
             that :meth:`set_faulty_electrodes` can place them; ``None``: no fault handling.
+        channel_electrodes: ``[M, E]`` bool, the electrodes each raw channel of the pressure
+            layer uses (:func:`~eit_skin.touch.frame_evidence.channel_electrodes`), so that a
+            faulty electrode's channels stay out of ``shape_z``; ``None``: all channels stay.
     """
 
     def __init__(
@@ -568,6 +593,7 @@ class TouchClassifier:
         stretch_noise: float | None = None,
         contact_spread_m: float | np.ndarray | None = None,
         electrodes_m: np.ndarray | None = None,
+        channel_electrodes: np.ndarray | None = None,
     ) -> None:
         self.x = np.asarray(x, dtype=np.float64)
         self.y = np.asarray(y, dtype=np.float64)
@@ -589,6 +615,10 @@ class TouchClassifier:
         )
         self._calibration: list[np.ndarray] = []
         self._calibration_stretch: list[np.ndarray] = []
+        self._calibration_volts: list[np.ndarray] = []
+        self.evidence = FrameEvidence(channel_electrodes)
+        self._change: np.ndarray | None = None  # the latest frame's whitened raw change
+        self._run_changes: list[np.ndarray | None] = []  # beside _run_shapes
         self._t0: float | None = None
         self._t_prev: float | None = None
         self.baseline: np.ndarray | None = None
@@ -661,12 +691,16 @@ class TouchClassifier:
         return self._touch is not None
 
     # ------------------------------------------------------------------ calibration
-    def _calibrate(self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None) -> None:
+    def _calibrate(
+        self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None, volts=None
+    ) -> None:
         if self._t0 is None:
             self._t0 = t_s
         self._calibration.append(pressure)
         if stretch is not None:
             self._calibration_stretch.append(stretch)
+        if volts is not None:
+            self._calibration_volts.append(volts)
         if (
             t_s - self._t0 + 1e-9 < self.config.calibration_s
             and len(self._calibration) < _MAX_CALIBRATION_FRAMES
@@ -713,14 +747,32 @@ class TouchClassifier:
                 inside, kernel_px, self.config.k_detect, n_avg, self.config.learn_fraction
             )
             self.detector.calibrate(averaged - self.baseline)
+        if len(self._calibration_volts) >= 3:
+            self.evidence.calibrate(np.stack(self._calibration_volts))
         self._calibration = []
         self._calibration_stretch = []
+        self._calibration_volts = []
 
     # ------------------------------------------------------------------ stream
     def step(
-        self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None = None
+        self,
+        t_s: float,
+        pressure: np.ndarray,
+        stretch: np.ndarray | None = None,
+        volts: np.ndarray | None = None,
     ) -> list[TouchEvent]:
-        """Process one frame (``pressure`` [H, W] Pa, ``stretch`` [H, W] or None); events."""
+        """Process one frame; its events.
+
+        Args:
+            t_s: frame time, s.
+            pressure: ``[H, W]`` pressure image, Pa (NaN outside the sheet).
+            stretch: ``[H, W]`` stretch image (strain) or None.
+            volts: ``[M]`` the raw frame of the pressure layer this image was made from, V
+                (NaN: channel missing), or None; given with the calibration frames and then
+                with every frame, it feeds ``shape_z`` (a frame without it is left out).
+        """
+        if volts is not None:
+            volts = np.asarray(volts, dtype=np.float64)
         pressure = np.asarray(pressure, dtype=np.float64)
         pressure = np.where(np.isfinite(pressure), pressure, np.nan)
         if stretch is not None:
@@ -728,13 +780,14 @@ class TouchClassifier:
             stretch = np.where(np.isfinite(stretch), stretch, np.nan)
         self.frames += 1
         if self.segmenter is None:
-            self._calibrate(t_s, pressure, stretch)
+            self._calibrate(t_s, pressure, stretch, volts)
             self._t_prev = t_s
             self._raws = [*self._raws[-self.config.average_frames :], pressure]
             self.last_contacts = []
             return []
         dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
         self._t_prev = t_s
+        self._change = self.evidence.whiten(volts)
         self._recent = [*self._recent[-(self.config.average_frames - 1) :], pressure]
         if self.config.average_frames == 1:
             self._recent = [pressure]
@@ -769,9 +822,12 @@ class TouchClassifier:
             shape = self._shape(t_s, signal, parts > 0)
         else:
             self._run_shapes = []
+            self._run_changes = []
             if self._touch is None:
                 self._follow_baseline(dt, pressure, stretch)
                 self._follow_noise(dt, signal)
+                if volts is not None:
+                    self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
         return self._advance(t_s, contacts, stretch_peak, shape, detected)
 
     def _sheet_offset(self, image: np.ndarray) -> float:
@@ -923,6 +979,7 @@ class TouchClassifier:
                     self.tracker.reset()
                 self._run += 1
                 self._run_shapes = [*self._run_shapes[-cfg.lookback_frames :], shape]
+                self._run_changes = [*self._run_changes[-cfg.lookback_frames :], self._change]
                 self._observe_contacts(None, t_s, contacts, stretch_peak)
                 # a contact must stay in place (one track) for start_frames frames: noise
                 # crossing the threshold at random places in consecutive frames is no touch
@@ -942,8 +999,11 @@ class TouchClassifier:
             self._run = 0
             self._rough = []
             before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
-            touch.shapes = ShapeHistory(before[before["t_s"] >= t_first - 1e-9])
+            keep = before["t_s"] >= t_first - 1e-9
+            touch.shapes = ShapeHistory(before[keep])
+            touch.changes = [c for c, k in zip(self._run_changes[:-1], keep, strict=True) if k]
             self._run_shapes = []
+            self._run_changes = []
             if contacts:
                 self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
             else:  # the pooled detector saw it first: no contact segmented yet
@@ -1014,6 +1074,7 @@ class TouchClassifier:
         touch.counts.append(len(contacts))
         if shape is not None:
             touch.shapes.append(shape)
+            touch.changes.append(self._change)
         touch.max_pressure = max(touch.max_pressure, max(c.peak for c in contacts))
         if stretch_peak is not None:
             touch.max_stretch = max(touch.max_stretch or 0.0, stretch_peak)
@@ -1025,6 +1086,7 @@ class TouchClassifier:
         if touch.max_stretch is not None and touch.max_pressure > 0:
             ratio = touch.max_stretch / touch.max_pressure
         count = max(touch.count(self.config.count_frames), 1)
+        shape_z = self._shape_z(touch) if self.config.pinch_shape_z > 0 else math.nan
         return TouchFeatures(
             count,
             f["travel"],
@@ -1036,7 +1098,20 @@ class TouchClassifier:
             f["trend"],
             f["narrowing"],
             f["major"],
+            shape_z,
         )
+
+    def _shape_z(self, touch: _Touch) -> float:
+        """``shape_z`` of a touch's frames with a raw frame (NaN without enough of them)."""
+        if not self.evidence.ready or not any(c is not None for c in touch.changes):
+            return math.nan
+        rows = touch.shapes.rows
+        m = self.evidence.reference.size
+        blank = np.full(m, np.nan)
+        x = np.stack([blank if c is None else c for c in touch.changes])
+        x[:, ~self.evidence.usable(self.faulty)] = np.nan
+        xy = np.column_stack([rows["x_m"], rows["y_m"]])
+        return shape_change_z(x, rows["t_s"], xy, self.evidence.drift_pattern())
 
     def _relabel(self, touch: _Touch) -> None:
         features = self.features(touch)
@@ -1087,16 +1162,25 @@ def classify_stream(
     stretch: np.ndarray | None = None,
     config: ClassifierConfig | None = None,
     contact_spread_m: float | np.ndarray | None = None,
+    volts: np.ndarray | None = None,
+    channel_electrodes: np.ndarray | None = None,
 ) -> list[TouchEvent]:
     """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise.
 
-    ``contact_spread_m``: one fingertip's spread (see :class:`TouchClassifier`).
+    ``contact_spread_m``: one fingertip's spread; ``volts``: ``[T, M]`` the pressure layer's
+    raw frames, V, and ``channel_electrodes`` their ``[M, E]`` electrode map (see
+    :class:`TouchClassifier`).
     """
-    classifier = TouchClassifier(x, y, config, contact_spread_m=contact_spread_m)
+    classifier = TouchClassifier(
+        x, y, config, contact_spread_m=contact_spread_m, channel_electrodes=channel_electrodes
+    )
     events: list[TouchEvent] = []
     for k in range(len(t_s)):
         events += classifier.step(
-            float(t_s[k]), pressure[k], None if stretch is None else stretch[k]
+            float(t_s[k]),
+            pressure[k],
+            None if stretch is None else stretch[k],
+            None if volts is None else volts[k],
         )
     events += classifier.finish()
     return events

@@ -1,0 +1,181 @@
+"""Evidence from the raw boundary frames: does a still touch change its shape while it lasts?
+
+A close pinch (two fingers 15 mm apart closing to 5 mm) changes its reconstructed blob by a
+few per cent of a finger spread, below the frame-to-frame scatter of the image shape on a
+large patch, yet its boundary voltages change in a pattern that no still push makes
+(bench/pinch_information.md: 8-84 noise standard units on the face patch against at most
+4.4 for every push). The reconstruction keeps only a smoothed part of the 208 channels; this
+module looks at the channels themselves.
+
+:class:`FrameEvidence` learns, from the classifier's no-touch calibration frames, each
+channel's reference voltage and noise, then keeps following the reference while nothing
+touches. :func:`shape_change_z` measures, over a touch's plateau, how much of the whitened
+change is neither its amplitude (with a quadratic term for a contact that grows with force),
+nor its centroid's motion (a finger that rolls or slides a little), nor a sheet-wide drift,
+but a steady trend in time: a chi-square over the channels turned into a z-score, so a
+threshold means the same on every patch and device (noise units, no fitted constant).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Plateau: frames whose amplitude is at least this fraction of the touch's largest.
+PLATEAU_FRACTION = 0.8
+#: Fewest plateau frames the statistic is computed from (6 regressors, at least 6 more).
+MIN_FRAMES = 12
+#: MAD of a normal variable over its standard deviation.
+_MAD_SIGMA = 1.482602218505602
+
+
+class FrameEvidence:
+    """Per-channel reference and noise of one layer's raw frames, learnt while nothing touches.
+
+    Args:
+        channel_electrodes: ``[M, E]`` bool, which electrodes each channel drives or measures
+            with (``Protocol.touching`` per electrode), so the channels of a faulty electrode
+            can be left out; ``None``: none are.
+    """
+
+    def __init__(self, channel_electrodes: np.ndarray | None = None) -> None:
+        self.channel_electrodes = (
+            None if channel_electrodes is None else np.asarray(channel_electrodes, dtype=bool)
+        )
+        self.reference: np.ndarray | None = None  # [M] V
+        self.sigma: np.ndarray | None = None  # [M] V
+
+    @property
+    def ready(self) -> bool:
+        return self.reference is not None
+
+    def calibrate(self, frames_v: np.ndarray) -> None:
+        """Reference (mean) and noise of ``frames_v`` ``[N, M]`` V, no touch, ``N >= 3``.
+
+        The noise is the robust spread of frame-to-frame differences over sqrt(2) (a slow
+        drift over the calibration does not count as noise). Channels that are NaN in any
+        frame, or with no spread at all, stay out (NaN reference).
+        """
+        frames_v = np.asarray(frames_v, dtype=np.float64)
+        if frames_v.ndim != 2 or frames_v.shape[0] < 3:
+            raise ValueError(f"frames_v: [N >= 3, M] V, got shape {frames_v.shape}")
+        if self.channel_electrodes is not None and (
+            self.channel_electrodes.shape[0] != frames_v.shape[1]
+        ):
+            raise ValueError(
+                f"frames have {frames_v.shape[1]} channels, channel_electrodes "
+                f"{self.channel_electrodes.shape[0]}"
+            )
+        diff = np.diff(frames_v, axis=0)
+        mad = np.median(np.abs(diff - np.median(diff, axis=0)), axis=0)
+        sigma = _MAD_SIGMA * mad / math.sqrt(2.0)
+        ok = np.isfinite(frames_v).all(axis=0) & (sigma > 0)
+        self.reference = np.where(ok, frames_v.mean(axis=0), np.nan)
+        self.sigma = np.where(ok, sigma, np.nan)
+
+    def follow(self, alpha: float, frame_v: np.ndarray) -> None:
+        """Move the reference towards a no-touch ``frame_v`` ``[M]`` V by ``alpha`` (0..1)."""
+        if self.reference is None:
+            return
+        frame_v = np.asarray(frame_v, dtype=np.float64)
+        ok = np.isfinite(frame_v) & np.isfinite(self.reference)
+        self.reference[ok] += alpha * (frame_v[ok] - self.reference[ok])
+
+    def whiten(self, frame_v: np.ndarray | None) -> np.ndarray | None:
+        """``[M]`` change of ``frame_v`` from the reference in noise units (NaN: unusable)."""
+        if frame_v is None or self.reference is None:
+            return None
+        frame_v = np.asarray(frame_v, dtype=np.float64)
+        if frame_v.shape != self.reference.shape:
+            raise ValueError(
+                f"frame has {frame_v.size} channels, the calibration {self.reference.size}"
+            )
+        return (frame_v - self.reference) / self.sigma
+
+    def drift_pattern(self) -> np.ndarray:
+        """``[M]`` whitened pattern of a sheet-wide conductivity change (the reference)."""
+        return self.reference / self.sigma
+
+    def usable(self, faulty: tuple[int, ...]) -> np.ndarray:
+        """``[M]`` bool: calibrated channels that touch none of the ``faulty`` electrodes."""
+        ok = np.isfinite(self.reference)
+        if faulty and self.channel_electrodes is not None:
+            ok &= ~self.channel_electrodes[:, list(faulty)].any(axis=1)
+        return ok
+
+
+def channel_electrodes(protocol) -> np.ndarray:
+    """``[M, E]`` bool: the electrodes each channel of ``protocol`` drives or measures with."""
+    return np.column_stack([protocol.touching([e]) for e in range(protocol.n_electrodes)])
+
+
+def shape_change_z(
+    x: np.ndarray,
+    t_s: np.ndarray,
+    xy_m: np.ndarray,
+    drift: np.ndarray,
+    plateau_fraction: float = PLATEAU_FRACTION,
+    min_frames: int = MIN_FRAMES,
+) -> float:
+    """Still-touch shape-change z-score of a touch's whitened frames.
+
+    Args:
+        x: ``[T, M]`` whitened changes (:meth:`FrameEvidence.whiten`) of the touch's frames;
+            channels with a NaN anywhere are left out.
+        t_s: ``[T]`` frame times, s.
+        xy_m: ``[T, 2]`` blob centroid per frame, m (NaN rows: frame left out).
+        drift: ``[M]`` whitened sheet-wide drift pattern (:meth:`FrameEvidence.drift_pattern`).
+        plateau_fraction: frames below this fraction of the largest amplitude stay out.
+        min_frames: fewest plateau frames (and frames with a raw frame) to compute it from.
+
+    Method: the amplitude ``a`` of each frame is its projection on the touch's mean pattern;
+    the plateau frames (``a >= plateau_fraction * max a``) are fitted, every channel at
+    once, by least squares on ``[1, a, a^2, x - mean x, y - mean y, t - mean t]``, after
+    the ``drift`` pattern is projected out of every frame. The time coefficients ``c_t``
+    ``[M']`` give ``chi2 = |c_t|^2 /
+    (var_t s2)`` over ``M' - 1`` degrees of freedom (``var_t`` from the design, ``s2`` the
+    residual variance per entry, ~1 for well-calibrated noise, so a mis-scaled noise
+    estimate cancels); the result is ``(chi2 - (M' - 1)) / sqrt(2 (M' - 1))``: about N(0, 1)
+    for a still touch of any shape, large when the shape changes steadily (a closing pinch).
+
+    Returns:
+        the z-score, or NaN with fewer than ``min_frames`` plateau frames or 8 channels.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    rows = np.isfinite(np.asarray(t_s)) & np.isfinite(xy_m).all(axis=1)
+    rows &= np.isfinite(x).any(axis=1)  # a frame that came without its raw frame
+    x, t, xy = x[rows], np.asarray(t_s, float)[rows], np.asarray(xy_m, float)[rows]
+    cols = np.isfinite(x).all(axis=0) & np.isfinite(drift)
+    x, d = x[:, cols], np.asarray(drift, float)[cols]
+    if x.shape[1] < 8 or x.shape[0] < min_frames:
+        return math.nan
+    # the sheet-wide drift is no shape change: leave its pattern out of every frame first
+    # (then it cannot leak into the amplitude either)
+    d = d / max(float(np.linalg.norm(d)), 1e-300)
+    x = x - np.outer(x @ d, d)
+    mean = x.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    if norm == 0.0:
+        return math.nan
+    a = x @ (mean / norm)
+    plateau = a >= plateau_fraction * a.max()
+    if np.count_nonzero(plateau) < min_frames:
+        return math.nan
+    x, a, t, xy = x[plateau], a[plateau], t[plateau], xy[plateau]
+    design = np.column_stack([np.ones(a.size), a, a * a, xy - xy.mean(axis=0), t - t.mean()])
+    # scale the columns (a is hundreds of noise units, xy millimetres); a centroid that did
+    # not move at all (one pixel's worth of image) leaves its column out
+    scale = np.linalg.norm(design, axis=0)
+    keep = scale > 0
+    keep[0] = keep[-1] = True
+    design = design[:, keep] / np.where(scale[keep] > 0, scale[keep], 1.0)
+    coef, _, rank, _ = np.linalg.lstsq(design, x, rcond=None)
+    if rank < design.shape[1]:
+        return math.nan
+    var_t = float(np.linalg.inv(design.T @ design)[-1, -1])
+    resid = x - design @ coef
+    dof = x.shape[1] - 1  # channels less the drift pattern
+    s2 = float(np.sum(resid * resid)) / ((a.size - design.shape[1]) * dof)
+    c_t = coef[-1]
+    return float((float(c_t @ c_t) / (var_t * s2) - dof) / math.sqrt(2.0 * dof))

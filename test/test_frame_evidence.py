@@ -1,0 +1,195 @@
+"""Shape-change evidence from raw frames: its null distribution, its power, and its wiring."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from eit_skin.patch.loading import load_patch
+from eit_skin.patch.protocol import build_protocol
+from eit_skin.resources import config_path
+from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier
+from eit_skin.touch.frame_evidence import FrameEvidence, channel_electrodes, shape_change_z
+from test.synthetic_touches import X, Y, envelope, sequence
+
+M = 208
+RATE_HZ = 50.0
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+class Sheet:
+    """Random whitened patterns of one simulated sheet: channel noise, reference, a push's
+    pattern, its change per metre of centroid motion, and a closing pinch's extra pattern."""
+
+    def __init__(self, seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        self.rng = rng
+        self.sigma = 1e-5 * (1.0 + rng.random(M))  # V, each channel its own
+        self.reference = 0.01 + 0.05 * rng.random(M)  # V
+        self.push = 400.0 * unit(rng.normal(size=M))  # noise units at full force
+        self.per_m = 2e4 * rng.normal(size=(2, M))  # noise units per metre of motion
+        self.closing = unit(rng.normal(size=M))
+
+    def volts(self, x: np.ndarray) -> np.ndarray:
+        """``[T, M]`` V of whitened changes ``x`` ``[T, M]`` plus unit noise."""
+        noise = self.rng.normal(size=x.shape)
+        return self.reference + self.sigma * (x + noise)
+
+    def touch(self, n: int, closing: float = 0.0, move_m: float = 0.0, drift: float = 0.0):
+        """``(x [n, M] whitened, t [n], xy [n, 2])`` of a touch held for ``n`` frames:
+        amplitude 0.9..1 with a quadratic response, a centroid wandering by ``move_m``, a
+        closing pattern growing linearly to ``closing`` noise units, a sheet-wide drift
+        growing to ``drift`` times the reference."""
+        t = np.arange(n) / RATE_HZ
+        a = 0.9 + 0.1 * np.sin(np.linspace(0.0, 3.0, n)) ** 2
+        xy = move_m * np.column_stack([np.sin(3 * t), np.cos(2 * t)])
+        x = np.outer(a + 0.3 * a**2, self.push) + xy @ self.per_m
+        x += np.outer(np.linspace(0.0, closing, n), self.closing)
+        x += np.outer(np.linspace(0.0, drift, n), self.reference / self.sigma)
+        return x, t, xy
+
+    def calibrated(self, frames: int = 400) -> FrameEvidence:
+        evidence = FrameEvidence()
+        evidence.calibrate(self.volts(np.zeros((frames, M))))
+        return evidence
+
+
+def z_of(sheet: Sheet, evidence: FrameEvidence, **touch) -> float:
+    x, t, xy = sheet.touch(60, **touch)
+    whitened = np.stack([evidence.whiten(v) for v in sheet.volts(x)])
+    return shape_change_z(whitened, t, xy, evidence.drift_pattern())
+
+
+@pytest.mark.parametrize(
+    "nuisance", [{}, {"move_m": 1e-3}, {"drift": 2e-3}], ids=["still", "rolls", "drifts"]
+)
+def test_a_touch_that_keeps_its_shape_gives_a_standard_normal_z(nuisance) -> None:
+    """Amplitude (with a quadratic response), centroid motion and sheet-wide drift are all
+    explained: over 200 touches z has mean ~0 and standard deviation ~1."""
+    sheet = Sheet(0)
+    evidence = sheet.calibrated()
+    z = np.array([z_of(sheet, evidence, **nuisance) for _ in range(200)])
+    assert abs(z.mean()) < 0.3
+    assert 0.75 < z.std() < 1.35
+
+
+@pytest.mark.parametrize("closing", [4.0, 8.0])
+def test_a_steady_closing_gives_the_z_of_its_noncentral_chi_square(closing) -> None:
+    """A pattern growing linearly to ``c`` noise units over the hold adds a time coefficient
+    ``slope * closing``; less its part along the drift pattern, its noncentrality is
+    ``lambda = slope^2 |closing_perp|^2 / var_t`` (``var_t`` of the noise-free design), and
+    E[z] = lambda / sqrt(2 (M - 1)). The mean over 40 touches is within 15 % of it."""
+    sheet = Sheet(2)
+    evidence = sheet.calibrated(2000)
+    clean, t, _ = sheet.touch(60, closing=closing)
+    a = clean @ unit(clean.mean(axis=0))
+    design = np.column_stack([np.ones(t.size), a, a * a, t - t.mean()])
+    var_t = np.linalg.inv(design.T @ design)[-1, -1]
+    slope = closing / (t[-1] - t[0])
+    d = unit(sheet.reference / sheet.sigma)
+    perp = sheet.closing - d * (d @ sheet.closing)
+    expected = slope**2 * float(perp @ perp) / var_t / math.sqrt(2 * (M - 1))
+    z = np.array([z_of(sheet, evidence, closing=closing) for _ in range(40)])
+    assert expected > 3
+    assert z.mean() == pytest.approx(expected, rel=0.15)
+
+
+def test_calibration_learns_each_channels_noise_not_its_drift() -> None:
+    sheet = Sheet(3)
+    ramp = np.outer(np.linspace(0.0, 30.0, 400), np.ones(M))  # 30 sigma of slow drift
+    frames = sheet.volts(ramp)
+    frames[:, 7] = np.nan  # a channel that never came
+    evidence = FrameEvidence()
+    evidence.calibrate(frames)
+    ok = np.arange(M) != 7
+    np.testing.assert_allclose(evidence.sigma[ok], sheet.sigma[ok], rtol=0.3)
+    assert np.median(np.abs(evidence.sigma[ok] / sheet.sigma[ok] - 1)) < 0.06
+    assert not evidence.usable(())[7] and evidence.usable(())[ok].all()
+    with pytest.raises(ValueError, match="channels"):
+        evidence.whiten(np.zeros(M + 1))
+
+
+def test_a_faulty_electrodes_channels_are_left_out() -> None:
+    layer = load_patch(config_path("arm")).layers[0]
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    table = channel_electrodes(protocol)
+    assert table.shape == (protocol.n_measurements, protocol.n_electrodes)
+    evidence = FrameEvidence(table)
+    evidence.calibrate(np.random.default_rng(0).normal(1.0, 1e-3, (10, protocol.n_measurements)))
+    np.testing.assert_array_equal(evidence.usable((5,)), ~protocol.touching([5]))
+    # adjacent drive: electrode 5 drives 2 of 16 injections and is measured in the rest
+    assert np.count_nonzero(~evidence.usable((5,))) == 2 * 13 + 14 * 2 - 2
+
+
+# ---------------------------------------------------------------- in the classifier
+ONSET_S, RELEASE_S = 1.0, 2.4
+CHANNEL_ELECTRODES = np.zeros((M, 16), dtype=bool)
+CHANNEL_ELECTRODES[np.arange(M), np.arange(M) % 16] = True
+ELECTRODES_M = 0.04 * np.column_stack(
+    [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]
+)
+
+
+def _scene(closing_channels: np.ndarray | None, seed: int = 0):
+    """A still push in the images; its raw frames close like a pinch on ``closing_channels``
+    (noise units growing to 40 over the hold), or keep their shape (None)."""
+    t, images = sequence(
+        lambda t: ([(0.01, -0.005)], 5000.0 * envelope(t, ONSET_S, RELEASE_S)), 3.0, seed=seed
+    )
+    sheet = Sheet(seed)
+    a = np.array([envelope(tk, ONSET_S, RELEASE_S) for tk in t])
+    x = np.outer(a, sheet.push)
+    if closing_channels is not None:
+        grow = np.clip((t - ONSET_S - 0.1) / (RELEASE_S - ONSET_S - 0.2), 0, 1) * (a > 0)
+        pattern = np.where(closing_channels, sheet.closing, 0.0)
+        x += np.outer(grow * 40.0, unit(pattern))
+    return t, images, sheet.volts(x)
+
+
+def _ends(t, images, volts, faulty=()):
+    clf = TouchClassifier(X, Y, electrodes_m=ELECTRODES_M, channel_electrodes=CHANNEL_ELECTRODES)
+    clf.set_faulty_electrodes(faulty)
+    events = []
+    for k in range(len(t)):
+        events += clf.step(float(t[k]), images[k], None, None if volts is None else volts[k])
+    events += clf.finish()
+    return [e for e in events if e.state == "end"], clf
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_still_blob_whose_frames_close_is_a_pinch_and_its_frames_decide(seed) -> None:
+    everywhere = np.ones(M, dtype=bool)
+    t, images, volts = _scene(everywhere, seed)
+    ends, clf = _ends(t, images, volts)
+    assert [e.label for e in ends] == ["pinch"]
+    assert clf.last_features.shape_z > ClassifierConfig().pinch_shape_z
+    # the images alone (no raw frames) say push; so do frames that keep their shape
+    assert [e.label for e in _ends(t, images, None)[0]] == ["push"]
+    t, images, volts = _scene(None, seed)
+    ends, clf = _ends(t, images, volts)
+    assert [e.label for e in ends] == ["push"]
+    assert abs(clf.last_features.shape_z) < 4
+
+
+def test_a_closing_seen_only_on_a_faulty_electrodes_channels_is_no_pinch() -> None:
+    electrode = 3
+    t, images, volts = _scene(CHANNEL_ELECTRODES[:, electrode])
+    assert [e.label for e in _ends(t, images, volts)[0]] == ["pinch"]
+    ends, clf = _ends(t, images, volts, faulty=(electrode,))
+    assert [e.label for e in ends] == ["push"]
+    assert abs(clf.last_features.shape_z) < 4
+
+
+def test_pinch_shape_z_is_a_validated_switch() -> None:
+    with pytest.raises(ValueError, match="pinch_shape_z"):
+        ClassifierConfig(pinch_shape_z=-1.0)
+    t, images, volts = _scene(np.ones(M, dtype=bool))
+    clf = TouchClassifier(X, Y, ClassifierConfig(pinch_shape_z=0.0))
+    events = [e for k in range(len(t)) for e in clf.step(t[k], images[k], None, volts[k])]
+    assert [e.label for e in events + clf.finish() if e.state == "end"] == ["push"]
+    assert np.isnan(clf.last_features.shape_z)
