@@ -62,6 +62,26 @@ def test_fake_device_to_serial_link_is_bit_exact(encoding):
     assert link.status().parser.errors == 0
 
 
+def test_a_finite_run_writes_its_last_frames_once_a_lagging_reader_makes_room():
+    """300 frames (~300 kB, far more than a pty holds) sent at 5 kHz to a reader that
+    reads nothing until the device has queued them all: every one still arrives, in order
+    (a loaded run once read 23 of 40: the tail stayed queued once the run ended)."""
+    n = 300
+    with FakeDevice(source, rate_hz=5000.0) as device:
+        link = SerialLink(device.slave_path)
+        wait_connected(link)
+        device.start(count=n)
+        deadline = time.monotonic() + EVENT_S  # safety net; it ends on the event
+        while device.frames_sent < n:
+            assert time.monotonic() < deadline, device.frames_sent
+            time.sleep(0.01)
+        assert device.pending_bytes > 0  # the reader has not made room: frames are queued
+        got = read_frames(link, n)
+        link.close()
+    assert [f.sequence for f in got] == list(range(n))
+    assert device.frames_dropped == 0 and device.pending_bytes == 0
+
+
 def test_unplug_and_replug_through_the_symlink(tmp_path):
     path = tmp_path / "eit_skin_arm"
     device = FakeDevice(source, rate_hz=500.0)
