@@ -7,6 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 from eit_skin_msgs.msg import EitFrame
+from rclpy.qos import qos_profile_sensor_data
 
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.io.npz import load_frames_npz, save_frames_npz
@@ -59,16 +60,24 @@ def test_import_export_round_trip(recording) -> None:
 def test_driver_replays_frames_identically(recording, tmp_path, realtime: bool) -> None:
     folder, frames, t = recording
     probe = Probe()
-    probe.subscribe(EitFrame, TOPIC)
-    # The replaying driver waits for a subscriber before it starts (wait_for_subscribers: 1).
+    subscription = probe.subscribe(EitFrame, TOPIC)
+    # The replaying driver holds its first frame until its writer has matched 2 readers.
+    # A writer can match a reader before that reader has matched the writer, and a
+    # best-effort reader drops what comes before (a 3-copy run lost the first frames and
+    # waited for the 100th forever); so the second reader is created only once the first
+    # has matched the driver from its own side: then every frame reaches the first.
     node = start_node(
         "eit_driver",
         "/arm",
         {"patch_config": "arm", "replay_path": str(folder / "rec.mcap"),
-         "replay_realtime": realtime},
+         "replay_realtime": realtime, "wait_for_subscribers": 2},
         tmp_path / "driver.log",
     )  # fmt: skip
     try:
+        assert probe.spin_until(lambda: subscription.get_publisher_count() > 0, EVENT_S), (
+            tmp_path / "driver.log"
+        ).read_text()
+        probe.node.create_subscription(EitFrame, TOPIC, lambda _: None, qos_profile_sensor_data)
         assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 100, EVENT_S), (
             tmp_path / "driver.log"
         ).read_text()

@@ -57,14 +57,15 @@ class Probe:
         self.executor.add_node(self.node)
         self.messages: dict[str, list[tuple[float, Any]]] = defaultdict(list)
 
-    def subscribe(self, msg_type: type, topic: str, qos: QoSProfile | int | None = None) -> None:
+    def subscribe(self, msg_type: type, topic: str, qos: QoSProfile | int | None = None):
+        """Keep every message of ``topic`` in ``messages[topic]``; the subscription."""
         if qos is None:  # sensor-data QoS with a deep queue: the test must not drop frames
             qos = QoSProfile(
                 depth=1000,
                 reliability=qos_profile_sensor_data.reliability,
                 durability=qos_profile_sensor_data.durability,
             )
-        self.node.create_subscription(
+        return self.node.create_subscription(
             msg_type, topic, lambda m, t=topic: self.messages[t].append((time.monotonic(), m)), qos
         )
 
