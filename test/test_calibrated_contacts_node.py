@@ -13,12 +13,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import ContactArray, EitFrame
 
 from eit_skin.cli.main import main
-from eit_skin.frames import FrameRecord
-from eit_skin.hardware.sources import pattern_name
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
+from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import simulate_press_session
 from test.patience import EVENT_S
@@ -44,22 +42,6 @@ def calibrated(tmp_path_factory):
     LayerImager.build(load_patch(config_path("elbow")).layer("pressure"), cache_dir=cache)
     with np.load(presses) as data:
         return model, cache, data["press_xy"]
-
-
-def frame_msg(layer, k: int, voltages: np.ndarray) -> EitFrame:
-    """Frame ``k`` of a 50 Hz stream (the node needs increasing stamps, not real time)."""
-    return FrameRecord(
-        stamp_ns=1_000_000_000_000 + k * 20_000_000,
-        frame_id="elbow_link",
-        patch="elbow",
-        layer=layer.name,
-        n_electrodes=layer.n_electrodes,
-        drive_pattern=pattern_name(layer),
-        current_a=1e-3,
-        sequence=k,
-        voltages=np.asarray(voltages, np.float32),
-        channel_flags=np.zeros(0, np.uint8),
-    ).to_msg()
 
 
 def reference_ready(probe: Probe) -> bool:

@@ -11,17 +11,15 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from eit_skin_msgs.msg import Contact, ContactArray, TouchEvent
+from eit_skin_msgs.msg import Contact, ContactArray, EitFrame, TouchEvent
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.fem.image_grid import ImageGrid
-from eit_skin.frames import FrameRecord
-from eit_skin.hardware.sources import pattern_name
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
+from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import layer_image_grid
@@ -67,6 +65,18 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     msg.step = 4 * msg.width
     msg.data = values.tobytes()
     return msg
+
+
+def classifier_probe(name: str, topics, pressure: str):
+    """``(probe, publisher)``: a probe hearing the classifier's events, contacts and
+    diagnostics, and a publisher of the ``pressure`` layer's images."""
+    probe = Probe(name)
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    probe.subscribe(TouchEvent, topics.touch_events, reliable)
+    probe.subscribe(ContactArray, topics.contacts, 10)
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
+    pub = probe.node.create_publisher(Image, topics.layers[pressure].image, qos_profile_sensor_data)
+    return probe, pub
 
 
 def preroll(probe: Probe, send: Callable[[int, bool], list], contacts: list, log: Path) -> int:
@@ -130,14 +140,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
     patch = load_patch(config_path(case.config))
     topics = patch_topics(patch, case.namespace)
     grid = layer_image_grid(patch.layer(case.pressure))
-    probe = Probe("classifier_probe")
-    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    probe.subscribe(TouchEvent, topics.touch_events, reliable)
-    probe.subscribe(ContactArray, topics.contacts, 10)
-    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
-    pub = probe.node.create_publisher(
-        Image, topics.layers[case.pressure].image, qos_profile_sensor_data
-    )
+    probe, pub = classifier_probe("classifier_probe", topics, case.pressure)
     pubs = [pub]
     if case.stretch is not None:
         stretch_grid = layer_image_grid(patch.layer(case.stretch))
@@ -216,22 +219,6 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
         probe.close()
 
 
-def frame_msg(layer, k: int, voltages: np.ndarray):
-    """Raw frame ``k`` of the layer, stamped like :func:`image_msg` ``k``."""
-    return FrameRecord(
-        stamp_ns=1000 * 10**9 + (k // 50) * 10**9 + (k % 50) * 20_000_000,
-        frame_id="skin_link",
-        patch="elbow",
-        layer=layer.name,
-        n_electrodes=layer.n_electrodes,
-        drive_pattern=pattern_name(layer),
-        current_a=1e-3,
-        sequence=k,
-        voltages=np.asarray(voltages, np.float32),
-        channel_flags=np.zeros(0, np.uint8),
-    ).to_msg()
-
-
 def test_raw_frames_of_the_same_stamp_tell_a_close_pinch_from_a_push(tmp_path) -> None:
     """A still blob in the images whose raw frames close like a pinch (a pattern growing to
     60 noise units over the hold, beyond what the blob's amplitude explains) is a pinch: the
@@ -243,16 +230,9 @@ def test_raw_frames_of_the_same_stamp_tell_a_close_pinch_from_a_push(tmp_path) -
     topics = patch_topics(patch, "/elbow_frames_test")
     grid = layer_image_grid(layer)
     m = build_protocol(layer.protocol, layer.n_electrodes).n_measurements
-    probe = Probe("classifier_frames_probe")
-    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    probe.subscribe(TouchEvent, topics.touch_events, reliable)
-    probe.subscribe(ContactArray, topics.contacts, 10)
-    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
-    pub = probe.node.create_publisher(
-        Image, topics.layers[case.pressure].image, qos_profile_sensor_data
-    )
+    probe, pub = classifier_probe("classifier_frames_probe", topics, case.pressure)
     frames_pub = probe.node.create_publisher(
-        type(frame_msg(layer, 0, np.zeros(m))),
+        EitFrame,
         topics.layers[case.pressure].frames,
         qos_profile_sensor_data,
     )

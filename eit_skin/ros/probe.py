@@ -25,6 +25,30 @@ def stamp_ns(msg: Any) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+def frame_msg(layer, k: int, voltages, patch: str = "elbow", frame_id: str = "elbow_link"):
+    """``EitFrame`` number ``k`` of a 50 Hz stream of a patch ``layer``; ``voltages`` [M] V.
+
+    Stamped 1000 s + k * 20 ms: nodes need increasing stamps, not real time.
+    """
+    import numpy as np
+
+    from eit_skin.frames import FrameRecord
+    from eit_skin.hardware.sources import pattern_name
+
+    return FrameRecord(
+        stamp_ns=1_000_000_000_000 + k * 20_000_000,
+        frame_id=frame_id,
+        patch=patch,
+        layer=layer.name,
+        n_electrodes=layer.n_electrodes,
+        drive_pattern=pattern_name(layer),
+        current_a=1e-3,
+        sequence=k,
+        voltages=np.asarray(voltages, np.float32),
+        channel_flags=np.zeros(0, np.uint8),
+    ).to_msg()
+
+
 def start_node(
     executable: str, namespace: str, params: dict[str, Any], log: Path
 ) -> subprocess.Popen:
