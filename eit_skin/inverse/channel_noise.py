@@ -37,6 +37,7 @@ cancel; only the channels' spread relative to each other counts.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,6 +185,20 @@ def reciprocal_partners(protocol: Protocol) -> tuple[np.ndarray, np.ndarray]:
     return partner, sign
 
 
+def difference_noise(frames: np.ndarray) -> np.ndarray:
+    """``[M]`` per-channel noise, volts, of ``frames`` ``[T >= 2, M]`` V (rule 2 above).
+
+    ``1.4826 * MAD(v[t+1] - v[t]) / sqrt(2)``; NaN steps are ignored, a channel without any
+    gets NaN.
+    """
+    steps = np.diff(np.asarray(frames, dtype=np.float64), axis=0)
+    steps = np.where(np.isfinite(steps), steps, np.nan)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN channel: NaN
+        mad = np.nanmedian(np.abs(steps - np.nanmedian(steps, axis=0)), axis=0)
+    return _MAD_TO_STD * mad / np.sqrt(2.0)
+
+
 def estimate_channel_noise(
     reference: np.ndarray,
     protocol: Protocol,
@@ -208,12 +223,8 @@ def estimate_channel_noise(
             sigma = np.nanstd(np.where(np.isfinite(stack), stack, np.nan), axis=0, ddof=1)
         return ChannelNoise(sigma, f"{len(stack)} repeated reference frames")
     if frames is not None and len(frames) >= MIN_DIFFERENCE_FRAMES:
-        steps = np.diff(np.asarray(frames, dtype=np.float64), axis=0)
-        steps = np.where(np.isfinite(steps), steps, np.nan)
-        with np.errstate(invalid="ignore"):
-            mad = np.nanmedian(np.abs(steps - np.nanmedian(steps, axis=0)), axis=0)
         return ChannelNoise(
-            _MAD_TO_STD * mad / np.sqrt(2.0), f"differences of {len(frames)} consecutive frames"
+            difference_noise(frames), f"differences of {len(frames)} consecutive frames"
         )
     partner, sign = reciprocal_partners(protocol)
     has = partner >= 0

@@ -142,7 +142,7 @@ def shared_fraction(protocol: Protocol) -> float:
     and measurement on 16 electrodes (a neighbour shares one drive pair, one measurement pair
     and two more channels). 0 for fewer than two electrodes.
     """
-    touch = np.stack([protocol.touching([i]) for i in range(protocol.n_electrodes)]).astype(float)
+    touch = protocol.touching_table().astype(float)
     if touch.shape[0] < 2:
         return 0.0
     shared = touch @ touch.T  # [n_el, n_el] channels in common
@@ -177,7 +177,7 @@ def faulty_electrodes(
     noisy = math.sqrt(threshold)
     spoiled = spoiled | (roughness > noisy)
     n_el = protocol.n_electrodes
-    touch = np.stack([protocol.touching([i]) for i in range(n_el)])  # [n_el, M]
+    touch = protocol.touching_table()  # [n_el, M]
     majority = 0.5 * (1.0 + shared_fraction(protocol))
     faulty = np.zeros(n_el, dtype=bool)
     explained = np.zeros(spoiled.shape, dtype=bool)

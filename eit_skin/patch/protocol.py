@@ -465,6 +465,10 @@ class Protocol:
         k, p, m = self.measurements.T
         return u[..., k, p] - u[..., k, m]
 
+    def touching_table(self) -> np.ndarray:
+        """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone."""
+        return np.stack([self.touching([e]) for e in range(self.n_electrodes)])
+
     def touching(self, electrodes) -> np.ndarray:
         """``[M]`` bool: measurements whose drive or measure electrodes include any given one."""
         el = np.atleast_1d(np.asarray(electrodes, dtype=np.int64))

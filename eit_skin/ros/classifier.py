@@ -257,10 +257,11 @@ class ClassifierNode(Node):
     def _process(self, msg: Image, pressure: np.ndarray, stretch: np.ndarray | None) -> None:
         started = time.perf_counter()
         self.counts["images"] += 1
-        t_s = self._stamp_ns(msg) * 1e-9
+        stamp = self._stamp_ns(msg)
+        t_s = stamp * 1e-9
         # the classifier uses only the stretch peak: a flat vector serves
         stretch_2d = None if stretch is None else stretch.reshape(1, -1)
-        volts = self._frame_for(self._stamp_ns(msg))
+        volts = self._frame_for(stamp)
         events = self.classifier.step(t_s, pressure, stretch_2d, volts)
         self._publish_events(msg.header, events)
         _, ContactArray = self._msgs

@@ -22,12 +22,13 @@ import math
 
 import numpy as np
 
+from eit_skin.inverse.channel_noise import difference_noise
+from eit_skin.patch.protocol import Protocol
+
 #: Plateau: frames whose amplitude is at least this fraction of the touch's largest.
 PLATEAU_FRACTION = 0.8
 #: Fewest plateau frames the statistic is computed from (6 regressors, at least 6 more).
 MIN_FRAMES = 12
-#: MAD of a normal variable over its standard deviation.
-_MAD_SIGMA = 1.482602218505602
 
 
 class FrameEvidence:
@@ -53,9 +54,10 @@ class FrameEvidence:
     def calibrate(self, frames_v: np.ndarray) -> None:
         """Reference (mean) and noise of ``frames_v`` ``[N, M]`` V, no touch, ``N >= 3``.
 
-        The noise is the robust spread of frame-to-frame differences over sqrt(2) (a slow
-        drift over the calibration does not count as noise). Channels that are NaN in any
-        frame, or with no spread at all, stay out (NaN reference).
+        The noise is the robust spread of frame-to-frame differences over sqrt(2)
+        (:func:`~eit_skin.inverse.channel_noise.difference_noise`: a slow drift over the
+        calibration does not count as noise). Channels that are NaN in any frame, or with no
+        spread at all, stay out (NaN reference).
         """
         frames_v = np.asarray(frames_v, dtype=np.float64)
         if frames_v.ndim != 2 or frames_v.shape[0] < 3:
@@ -67,9 +69,7 @@ class FrameEvidence:
                 f"frames have {frames_v.shape[1]} channels, channel_electrodes "
                 f"{self.channel_electrodes.shape[0]}"
             )
-        diff = np.diff(frames_v, axis=0)
-        mad = np.median(np.abs(diff - np.median(diff, axis=0)), axis=0)
-        sigma = _MAD_SIGMA * mad / math.sqrt(2.0)
+        sigma = difference_noise(frames_v)
         ok = np.isfinite(frames_v).all(axis=0) & (sigma > 0)
         self.reference = np.where(ok, frames_v.mean(axis=0), np.nan)
         self.sigma = np.where(ok, sigma, np.nan)
@@ -105,9 +105,9 @@ class FrameEvidence:
         return ok
 
 
-def channel_electrodes(protocol) -> np.ndarray:
+def channel_electrodes(protocol: Protocol) -> np.ndarray:
     """``[M, E]`` bool: the electrodes each channel of ``protocol`` drives or measures with."""
-    return np.column_stack([protocol.touching([e]) for e in range(protocol.n_electrodes)])
+    return protocol.touching_table().T
 
 
 def shape_change_z(
