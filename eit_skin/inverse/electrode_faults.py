@@ -182,18 +182,12 @@ def faulty_electrodes(
     faulty = np.zeros(n_el, dtype=bool)
     explained = np.zeros(spoiled.shape, dtype=bool)
     # the median roughness of the channels not touching each electrode: "the others"
-    others = np.ma.median(np.ma.masked_array(np.broadcast_to(roughness, touch.shape), touch), 1)
-    others = np.ma.filled(others, 0.0)
+    others = _row_medians(roughness, ~touch)
     while True:
         remaining = touch & ~explained  # [n_el, M] channels still to judge
         n_left = remaining.sum(axis=1)
         n_spoiled = (remaining & spoiled).sum(axis=1)
-        own = np.ma.filled(
-            np.ma.median(
-                np.ma.masked_array(np.broadcast_to(roughness, touch.shape), ~remaining), 1
-            ),
-            0.0,
-        )
+        own = _row_medians(roughness, remaining)
         # a noisy electrode (module docstring); only while none is named: after a dead
         # electrode, a neighbour's channels still to judge can look rough too
         rough = (others > 0) & (own > noisy * others) & ~faulty.any()
@@ -209,6 +203,21 @@ def faulty_electrodes(
         if others.any() and not (touch[i] & ~touch[others].any(axis=0)).any():
             faulty[i] = False
     return np.flatnonzero(faulty).astype(np.int64)
+
+
+def _row_medians(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``[R]``: per row of ``rows`` ``[R, M]`` bool, the median of ``values`` ``[M]`` there.
+
+    The mean of the two middle values for an even count; 0 for a row with none. One sort
+    of ``[R, M]`` (the left-out entries sorted last as +inf), not a masked median.
+    """
+    ordered = np.sort(np.where(rows, values[None, :], np.inf), axis=1)
+    n = rows.sum(axis=1)
+    low = np.maximum(n - 1, 0) // 2
+    middle = np.take_along_axis(
+        ordered, np.stack([low, n // 2], axis=1).clip(max=rows.shape[1] - 1), 1
+    )
+    return np.where(n > 0, 0.5 * (middle[:, 0] + middle[:, 1]), 0.0)
 
 
 def excluded_channels(

@@ -467,7 +467,10 @@ class Protocol:
 
     def touching_table(self) -> np.ndarray:
         """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone."""
-        return np.stack([self.touching([e]) for e in range(self.n_electrodes)])
+        drives = (self.current_patterns != 0).T  # [E, n_inj]
+        on = np.eye(self.n_electrodes, dtype=bool)
+        k, p, m = self.measurements.T
+        return drives[:, k] | on[:, p] | on[:, m]
 
     def touching(self, electrodes) -> np.ndarray:
         """``[M]`` bool: measurements whose drive or measure electrodes include any given one."""
