@@ -77,13 +77,13 @@ def test_a_shutdown_just_before_the_executor_waits_ends_spin_nodes_quietly(
     try:
         node = rclpy.create_node("raced", context=context)
         executor = make_executor(kind, context)
-        original = type(executor).spin_once
+        original = type(executor).spin_until_future_complete
 
-        def shut_down_first(self, timeout_sec=None):
+        def shut_down_first(self, future, timeout_sec=None):
             context.try_shutdown()
-            return original(self, timeout_sec)
+            return original(self, future, timeout_sec)
 
-        monkeypatch.setattr(type(executor), "spin_once", shut_down_first)
+        monkeypatch.setattr(type(executor), "spin_until_future_complete", shut_down_first)
         spin_nodes([node], kind)
         assert not context.ok()
     finally:

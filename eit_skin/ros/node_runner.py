@@ -20,6 +20,7 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from eit_skin.patch.model import PatchError
 from eit_skin.ros.exit_timer import exit_after
@@ -90,18 +91,21 @@ def spin_nodes(
 ) -> None:
     """Spin ``nodes`` in one executor (:func:`make_executor`) until shutdown or ``stop``.
 
-    A loop of short ``spin_once`` calls, because the EventsExecutor's ``spin()`` of the
-    Kilted wheels neither ran our timers nor returned on shutdown; the loop returns within
-    0.2 s of a shutdown (another thread, whatever moment it lands) or of ``stop`` being set
-    (a signal).
+    A loop of 0.2 s ``spin_until_future_complete`` calls on a future that never completes,
+    because the EventsExecutor's ``spin()`` of the Kilted wheels neither ran our timers nor
+    returned on shutdown. Each call dispatches every event of its 0.2 s without coming back
+    to Python (``spin_once`` returned after each one: a Python loop pass per frame); the
+    loop returns within 0.2 s of a shutdown (another thread, whatever moment it lands) or of
+    ``stop`` being set (a signal).
     """
     context = nodes[0].context
     executor = make_executor(kind, context)
     for node in nodes:
         executor.add_node(node)
+    never = Future()
     try:
         while context.ok() and not (stop is not None and stop.is_set()):
-            executor.spin_once(timeout_sec=0.2)
+            executor.spin_until_future_complete(never, timeout_sec=0.2)
     except ExternalShutdownException:
         pass  # the context was shut down while waiting: the normal way out
     except Exception:
