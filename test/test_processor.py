@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -9,7 +13,7 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.frames import FLAG_INVALID, FLAG_SATURATED
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.pipeline.processor import LayerProcessor, stamp_to_s
+from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase, stamp_to_s
 from eit_skin.pipeline.reference import PostureReferences
 from test.patch_copies import small_disc_patch
 
@@ -139,8 +143,9 @@ def test_faults_are_checked_on_frame_time(small) -> None:
         if k < 4:
             assert out is None
             continue
-        # reference ready at frame 3 (0.1875 s): first check due at 1.1875 s = frame 19
-        if k < 19:
+        # reference ready at frame 3 (0.1875 s): first check due on the grid (phase 0) at
+        # 1.0 s = frame 16
+        if k < 16:
             assert processor.faulty_electrodes.size == 0 and out.channels_used == dead.size
         else:
             assert processor.faulty_electrodes.tolist() == [5]
@@ -149,6 +154,54 @@ def test_faults_are_checked_on_frame_time(small) -> None:
     never = LayerProcessor(imager, drift_time_constant_s=0.0, fault_check_period_s=0.0)
     never.process(frames, np.arange(40) * dt)
     assert never.faulty_electrodes.size == 0
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.3, 0.75])
+def test_faults_are_checked_on_the_layers_grid_of_frame_times(small, phase, monkeypatch) -> None:
+    """After the first, every check falls on the first frame at or after (k + phase) period."""
+    imager, v0, _ = small
+    dt = 0.0625
+    processor = LayerProcessor(
+        imager, drift_time_constant_s=0.0, fault_check_period_s=1.0, fault_check_phase=phase
+    )
+    now = [0.0]
+    checked: list[float] = []
+    check = processor._check_faults
+    monkeypatch.setattr(processor, "_check_faults", lambda *a: checked.append(now[0]) or check(*a))
+    for k, frame in enumerate(noisy(v0, 100, 8)):
+        now[0] = k * dt
+        processor.step(frame, now[0])
+    # reference at frame 3 (4 frames: too few to check); the first check is due at the first
+    # grid time after it, and waits for 10 imaged frames (frame 13) if that comes sooner
+    first_due = phase if phase > 3 * dt else phase + 1.0
+    assert checked[0] == max(np.ceil(first_due / dt), 13) * dt
+    later = np.array(checked[1:])
+    grid = np.arange(10) + phase  # s, period 1 s
+    due = np.array([grid[grid <= t].max() for t in later])
+    assert len(later) >= 4 and np.all(later - due < dt), (phase, checked)
+    assert np.allclose(np.diff(due), 1.0)  # one check per period
+
+
+def test_the_fault_check_phase_spreads_alike_names_over_the_period() -> None:
+    """Patches named arm_0 .. arm_49 check at phases with no gap over 0.25 of the period (a
+    CRC of such names clusters), and a process with another hash seed gets the same phase."""
+    phases = np.sort([fault_check_phase(f"arm_{i}", "pressure") for i in range(50)])
+    assert phases[0] >= 0.0 and phases[-1] < 1.0
+    assert np.diff(np.concatenate([phases, [phases[0] + 1.0]])).max() < 0.25, phases
+    code = "from eit_skin.pipeline.processor import fault_check_phase as f; print(f('a', 'b'))"
+    other = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**os.environ, "PYTHONHASHSEED": "12345"},
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert float(other.stdout) == fault_check_phase("a", "b")
+
+
+def test_a_fault_check_phase_outside_the_period_is_refused(small) -> None:
+    with pytest.raises(ValueError, match="fault_check_phase must be in"):
+        LayerProcessor(small[0], fault_check_phase=1.0)
 
 
 def test_an_electrode_dead_from_the_start_is_left_out_of_the_first_image(small) -> None:

@@ -110,7 +110,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
                 f"{args.stretch_frames}: {stretch_reader.n_frames} frames, but {args.frames} has "
                 f"{reader.n_frames}"
             )
-        stretch = _images(stretch_imager, stretch_reader, args, runs)
+        stretch = _images(stretch_imager, stretch_reader, args, runs, patch.name)
     # one fingertip's blur at every pixel, m
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
@@ -122,7 +122,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
         channel_electrodes=channel_electrodes(imager.protocol),
     )
     t0 = None
-    for times, pressure in _images(imager, reader, args, runs):
+    for times, pressure in _images(imager, reader, args, runs, patch.name):
         extras = [None] * len(times) if stretch is None else next(stretch)[1]
         t0 = times[0] if t0 is None else t0
         for t, images, extra in zip(times, pressure, extras, strict=True):
@@ -149,7 +149,7 @@ def _reader(imager, path: Path, args: argparse.Namespace):
     return reader
 
 
-def _images(imager, reader, args: argparse.Namespace, runs: dict):
+def _images(imager, reader, args: argparse.Namespace, runs: dict, patch_name: str):
     """``(times [B] s, per-frame results)`` per block of one layer's frames file."""
     from eit_skin.cli.reconstruct import FileRun, frame_times, make_processor, process_file
 
@@ -157,5 +157,5 @@ def _images(imager, reader, args: argparse.Namespace, runs: dict):
         return frame_times(t, len(frames), args.rate, 0.0, start)
 
     run = runs.setdefault(reader.path, FileRun())
-    processor = make_processor(imager, args, reader.has_references)
+    processor = make_processor(imager, args, patch_name, reader.has_references)
     return process_file(processor, reader, times, args.reference, run)

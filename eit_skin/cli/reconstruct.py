@@ -219,7 +219,7 @@ def _reconstruct(args: argparse.Namespace) -> OfflineImages:
     if not args.frames.exists():
         raise ValueError(f"{args.frames}: no such file")
     reader = open_frames(imager, args.frames, args.block_frames)
-    return run_offline(imager, reader, args.out, args)
+    return run_offline(imager, reader, args.out, args, patch.name)
 
 
 def open_frames(imager: LayerImager, path: Path, block_frames: int) -> FramesNpzReader:
@@ -258,13 +258,14 @@ def frame_times(
 
 
 def make_processor(
-    imager: LayerImager, args: argparse.Namespace, per_press: bool = False
+    imager: LayerImager, args: argparse.Namespace, patch_name: str, per_press: bool = False
 ) -> LayerProcessor:
-    """The layer's processor with the pipeline options of ``args``.
+    """The layer's processor with the pipeline options of ``args``, as the node makes it.
 
-    ``per_press``: the file has a reference per frame; no drift tracking.
+    ``patch_name``: the patch's name (the fault checks' phase); ``per_press``: the file has
+    a reference per frame; no drift tracking.
     """
-    from eit_skin.pipeline.processor import LayerProcessor
+    from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase
 
     if args.reference_frames < 0:
         raise ValueError(f"--reference-frames: must be >= 0, got {args.reference_frames}")
@@ -279,6 +280,7 @@ def make_processor(
         0.0 if per_press else args.drift_time_constant,
         args.contact_k,
         fault_check_period_s=args.fault_check_period,
+        fault_check_phase=fault_check_phase(patch_name, imager.layer.name),
     )
 
 
@@ -335,6 +337,7 @@ def run_offline(
     reader: FramesNpzReader,
     out: Path,
     args: argparse.Namespace,
+    patch_name: str,
 ) -> OfflineImages:
     """The node's per-frame pipeline over one file, written block by block to ``out``.
 
@@ -344,7 +347,7 @@ def run_offline(
 
     from eit_skin.io.npz import NpzStreamWriter
 
-    processor = make_processor(imager, args, reader.has_references)
+    processor = make_processor(imager, args, patch_name, reader.has_references)
     shape = (reader.n_frames, *imager.grid.shape)
     arrays = {
         "images": (shape, np.float32),

@@ -20,6 +20,9 @@ Per frame ``[M]`` volts at frame time ``t_s``:
 3. **Faults.** The captured frames, and then every ``fault_check_period_s`` of FRAME time
    (not wall time: an offline run over recorded frames checks at the same frames as the node
    did) the last :data:`FAULT_WINDOW_FRAMES` frames, are checked for faulty electrodes
+   (at frame times ``(k + phase) * period``, the phase a fixed fraction named by the patch and
+   layer, :func:`fault_check_phase`: the patches of one process, started together, do not all
+   check on the same frame, which held each frame behind it for as many checks)
    (:func:`~eit_skin.inverse.electrode_faults.faulty_electrodes`); their channels stay out of
    the images until the next check. The element noise is re-estimated without them, since
    a floating electrode's channels would otherwise inflate it so much that no touch counts
@@ -33,6 +36,7 @@ Same frames, same times, same settings: bit-identical images, whichever process 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -52,6 +56,17 @@ DEFAULT_FAULT_CHECK_PERIOD_S = 1.0
 #: Frames the fault check looks at, and the fewest it needs.
 FAULT_WINDOW_FRAMES = 50
 MIN_FAULT_FRAMES = 10
+
+
+def fault_check_phase(patch_name: str, layer_name: str) -> float:
+    """Fraction in [0, 1) of the fault-check period a layer checks at: a hash of its names.
+
+    Deterministic (the node and the offline commands check at the same frames) and spread
+    evenly over the period however alike the names are (``arm_1``, ``arm_2``: a 64-bit
+    BLAKE2 digest, not a CRC, whose values for such names cluster).
+    """
+    digest = hashlib.blake2b(f"{patch_name}/{layer_name}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "big") / 2**64
 
 
 def stamp_to_s(stamp_ns: int) -> float:
@@ -96,6 +111,8 @@ class LayerProcessor:
         contact_k: a change above ``contact_k`` times the element noise is a contact.
         posture: optional posture reference table (the joint angle comes with each frame).
         fault_check_period_s: frame time between fault checks, s; <= 0: never.
+        fault_check_phase: checks fall at frame times ``(k + phase) * period``, phase in
+            [0, 1) (:func:`fault_check_phase`).
     """
 
     def __init__(
@@ -106,7 +123,10 @@ class LayerProcessor:
         contact_k: float = DEFAULT_CONTACT_K,
         posture: PostureReferences | None = None,
         fault_check_period_s: float = DEFAULT_FAULT_CHECK_PERIOD_S,
+        fault_check_phase: float = 0.0,
     ) -> None:
+        if not 0.0 <= fault_check_phase < 1.0:
+            raise ValueError(f"fault_check_phase must be in [0, 1), got {fault_check_phase}")
         self.imager = imager
         self.n_measurements = imager.n_measurements
         self.tracker = ReferenceTracker(
@@ -117,6 +137,7 @@ class LayerProcessor:
             posture,
         )
         self.fault_check_period_s = float(fault_check_period_s)
+        self.fault_check_phase = float(fault_check_phase)
         self._recent: deque[np.ndarray] = deque(maxlen=FAULT_WINDOW_FRAMES)
         self._faulty = np.zeros(0, dtype=np.int64)
         self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
@@ -303,8 +324,12 @@ class LayerProcessor:
         self.tracker.set_element_noise(change.std(axis=0))
 
     def _schedule_fault_check(self, t_s: float) -> None:
-        period = self.fault_check_period_s
-        self._next_fault_check_s = t_s + period if period > 0 else None
+        """The next check: the first frame at or after this layer's next grid time."""
+        period, phase = self.fault_check_period_s, self.fault_check_phase
+        if period <= 0:
+            self._next_fault_check_s = None
+            return
+        self._next_fault_check_s = (math.floor(t_s / period - phase) + 1 + phase) * period
 
     def _check_faults_if_due(self, t_s: float, reference: np.ndarray) -> None:
         due = self._next_fault_check_s

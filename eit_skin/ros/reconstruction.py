@@ -45,6 +45,7 @@ from eit_skin.pipeline.builder import LayerImager, default_cache_dir
 from eit_skin.pipeline.colour_scale import ColourScale
 from eit_skin.pipeline.processor import (
     LayerProcessor,
+    fault_check_phase,
     stamp_to_s,
 )
 from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, PostureSync
@@ -138,6 +139,7 @@ class ReconstructionNode(Node):
                     float(p["contact_k"]),
                     posture,
                     float(p["fault_check_period_s"]),
+                    fault_check_phase(self.patch.name, layer.name),
                 ),
                 quantity=quantity,
                 image_pub=self.create_publisher(Image, topic.image, qos_profile_sensor_data),
