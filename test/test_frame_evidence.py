@@ -10,8 +10,13 @@ import pytest
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier
-from eit_skin.touch.frame_evidence import FrameEvidence, channel_electrodes, shape_change_z
+from eit_skin.touch.classifier import ELECTRODE_FLICKER, ClassifierConfig, TouchClassifier
+from eit_skin.touch.frame_evidence import (
+    FrameEvidence,
+    channel_electrodes,
+    electrode_roughness,
+    shape_change_z,
+)
 from test.synthetic_touches import X, Y, envelope, sequence
 
 M = 208
@@ -124,6 +129,29 @@ def test_a_faulty_electrodes_channels_are_left_out() -> None:
     np.testing.assert_array_equal(evidence.usable((5,)), ~protocol.touching([5]))
     # adjacent drive: electrode 5 drives 2 of 16 injections and is measured in the rest
     assert np.count_nonzero(~evidence.usable((5,))) == 2 * 13 + 14 * 2 - 2
+
+
+def test_electrode_roughness_names_one_rough_electrode_and_nothing_spread() -> None:
+    """Noise and a change over every channel stay near 1; g times the noise on one electrode's
+    channels gives about g**2 (the median over its channels of chi-square 1 ratios)."""
+    protocol = build_protocol(load_patch(config_path("arm")).layers[0].protocol, 16)
+    table = channel_electrodes(protocol)
+    rng = np.random.default_rng(3)
+    noise = [electrode_roughness(rng.normal(size=M) * np.sqrt(6.0), table) for _ in range(300)]
+    assert np.percentile(noise, 99) < 5.0 and max(noise) < ELECTRODE_FLICKER
+    broad = 50.0 * (1.0 + rng.random(M)) + rng.normal(size=M)  # a palm's onset, every channel
+    assert electrode_roughness(broad, table) < 3.0
+    for g in (5.0, 10.0):
+        rough = [
+            electrode_roughness(rng.normal(size=M) * np.where(table[:, 7], g, 1.0), table)
+            for _ in range(50)
+        ]
+        assert 0.5 * g**2 < np.median(rough) < 2.0 * g**2
+    assert min(rough) > ELECTRODE_FLICKER  # 10x: always named
+    left_out = rng.normal(size=M) * np.where(table[:, 7], 10.0, 1.0)
+    left_out[table[:, 7]] = np.nan  # that electrode's channels out (faulty): nothing left
+    assert electrode_roughness(left_out, table) < 5.0
+    assert math.isnan(electrode_roughness(np.full(M, np.nan), table))
 
 
 # ---------------------------------------------------------------- in the classifier

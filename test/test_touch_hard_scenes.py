@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.resources import config_path
@@ -13,6 +14,7 @@ from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import single_contact_spread
 from test.patch_copies import small_disc_patch
 from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, blobs, envelope, sequence
@@ -188,7 +190,8 @@ def test_a_short_rub_is_a_rub(seed) -> None:
 
 def _degrading_electrode_images(tmp_path, seconds: float = 4.0, onset_s: float = 1.5):
     """Idle small disc, 10x noise on every channel of one electrode from ``onset_s``: the
-    pipeline's images, faulty-electrode sets per frame, grid, spread map and electrodes."""
+    pipeline's images, faulty-electrode sets per frame, grid, spread map, electrodes, raw
+    frames ``[T, M]`` V and the channel-electrode table."""
     path = tmp_path / "small.yaml"
     path.write_text(small_disc_patch())
     patch = load_patch(path)
@@ -213,26 +216,68 @@ def _degrading_electrode_images(tmp_path, seconds: float = 4.0, onset_s: float =
         faulty.append(tuple(proc.faulty_electrodes))
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     electrodes = np.array([e.center for e in layer.electrodes])
-    return rec.t, np.array(images), faulty, imager.grid, spread, electrodes
+    table = channel_electrodes(protocol)
+    return rec.t, np.array(images), faulty, imager.grid, spread, electrodes, frames, table
 
 
 def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
     # issue 18: 10x noise on one electrode's channels, no touch; the pipeline's fault check
     # (every second) names it, but the noise of the frames before reaches the images
-    t, images, faulty, grid, spread, electrodes = _degrading_electrode_images(tmp_path)
+    t, images, faulty, grid, spread, electrodes, volts, table = _degrading_electrode_images(
+        tmp_path
+    )
     assert any(3 in f for f in faulty)  # named by the pipeline in the end ...
     assert not any(faulty[k] for k in range(len(t)) if t[k] < 2.0)  # ... not at once
 
-    def events(config=None):
+    def events(config=None, raw=False):
         clf = TouchClassifier(
-            grid.x, grid.y, config, contact_spread_m=spread, electrodes_m=electrodes
+            grid.x,
+            grid.y,
+            config,
+            contact_spread_m=spread,
+            electrodes_m=electrodes,
+            channel_electrodes=table if raw else None,
         )
         out = []
         for k in range(len(t)):
             clf.set_faulty_electrodes(faulty[k])
-            out += clf.step(float(t[k]), images[k])
+            out += clf.step(float(t[k]), images[k], None, volts[k] if raw else None)
         return out + clf.finish()
 
     assert events() == []
+    # with the raw frames too: they name electrode 3, so the flicker is a fault's
+    assert events(raw=True) == []
     # the flicker rule is what keeps it quiet: without it, the noise starts a touch
     assert ends(events(ClassifierConfig(start_roughness=0.0)))
+    assert ends(events(ClassifierConfig(start_roughness=0.0), raw=True))
+
+
+def _palm_press_start_s(raw: str, config=None) -> float:
+    """START time after the onset (1 s) of a palm-wide press that ramps up in 50 ms.
+
+    ``raw``: ``"none"`` (images only) or ``"broad"`` (raw frames too, changing on every
+    channel). The fault's side, raw frames that name an electrode: the degrading-electrode
+    test above.
+    """
+    table = channel_electrodes(build_protocol(ProtocolSpec(), 16))
+    rng = np.random.default_rng(11)
+    pattern = 1.0 + rng.random(table.shape[0])
+    clf = TouchClassifier(X, Y, config, channel_electrodes=None if raw == "none" else table)
+    for tk in np.arange(150) / 50.0:
+        amplitude = envelope(tk, 1.0, 2.5, 0.05)
+        image = blobs([(0.0, 0.0)], 1000.0 * amplitude, 0.02)
+        image = image + SIGMA_PA * rng.standard_normal(image.shape)
+        volts = 1.0 + 1e-3 * (rng.standard_normal(table.shape[0]) + 30.0 * amplitude * pattern)
+        for event in clf.step(float(tk), image, None, None if raw == "none" else volts):
+            if event.state == "start":
+                return event.t_s - 1.0
+    raise AssertionError("no START")
+
+
+def test_a_palm_wide_press_starts_at_once_when_its_raw_frames_name_no_electrode() -> None:
+    """Its fast onset makes the whole sheet's image flicker like a fault's noise; the raw
+    frames tell it apart (the change is on every channel), so START is not held back."""
+    held = _palm_press_start_s("none")
+    assert held >= 0.15  # the images alone: the flicker rule holds START back
+    assert _palm_press_start_s("none", ClassifierConfig(start_roughness=0.0)) <= 0.06
+    assert _palm_press_start_s("broad") <= 0.06

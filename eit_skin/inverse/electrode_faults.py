@@ -182,12 +182,12 @@ def faulty_electrodes(
     faulty = np.zeros(n_el, dtype=bool)
     explained = np.zeros(spoiled.shape, dtype=bool)
     # the median roughness of the channels not touching each electrode: "the others"
-    others = _row_medians(roughness, ~touch)
+    others = row_medians(roughness, ~touch)
     while True:
         remaining = touch & ~explained  # [n_el, M] channels still to judge
         n_left = remaining.sum(axis=1)
         n_spoiled = (remaining & spoiled).sum(axis=1)
-        own = _row_medians(roughness, remaining)
+        own = row_medians(roughness, remaining)
         # a noisy electrode (module docstring); only while none is named: after a dead
         # electrode, a neighbour's channels still to judge can look rough too
         rough = (others > 0) & (own > noisy * others) & ~faulty.any()
@@ -205,7 +205,7 @@ def faulty_electrodes(
     return np.flatnonzero(faulty).astype(np.int64)
 
 
-def _row_medians(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+def row_medians(values: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """``[R]``: per row of ``rows`` ``[R, M]`` bool, the median of ``values`` ``[M]`` there.
 
     The mean of the two middle values for an even count; 0 for a row with none. One sort

@@ -53,7 +53,7 @@ from eit_skin.touch.contacts import (
     estimate_noise,
     estimate_noise_map,
 )
-from eit_skin.touch.frame_evidence import FrameEvidence, shape_change_z
+from eit_skin.touch.frame_evidence import FrameEvidence, electrode_roughness, shape_change_z
 from eit_skin.touch.shapes import BLOB_FRACTION, FINGER_RADIUS_M, blob_moments
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -66,6 +66,18 @@ time, squared, exceeds this many times its noise variance (6 v for a pixel of ra
 variance v): noise alone gives about 0.45 (the median of a chi-square with one degree of
 freedom), smooth touches 0.4-1 (a ramp has no second difference), a degrading electrode's
 channels 2-8 (median 6-7.5 over its first second on every patch, tuning seed)."""
+
+ELECTRODE_FLICKER = 10.0
+"""With raw frames, a flickering sheet counts as a fault's flicker only if, in that frame,
+one electrode's channels are this much rougher than the others
+(:func:`~eit_skin.touch.frame_evidence.electrode_roughness`: the ratio of median squared
+second differences): sqrt(10) = 3.2 times in amplitude, the pipeline's own rule for a noisy
+electrode (:func:`~eit_skin.inverse.electrode_faults.faulty_electrodes`). A degrading
+electrode loud enough to make the sheet flicker (about 5x its noise and more) gives 19-106
+(tuning seed, every patch); noise and touches spread over the sheet 1-4, a palm's onset up to
+7 on the arm; the onset of a touch next to an electrode can exceed it, and then waits as
+before. Otherwise the flicker is the touch's own and delays nothing (issue 18: an arm palm
+grab's START 100 -> 40 ms)."""
 
 LABELS = ("push", "rub", "pinch", "grab")
 """Touch labels, in the order of ``eit_skin_msgs/TouchEvent`` (PUSH=0 ... GRAB=3)."""
@@ -648,6 +660,7 @@ class TouchClassifier:
         self._noise_samples = 1.0  # independent frames behind the noise map
         self._strong = False  # a contact of the latest frame stands out of the noise estimate
         self._raws: list[np.ndarray] = []  # the latest average_frames + 1 raw frames
+        self._whites: list[np.ndarray] = []  # the latest 3 whitened raw frames (volts given)
         self._rough: list[tuple[float, float, float]] = []  # per candidate frame
         self._flicker = 0.0  # the sheet's flicker in the latest frame it was computed for
 
@@ -788,6 +801,7 @@ class TouchClassifier:
         dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
         self._t_prev = t_s
         self._change = self.evidence.whiten(volts)
+        self._whites = [] if self._change is None else [*self._whites[-2:], self._change]
         self._recent = [*self._recent[-(self.config.average_frames - 1) :], pressure]
         if self.config.average_frames == 1:
             self._recent = [pressure]
@@ -896,6 +910,8 @@ class TouchClassifier:
         bend = pressure - 2.0 * self._raws[-2] + self._raws[-3]  # second difference in time
         ok = np.isfinite(bend)
         flicker = float(np.median(bend[ok] ** 2 / (6.0 * var[ok]))) if ok.any() else 0.0
+        if flicker >= FLICKER and not self._fault_like():
+            flicker = 0.0  # the raw frames name no electrode: the touch's own onset
         self._flicker = flicker
         hits = self.detector is not None and self.detector.hit
         if not contacts and not hits:
@@ -911,6 +927,19 @@ class TouchClassifier:
         change = float(np.sum((pressure[ok] - before[ok]) ** 2)) - 2.0 * noise
         level = float(np.sum((pressure[ok] - self.baseline[ok] - offset) ** 2)) - noise
         self._rough = [*self._rough[-cfg.lookback_frames :], (change, level, flicker)]
+
+    def _fault_like(self) -> bool:
+        """Whether the latest raw frames flicker like a fault (:data:`ELECTRODE_FLICKER`).
+
+        True without three raw frames: every flicker counts then.
+        """
+        channels = self.evidence.channel_electrodes
+        if len(self._whites) < 3 or channels is None:
+            return True
+        w = self._whites
+        bend = w[-1] - 2.0 * w[-2] + w[-3]
+        bend[~self.evidence.usable(self.faulty)] = np.nan
+        return not electrode_roughness(bend, channels) < ELECTRODE_FLICKER
 
     def _smooth_enough(self) -> bool:
         """No START while the sheet flickers and the candidate is as rough as noise."""

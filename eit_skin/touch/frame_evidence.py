@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from eit_skin.inverse.channel_noise import difference_noise
+from eit_skin.inverse.electrode_faults import row_medians
 from eit_skin.patch.protocol import Protocol
 
 #: Plateau: frames whose amplitude is at least this fraction of the touch's largest.
@@ -103,6 +104,27 @@ class FrameEvidence:
         if faulty and self.channel_electrodes is not None:
             ok &= ~self.channel_electrodes[:, list(faulty)].any(axis=1)
         return ok
+
+
+def electrode_roughness(bend: np.ndarray, channel_electrodes: np.ndarray) -> float:
+    """How much rougher one electrode's channels are than the rest, in one frame.
+
+    ``bend`` ``[M]``: a whitened frame's second difference in time (noise units; NaN: left
+    out), ``channel_electrodes`` ``[M, E]``. Returns the largest over electrodes of the
+    median ``bend**2`` over its channels over the median over the other channels: about 1-4
+    for noise, a smooth touch or a touch's onset spread over the sheet, ``g**2`` for an
+    electrode whose channels have ``g`` times their noise. NaN without enough channels.
+    """
+    b2 = np.asarray(bend, dtype=np.float64) ** 2
+    ok = np.isfinite(b2)
+    touch = np.asarray(channel_electrodes, dtype=bool).T & ok  # [E, M]
+    rest = ~np.asarray(channel_electrodes, dtype=bool).T & ok
+    if not (touch.any(axis=1) & rest.any(axis=1)).any():
+        return float("nan")
+    b2 = np.where(ok, b2, 0.0)
+    own, others = row_medians(b2, touch), row_medians(b2, rest)
+    keep = touch.any(axis=1) & rest.any(axis=1)
+    return float(np.max(own[keep] / np.maximum(others[keep], np.finfo(float).tiny)))
 
 
 def channel_electrodes(protocol: Protocol) -> np.ndarray:
