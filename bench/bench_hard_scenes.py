@@ -38,7 +38,7 @@ from eit_skin.frames import EXCLUDING_FLAGS
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.pipeline.processor import LayerProcessor
+from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase
 from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig
 from eit_skin.sim.drift import DriftModel
@@ -57,10 +57,11 @@ LATENCY_TARGET_S = 0.100
 OVERRUN_S = 0.5
 DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
-CACHE_VERSION = 4
+CACHE_VERSION = 5
 """Part of the cached scenes' key: 3 since the pipeline's fault check names noisy electrodes
 (the imaged frames and faulty sets of earlier versions are stale); 4 since the raw frames of
-the pressure layer are kept too (the classifier's ``shape_z``)."""
+the pressure layer are kept too (the classifier's ``shape_z``); 5 since fault checks fall on
+the layer's phased grid of frame times, as in the node."""
 
 
 @dataclass
@@ -126,7 +127,7 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
             extra = rng.normal(size=frames.shape) * sigma * np.sqrt(DEGRADE_NOISE**2 - 1)
             frames[np.ix_(when, chans)] += extra[np.ix_(when, chans)]
         imager = LayerImager.build(layer, cache_dir=cache)
-        proc = LayerProcessor(imager)
+        proc = LayerProcessor(imager, fault_check_phase=fault_check_phase(patch.name, layer.name))
         n_ref = proc.reference_frames
         proc.set_reference(frames[:n_ref].mean(axis=0), float(rec.t[0]), frames[:n_ref])
         images = np.full((len(rec.t), *imager.grid.shape), np.nan, dtype=np.float32)
