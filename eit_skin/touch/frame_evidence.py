@@ -117,14 +117,13 @@ def electrode_roughness(bend: np.ndarray, channel_electrodes: np.ndarray) -> flo
     """
     b2 = np.asarray(bend, dtype=np.float64) ** 2
     ok = np.isfinite(b2)
-    touch = np.asarray(channel_electrodes, dtype=bool).T & ok  # [E, M]
-    rest = ~np.asarray(channel_electrodes, dtype=bool).T & ok
-    if not (touch.any(axis=1) & rest.any(axis=1)).any():
-        return float("nan")
-    b2 = np.where(ok, b2, 0.0)
-    own, others = row_medians(b2, touch), row_medians(b2, rest)
+    table = np.asarray(channel_electrodes, dtype=bool).T  # [E, M]
+    touch, rest = table & ok, ~table & ok  # row_medians reads only these entries
     keep = touch.any(axis=1) & rest.any(axis=1)
-    return float(np.max(own[keep] / np.maximum(others[keep], np.finfo(float).tiny)))
+    if not keep.any():
+        return float("nan")
+    own, others = row_medians(b2, touch)[keep], row_medians(b2, rest)[keep]
+    return float(np.max(own / np.maximum(others, np.finfo(float).tiny)))
 
 
 def channel_electrodes(protocol: Protocol) -> np.ndarray:
