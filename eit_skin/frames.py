@@ -47,6 +47,18 @@ def excluded_channels(flags: np.ndarray | None, n_channels: int) -> np.ndarray:
     return (np.asarray(flags, dtype=np.uint8) & EXCLUDING_FLAGS) != 0
 
 
+def flagged_as_nan(voltages: np.ndarray, flags: np.ndarray | None) -> np.ndarray:
+    """float64 ``[M]`` copy of ``voltages``, NaN where ``flags`` exclude the channel.
+
+    What ``eit-skin frames export`` writes and what the pipeline images: a flagged channel
+    and a NaN are the same missing value.
+    """
+    volts = np.array(voltages, dtype=np.float64)
+    if flags is not None and np.size(flags):
+        volts[excluded_channels(flags, volts.size)] = np.nan
+    return volts
+
+
 @dataclass(frozen=True, eq=False)
 class FrameRecord:
     """The fields of one EitFrame message, ROS-free.

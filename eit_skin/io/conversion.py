@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eit_skin.frames import FLAG_INVALID, FrameRecord, excluded_channels
+from eit_skin.frames import FLAG_INVALID, FrameRecord, flagged_as_nan
 from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
 from eit_skin.io.npz import DEFAULT_BLOCK_FRAMES, NpzStreamWriter, load_frames_npz
 
@@ -62,11 +62,9 @@ def mcap_to_npz(
                 raise ValueError(
                     f"{mcap_path}: several EitFrame topics {sorted(seen)}; pass topic="
                 )
-            volts = record.voltages.astype(np.float64)
             if len(raw_head) < head_size:
-                raw_head.append(volts.copy())
-            if record.channel_flags.size:
-                volts[excluded_channels(record.channel_flags, volts.size)] = np.nan
+                raw_head.append(record.voltages.astype(np.float64))
+            volts = flagged_as_nan(record.voltages, record.channel_flags)
             if m is not None and volts.size != m:
                 raise ValueError(f"{mcap_path}: topic {name} changes M from {m}")
             m = volts.size

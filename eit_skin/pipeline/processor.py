@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eit_skin.frames import FLAG_INVALID, excluded_channels
+from eit_skin.frames import FLAG_INVALID, flagged_as_nan
 from eit_skin.inverse.channel_noise import UnusableReferenceError
 from eit_skin.inverse.electrode_faults import faulty_electrodes
 from eit_skin.pipeline.builder import LayerImager, ReferenceReport
@@ -232,16 +232,15 @@ class LayerProcessor:
             ValueError: wrong frame or flags shape, non-finite time.
         """
         m = self.n_measurements
-        frame = np.array(frame_v, dtype=np.float64)  # a copy: flagged values become NaN
+        frame = np.asarray(frame_v, dtype=np.float64)
         if frame.shape != (m,):
             raise ValueError(f"a frame must be [{m}] volts, got shape {frame.shape}")
         t_s = float(t_s)
         if not math.isfinite(t_s):
             raise ValueError(f"frame time must be finite, got {t_s}")
-        if flags is not None and np.size(flags):
-            if np.shape(flags) != (m,):
-                raise ValueError(f"flags must be [{m}] (or empty), got shape {np.shape(flags)}")
-            frame[excluded_channels(flags, m)] = np.nan
+        if flags is not None and np.size(flags) and np.shape(flags) != (m,):
+            raise ValueError(f"flags must be [{m}] (or empty), got shape {np.shape(flags)}")
+        frame = flagged_as_nan(frame, flags)  # a copy: flagged values become NaN
         self.frames_in += 1
         tracker = self.tracker
         if angle_rad is not None and np.isfinite(angle_rad):

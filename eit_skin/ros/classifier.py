@@ -43,7 +43,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from eit_skin.calibration.online import MIN_CONFIDENCE
-from eit_skin.frames import excluded_channels
+from eit_skin.frames import flagged_as_nan
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import default_cache_dir
@@ -230,9 +230,7 @@ class ClassifierNode(Node):
         if len(msg.voltages) != m or len(flags) not in (0, m):
             self.counts["frames_rejected"] += 1
             return
-        frame = np.asarray(msg.voltages, dtype=np.float64)
-        if len(flags):
-            frame[excluded_channels(np.frombuffer(bytes(flags), np.uint8), m)] = np.nan
+        frame = flagged_as_nan(msg.voltages, np.frombuffer(bytes(flags), np.uint8))
         self._frames[self._stamp_ns(msg)] = frame
         while len(self._frames) > 100:  # images stopped coming: keep the latest 2 s
             self._frames.pop(next(iter(self._frames)))
