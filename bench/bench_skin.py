@@ -459,12 +459,13 @@ def main() -> None:
     lines = [
         "# Running skin: latency, throughput, memory",
         "",
-        f"`python bench/bench_skin.py{' --quick' if args.quick else ''}` on {platform.node()}: "
+        f"`python bench/bench_skin.py{''.join(' ' + a for a in sys.argv[1:])}` on "
+        f"{platform.node()}: "
         f"{os.cpu_count()} cores, Python {platform.python_version()}, "
         f"OPENBLAS_NUM_THREADS=1, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
         f"1-min load average {load:.1f} when written"
         f"{loaded_note if load > 0.5 * (os.cpu_count() or 1) else ' (idle machine)'}. "
-        "Numbers are one run.",
+        "Numbers are one run; a patch count listed twice was run twice.",
         "",
         "## End-to-end latency (arm, 2 layers, 100 Hz): frame publish -> pressure image received",
         "",
