@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from touch_scoring import balanced_accuracy, confusion, score
 
+from eit_skin.frames import flagged_as_nan
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
@@ -75,9 +76,12 @@ class Run:
     volts: np.ndarray | None = None  # [T, M] V, the first (pressure) layer's raw frames
 
 
-def _key(patch: Patch, *parts) -> str:
-    # "frames": the recordings keep the raw frames of the pressure layer (shape_z)
-    text = json.dumps([[ly.content_hash for ly in patch.layers], "frames", *parts])
+def _key(patch: Patch, kind: str, *parts) -> str:
+    # "frames": the recordings keep the raw frames of the pressure layer (shape_z);
+    # "flagged-nan": a fault recording's flagged channels are NaN in its frames and images, as
+    # the nodes have them (the other kinds have no flagged channel: their data is unchanged)
+    version = ["frames", "flagged-nan"] if kind == "fault" else ["frames"]
+    text = json.dumps([[ly.content_hash for ly in patch.layers], *version, kind, *parts])
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -113,19 +117,20 @@ def simulate(
         sim = SkinSimulator(patch, "random", RATE_HZ, seed=seed, duration_s=seconds, faults=faults)
     rec = sim.run(duration_s=seconds)
     quiet = rec.t < (rec.truth[0].t_start_s if rec.truth else rec.t[-1] + 1)
-    imgs = {}
+    imgs, frames = {}, {}
     for layer in patch.layers:
         imager = LayerImager.build(layer, cache_dir=cache_dir)
         lr = rec.layers[layer.name]
+        frames[layer.name] = flagged_as_nan(lr.frames, lr.flags)  # per frame, as the nodes
         # posture-compensated reference: the mean no-touch frame at the posture held
         reference = lr.frames[quiet].mean(axis=0) if kind == "bent" else lr.reference
         if kind == "fault":
-            rel = imager.fault_tolerant().reconstruct(lr.frames, reference)
+            rel = imager.fault_tolerant().reconstruct(frames[layer.name], reference)
         else:
-            rel = imager.relative_change(lr.frames, reference, lr.flags[0])
+            rel = imager.relative_change(frames[layer.name], reference)
         imgs[layer.name] = (imager.physical(imager.images(rel)), imager.grid)
     pressure, grid = imgs[patch.layers[0].name]
-    volts = rec.layers[patch.layers[0].name].frames
+    volts = frames[patch.layers[0].name]
     stretch = imgs["stretch"][0] if "stretch" in imgs else None
     truth = [{"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s} for tr in rec.truth]
     data_dir.mkdir(parents=True, exist_ok=True)

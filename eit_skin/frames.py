@@ -48,10 +48,11 @@ def excluded_channels(flags: np.ndarray | None, n_channels: int) -> np.ndarray:
 
 
 def flagged_as_nan(voltages: np.ndarray, flags: np.ndarray | None) -> np.ndarray:
-    """float64 ``[M]`` copy of ``voltages``, NaN where ``flags`` exclude the channel.
+    """float64 copy of ``voltages`` ``[M]`` or ``[T, M]``, NaN where ``flags`` exclude it.
 
-    What ``eit-skin frames export`` writes and what the pipeline images: a flagged channel
-    and a NaN are the same missing value.
+    ``flags``: uint8 of the same shape, or empty (nothing excluded). What ``eit-skin frames
+    export`` writes and what the pipeline images: a flagged channel and a NaN are the same
+    missing value.
     """
     volts = np.array(voltages, dtype=np.float64)
     if flags is not None and np.size(flags):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eit_skin.frames import EXCLUDING_FLAGS, FLAGS, excluded_channels
+from eit_skin.frames import EXCLUDING_FLAGS, FLAGS, excluded_channels, flagged_as_nan
 
 MSG = Path(__file__).resolve().parents[1] / "msg" / "EitFrame.msg"
 
@@ -30,3 +30,19 @@ def test_excluding_flags_are_every_non_ok_bit():
     assert excluded_channels(flags, 4).tolist() == [False, True, True, True]
     assert excluded_channels(np.zeros(0, np.uint8), 3).tolist() == [False] * 3
     assert excluded_channels(None, 2).tolist() == [False, False]
+
+
+def test_flagged_channels_become_nan_per_frame():
+    """One frame or a stack of them: each frame's own flagged channels are NaN, nothing else
+    changes, and the input is left as it was."""
+    volts = np.arange(8, dtype=np.float32).reshape(2, 4)
+    flags = np.array([[0, FLAGS["FLAG_SATURATED"], 0, 0], [0, 0, 0, FLAGS["FLAG_INVALID"]]])
+    out = flagged_as_nan(volts, flags.astype(np.uint8))
+    assert out.dtype == np.float64
+    assert np.isnan(out).tolist() == [[False, True, False, False], [False, False, False, True]]
+    assert out[~np.isnan(out)].tolist() == [0, 2, 3, 4, 5, 6]
+    assert not np.isnan(volts).any()
+    assert flagged_as_nan(volts[0], np.zeros(0, np.uint8)).tolist() == [0, 1, 2, 3]
+    assert np.isnan(flagged_as_nan(volts[1], flags[1].astype(np.uint8))).tolist() == [
+        False, False, False, True,
+    ]  # fmt: skip
