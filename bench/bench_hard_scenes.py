@@ -34,7 +34,7 @@ import numpy as np
 import touch_learned
 from touch_scoring import balanced_accuracy, confusion, match, recalls, score
 
-from eit_skin.frames import EXCLUDING_FLAGS
+from eit_skin.frames import flagged_as_nan
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
@@ -140,9 +140,7 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
         out[layer.name] = images
         if layer is pressure_layer:
             faulty = bad
-            volts = (
-                np.where(lr.flags & EXCLUDING_FLAGS, np.nan, frames) if lr.flags.size else frames
-            )
+            volts = flagged_as_nan(frames, lr.flags)  # as the nodes hand frames on
     stretch = out[stretch_layer.name] if stretch_layer is not None else None
     truth = [
         {"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s + tr.settle_s}
