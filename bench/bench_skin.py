@@ -419,8 +419,13 @@ def steadiness(seconds: float) -> dict[str, float]:
         spans.append(time.perf_counter() - t0)
     t, d = np.array(stamps), np.array(spans)
     median = float(np.median(d))
-    window = ((t - t[0]) / STEADY_WINDOW_S).astype(np.int64)
-    ratio = np.bincount(window, weights=d) / np.maximum(np.bincount(window), 1) / median
+    window = ((t - t[0]) / STEADY_WINDOW_S).astype(np.int64)  # ascending
+    count = np.bincount(window)
+    ratio = np.bincount(window, weights=d) / np.maximum(count, 1) / median
+    # a window in which no batch started lies inside one batch longer than the window (the
+    # process stalled): that batch's ratio, not 0
+    empty = np.flatnonzero(count == 0)
+    ratio[empty] = d[np.searchsorted(window, empty, side="right") - 1] / median
     slow = np.concatenate(([0], (ratio > 1.3).astype(np.int8), [0]))
     edges = np.flatnonzero(np.diff(slow))
     longest = int(np.max(edges[1::2] - edges[::2], initial=0))
