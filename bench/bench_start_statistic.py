@@ -62,7 +62,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
 from eit_skin.touch.contacts import PooledDetector
-from eit_skin.touch.shapes import FINGER_RADIUS_M, single_contact_spread
+from eit_skin.touch.shapes import FINGER_RADIUS_M, fingertip_discs, single_contact_spread
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 THRESHOLDS = (4.0, 5.5, 7.0)
@@ -85,14 +85,10 @@ def disc_patterns(grid: ImageGrid, mesh: Mesh, jacobian: np.ndarray, radius_m: f
     xx, yy = np.meshgrid(grid.x, grid.y)
     inside = np.asarray(grid.inside, dtype=bool)
     points = np.column_stack([xx[inside], yy[inside]])
-    rows = []
-    for start in range(0, len(points), 512):
-        chunk = points[start : start + 512]
-        d2 = ((mesh.centroids[None, :, :] - chunk[:, None, :]) ** 2).sum(axis=-1)
-        disc = (d2 <= radius_m**2).astype(np.float64)
-        disc[np.arange(len(chunk)), d2.argmin(axis=1)] = 1.0
-        rows.append(disc @ jacobian.T)
-    return np.concatenate(rows)
+    chunks = range(0, len(points), 512)  # [512, N] indicators at a time
+    return np.concatenate(
+        [fingertip_discs(points[i : i + 512], mesh, radius_m) @ jacobian.T for i in chunks]
+    )
 
 
 def matched_maps(patterns, sigma, reference, changes: list[np.ndarray]) -> list[np.ndarray]:

@@ -92,6 +92,19 @@ def blob_moments(
     return out[0] if single else out.reshape(*np.shape(images)[:-2], 6)
 
 
+def fingertip_discs(points_m: np.ndarray, mesh: Mesh, radius_m: float) -> np.ndarray:
+    """``[P, N]`` 0/1 indicator of the elements of a disc of ``radius_m`` at each point.
+
+    An element belongs to the disc at ``points_m`` ``[P, 2]`` (m) when its centroid lies
+    within ``radius_m``; the element nearest the point always does.
+    """
+    points_m = np.asarray(points_m, dtype=np.float64)
+    d2 = ((mesh.centroids[None, :, :] - points_m[:, None, :]) ** 2).sum(axis=-1)  # [P, N]
+    disc = (d2 <= radius_m**2).astype(np.float64)
+    disc[np.arange(len(points_m)), d2.argmin(axis=1)] = 1.0
+    return disc
+
+
 def single_contact_spread(
     grid: ImageGrid,
     mesh: Mesh,
@@ -123,11 +136,7 @@ def single_contact_spread(
     if not sample.any():
         raise ValueError("single_contact_spread: no pixel inside the sheet")
     points = np.column_stack([xx[sample], yy[sample]])
-    centroids = mesh.centroids
-    d2 = ((centroids[None, :, :] - points[:, None, :]) ** 2).sum(axis=-1)  # [P, N]
-    disc = (d2 <= radius_m**2).astype(np.float64)
-    disc[np.arange(len(points)), d2.argmin(axis=1)] = 1.0  # at least the nearest element
-    dv = disc @ matrix.jacobian.T  # [P, M]
+    dv = fingertip_discs(points, mesh, radius_m) @ matrix.jacobian.T  # [P, M]
     images = grid.to_image(matrix.solve(dv))  # [P, H, W]
     moments = blob_moments(images, xx, yy, fraction)
     spread = np.sqrt(moments[:, 3] * moments[:, 4])
