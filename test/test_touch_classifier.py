@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.model import PatchError
 from eit_skin.pipeline.builder import LayerImager
@@ -23,6 +24,7 @@ from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
 from eit_skin.touch.shapes import (
     blob_moments,
     contact_geometry,
+    fingertip_discs,
     layer_image_grid,
     single_contact_spread,
 )
@@ -266,6 +268,23 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
     return [e for e in events if e.state == "end"], rec.truth, spread, imager
+
+
+def test_a_fingertip_disc_holds_the_elements_within_its_radius_and_the_nearest() -> None:
+    mesh = build_mesh(load_patch(config_path("elbow")).layers[0])
+    c = mesh.centroids
+    points = np.array([[0.0, 0.0], [0.02, -0.01]])
+    disc = fingertip_discs(points, mesh, 0.006)
+    d = np.linalg.norm(c[None, :, :] - points[:, None, :], axis=-1)  # [P, N]
+    nearest = d.argmin(axis=1)
+    assert disc.shape == (2, mesh.n_triangles)
+    np.testing.assert_array_equal(disc[[0, 1], nearest], 1.0)
+    far = np.ones_like(disc, dtype=bool)
+    far[[0, 1], nearest] = False
+    np.testing.assert_array_equal(disc[far], (d <= 0.006)[far].astype(float))
+    assert 5 < disc[0].sum() < mesh.n_triangles / 4  # a fingertip, not a point nor the sheet
+    # a radius below every centroid distance: the nearest element alone
+    np.testing.assert_array_equal(fingertip_discs(points, mesh, 0.0).sum(axis=1), 1.0)
 
 
 def test_one_fingertip_blurs_least_next_to_the_electrodes(imager_cache) -> None:
