@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -20,7 +22,7 @@ from eit_skin.touch.classifier import (
     classifier_layers,
     classify_stream,
 )
-from eit_skin.touch.contacts import PooledDetector, SegmentationConfig
+from eit_skin.touch.contacts import PooledDetector, SegmentationConfig, noise_sample_frames
 from eit_skin.touch.shapes import (
     blob_moments,
     contact_geometry,
@@ -407,6 +409,48 @@ def test_pooling_a_white_noise_image_divides_its_noise_as_the_kernel_says() -> N
     assert np.median(detector.noise[24:40, 24:40]) == pytest.approx(expected, rel=0.1)
 
 
+def running_mean(frames: np.ndarray, n: int) -> np.ndarray:
+    """Means of ``n`` consecutive frames ``[T - n + 1, ...]``."""
+    return np.mean([frames[i : len(frames) - n + 1 + i] for i in range(n)], axis=0)
+
+
+def ar1_frames(rho: float, shape: tuple[int, int, int], seed: int) -> np.ndarray:
+    """Unit-variance Gaussian frames ``[T, H, W]`` correlated ``rho ** k`` at lag ``k``."""
+    rng = np.random.default_rng(seed)
+    e = rng.standard_normal(shape)
+    out = np.empty(shape)
+    out[0] = e[0]
+    for t in range(1, shape[0]):
+        out[t] = rho * out[t - 1] + np.sqrt(1 - rho**2) * e[t]
+    return out
+
+
+def test_the_noise_counts_frames_per_independent_sample_from_their_correlation_in_time() -> None:
+    white = np.random.default_rng(21).standard_normal((800, 8, 8))
+    assert noise_sample_frames(white) == pytest.approx(1.0, abs=0.02)
+    # a running mean of n white frames measures 1 + 2 sum ((n - k) / n)^2 = (2 n^2 + 1) / (3 n)
+    # (below n): the count keeps one sample per running mean
+    for n in (2, 4):
+        assert noise_sample_frames(running_mean(white, n), 1) == pytest.approx(
+            (2 * n * n + 1) / (3 * n), rel=0.05
+        )
+        assert noise_sample_frames(running_mean(white, n), n) == n
+    # frames correlated rho^k in time (a real device's drift-like noise): 1 + 2 sum rho^2k
+    rho = 0.8
+    expected = 1 + 2 * sum(rho ** (2 * k) for k in range(1, 11))
+    ar = ar1_frames(rho, (2000, 6, 6), seed=22)
+    assert noise_sample_frames(ar) == pytest.approx(expected, rel=0.1)
+    # a short record: too few lags to measure, the running mean's count
+    assert noise_sample_frames(white[:3], 2) == 2.0
+    # the pooled detector counts its calibration's independent samples the same way
+    inside = np.ones((32, 32), dtype=bool)
+    detector = PooledDetector(inside, kernel_px=3.0, k=5.0, frames_per_sample=2)
+    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(rho, (400, 32, 32), seed=23), 2))
+    assert detector.sample_frames > 4.0  # not the 2 of the running mean alone
+    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(0.0, (400, 32, 32), seed=24), 2))
+    assert detector.sample_frames == 2.0
+
+
 def test_a_rising_press_counts_the_frame_before_its_crossing_when_the_two_average_k() -> None:
     # pooled z-scores at the blob's centre set exactly (noise-free blobs on a calibrated map)
     inside = np.ones((64, 64), dtype=bool)
@@ -478,3 +522,22 @@ def test_noise_alone_starts_nothing_over_a_minute(seed, correlation_px) -> None:
         if clf.detector is not None:
             zmax = max(zmax, float(clf.detector.z.max()))
     assert 3.0 < zmax < clf.config.k_detect  # the detector ran, below its threshold
+
+
+def test_a_real_devices_noise_wanders_in_time_and_counts_fewer_samples() -> None:
+    # data/real/sciospec_adjacent: 20 object-free frames of a real tank, imaged by the node's
+    # chain, averaged over 2 frames and pooled as the START detector does: their noise is
+    # correlated in time well beyond the running mean's own sharing
+    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    with np.load(real / "sciospec_adjacent.npz") as data:
+        reference, repeated, frames = data["reference"], data["reference_frames"], data["frames"]
+    imager = LayerImager.build(
+        load_patch(real / "sciospec_adjacent.yaml").layers[0], cache_dir=None
+    )
+    imager.use_reference(reference, repeated, frames)
+    images = imager.images(imager.relative_change(repeated, reference)).astype(np.float64)
+    averaged = running_mean(images, 2)
+    inside = np.asarray(imager.grid.inside, dtype=bool)
+    detector = PooledDetector(inside, kernel_px=4.0, k=5.5, frames_per_sample=2)
+    detector.calibrate(averaged - np.median(averaged, axis=0))
+    assert detector.sample_frames > 2.5  # more than the 2 a white device would count

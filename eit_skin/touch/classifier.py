@@ -52,6 +52,7 @@ from eit_skin.touch.contacts import (
     SegmentationConfig,
     estimate_noise,
     estimate_noise_map,
+    noise_sample_frames,
 )
 from eit_skin.touch.frame_evidence import FrameEvidence, electrode_roughness, shape_change_z
 from eit_skin.touch.shapes import BLOB_FRACTION, FINGER_RADIUS_M, blob_moments
@@ -658,6 +659,7 @@ class TouchClassifier:
             raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
         self.faulty: tuple[int, ...] = ()
         self._noise_samples = 1.0  # independent frames behind the noise map
+        self._sample_frames = float(self.config.average_frames)  # frames per such sample
         self._strong = False  # a contact of the latest frame stands out of the noise estimate
         self._raws: list[np.ndarray] = []  # the latest average_frames + 1 raw frames
         self._whites: list[np.ndarray] = []  # the latest 3 whitened raw frames (volts given)
@@ -740,7 +742,8 @@ class TouchClassifier:
                 )
                 self._noise_var = sigma**2
                 self._noise_floor = self.config.noise_floor_fraction * estimate_noise(averaged)
-                self._noise_samples = len(averaged) / n_avg
+                self._sample_frames = noise_sample_frames(averaged - self.baseline, n_avg)
+                self._noise_samples = len(averaged) / self._sample_frames
             else:
                 sigma = estimate_noise(averaged)
         if self._calibration_stretch:
@@ -985,7 +988,7 @@ class TouchClassifier:
         ok = np.isfinite(signal)
         self._noise_var[ok] += alpha * (signal[ok] ** 2 - self._noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
-        step = 1.0 / self.config.average_frames  # independent frames behind the estimate
+        step = 1.0 / self._sample_frames  # independent samples this frame adds
         self._noise_samples = min(self._noise_samples + step, max(2.0 * step / alpha, 1.0))
 
     def _follow_baseline(self, dt: float, pressure, stretch) -> None:

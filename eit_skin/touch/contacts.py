@@ -91,6 +91,40 @@ def estimate_noise_map(images: np.ndarray, window: int = 5) -> np.ndarray:
     return np.maximum(smooth, 0.5 * overall)
 
 
+MAX_NOISE_LAGS = 10
+"""Longest lag (images) :func:`noise_sample_frames` measures a correlation at."""
+
+
+def noise_sample_frames(images: np.ndarray, averaged: int = 1) -> float:
+    """Consecutive no-touch images ``[T, H, W]`` per independent sample of their noise.
+
+    A variance estimated from ``T`` images of stationary Gaussian noise whose images are
+    correlated ``rho_k`` at lag ``k`` spreads like one from ``T / c`` independent images,
+    ``c = 1 + 2 sum_k rho_k^2``. Measured: each pixel's lag-``k`` autocorrelation (its
+    temporal mean removed), the median over the finite pixels, for ``k = 1 ..
+    min(MAX_NOISE_LAGS, T // 4)``. Never below ``averaged`` (one sample per running mean of
+    ``n`` frames, the count the START bars were set with): white frames alone give less,
+    ``(2 n^2 + 1) / (3 n)`` (1.5 for two), and that margin is kept; a device whose frames
+    wander in time gives more, and then the measured count is used.
+    """
+    a = np.asarray(images, dtype=np.float64)
+    if a.ndim != 3:
+        raise ValueError(f"noise_sample_frames needs images [T, H, W], got shape {a.shape}")
+    floor = float(max(int(averaged), 1))
+    flat = a.reshape(a.shape[0], -1)
+    flat = flat[:, np.isfinite(flat).all(axis=0)]
+    lags = min(MAX_NOISE_LAGS, a.shape[0] // 4)
+    if flat.shape[1] == 0 or lags < 1:
+        return floor
+    x = flat - flat.mean(axis=0)
+    var = (x * x).mean(axis=0)
+    x, var = x[:, var > 0], var[var > 0]
+    if var.size == 0:
+        return floor
+    rho = np.array([np.median((x[k:] * x[:-k]).mean(axis=0) / var) for k in range(1, lags + 1)])
+    return max(floor, 1.0 + 2.0 * float(np.sum(rho**2)))
+
+
 @dataclass(frozen=True)
 class SegmentationConfig:
     """Thresholds of the hysteresis segmentation, as multiples of the noise ``sigma``.
@@ -372,9 +406,9 @@ class PooledDetector:
         inside: ``[H, W]`` bool, pixels on the sheet.
         kernel_px: standard deviation of the Gaussian kernel, pixels (> 0).
         k: threshold, multiples of the pooled image's noise (> 0).
-        frames_per_sample: consecutive images that share noise (the classifier's running
-            mean of ``average_frames`` frames): the noise estimate counts ``1 /
-            frames_per_sample`` independent samples per image.
+        frames_per_sample: frames in each image's running mean (the classifier's
+            ``average_frames``): the fewest images per independent noise sample the noise
+            estimate counts (:func:`noise_sample_frames`, measured at calibration).
         learn_fraction: only images whose z-scores all stay below ``learn_fraction * k``
             teach the noise (:attr:`quiet`), in (0, 1].
 
@@ -409,6 +443,7 @@ class PooledDetector:
         self._noise_var: np.ndarray | None = None
         self._noise_floor = 0.0
         self._samples = 0.0
+        self.sample_frames = float(self.frames_per_sample)  # images per independent sample
         self.pooled = np.full(inside.shape, np.nan)
         self.z = np.zeros(inside.shape)
         self.run = np.zeros(inside.shape, dtype=np.int64)
@@ -437,13 +472,15 @@ class PooledDetector:
         one); :meth:`follow_noise` keeps learning it. Neighbouring pooled pixels share most of
         their noise, so few frames estimate the whole map too low or too high together: the
         map used is inflated by about two standard errors of an estimate from ``n`` independent
-        samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500).
+        samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500); ``n`` counts the
+        frames over :func:`noise_sample_frames` of the pooled maps.
         """
         pooled = self.pool(images)
         sigma = estimate_noise_map(pooled, window=1)
         self._noise_floor = 0.5 * estimate_noise(pooled)
         self._noise_var = sigma**2
-        self._samples = pooled.shape[0] / self.frames_per_sample
+        self.sample_frames = noise_sample_frames(pooled, self.frames_per_sample)
+        self._samples = pooled.shape[0] / self.sample_frames
         self._set_noise()
         self.reset()
 
@@ -497,7 +534,7 @@ class PooledDetector:
         """
         if self._noise_var is None or not alpha > 0:
             return
-        step = 1.0 / self.frames_per_sample
+        step = 1.0 / self.sample_frames
         weight = max(alpha, step / (self._samples + step))
         ok = np.isfinite(self.pooled)
         self._noise_var[ok] += weight * (self.pooled[ok] ** 2 - self._noise_var[ok])
