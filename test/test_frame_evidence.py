@@ -11,6 +11,7 @@ import pytest
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ELECTRODE_FLICKER, ClassifierConfig, TouchClassifier
 from eit_skin.touch.frame_evidence import (
@@ -19,6 +20,7 @@ from eit_skin.touch.frame_evidence import (
     electrode_roughness,
     shape_change_z,
 )
+from eit_skin.touch.shapes import fingertip_discs
 from test.synthetic_touches import X, Y, envelope, sequence
 
 M = 208
@@ -170,6 +172,34 @@ def test_electrode_roughness_stays_low_on_a_real_devices_frames() -> None:
         bends = w[2:] - 2.0 * w[1:-1] + w[:-2]
         rough = [electrode_roughness(b, table) for b in bends]
         assert max(rough) < 0.7 * ELECTRODE_FLICKER, rough
+
+
+def test_a_still_touch_on_a_real_devices_noise_is_no_shape_change() -> None:
+    """Sciospec EIT32: its 20 object-free frames (noise correlated in time and across
+    channels, data/real/README.md) plus the patch model's pattern of a still disc at 40
+    places stay well under the pinch bar (measured at most 2.4; the channel noise and
+    reference are learnt from the same 20 frames, the only object-free ones there are)."""
+    data = np.load(DATA / "sciospec_adjacent.npz")
+    frames = data["reference_frames"].astype(float)
+    layer = load_patch(DATA / "sciospec_adjacent.yaml").layers[0]
+    imager = LayerImager.build(layer, cache_dir=None)
+    jacobian = imager.matrix.jacobian
+    if imager.signs is not None:  # a magnitude device: the frames carry the model's signs
+        jacobian = jacobian * imager.signs[:, None]
+    evidence = FrameEvidence()
+    evidence.calibrate(frames)
+    radius = float(np.linalg.norm(layer.outline, axis=1).max())
+    places = np.random.default_rng(5).uniform(-0.6 * radius, 0.6 * radius, size=(40, 2))
+    patterns = fingertip_discs(places, imager.mesh, 0.1 * radius) @ jacobian.T  # [40, M] V
+    t = np.arange(len(frames)) / RATE_HZ
+    still = np.zeros((len(frames), 2))
+    z = []
+    for pattern in patterns:
+        pattern = pattern * 30.0 / np.sqrt(np.mean((pattern / evidence.sigma) ** 2))
+        whitened = (frames + pattern - evidence.reference) / evidence.sigma
+        z.append(shape_change_z(whitened, t, still, evidence.drift_pattern()))
+    assert np.all(np.isfinite(z))
+    assert max(z) < 0.7 * ClassifierConfig().pinch_shape_z, z
 
 
 # ---------------------------------------------------------------- in the classifier
