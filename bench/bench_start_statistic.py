@@ -106,6 +106,16 @@ def matched_maps(patterns, sigma, reference, changes: list[np.ndarray]) -> list[
     return out
 
 
+def pooled_detector(imager: LayerImager, radius_m: float) -> PooledDetector:
+    """The classifier's START detector for ``imager``'s grid: a Gaussian kernel of
+    ``detect_kernel`` times the median spread of a disc of ``radius_m`` (m)."""
+    inside = np.asarray(imager.grid.inside, dtype=bool)
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix, radius_m=radius_m)
+    pixel = float(abs(imager.grid.x[1] - imager.grid.x[0]))
+    kernel = ClassifierConfig().detect_kernel * float(np.median(spread[inside])) / pixel
+    return PooledDetector(inside, kernel, ClassifierConfig().k_detect)
+
+
 def pooled_maps(detector: PooledDetector, inside, images: list[np.ndarray]) -> list[np.ndarray]:
     """Pooled-image maps ``[T, P]`` (``PooledDetector.pool``: median removed, kernel mean)."""
     return [detector.pool(a)[:, inside] for a in images]
@@ -144,6 +154,7 @@ def row(name: str, statistic: str, maps: Maps, tails: bool) -> str:
 
 
 def running_mean2(a: np.ndarray) -> np.ndarray:
+    """Mean of each frame ``[T, ...]`` and the one before (the first alone): index-aligned."""
     return np.concatenate([a[:1], 0.5 * (a[1:] + a[:-1])])
 
 
@@ -165,10 +176,7 @@ def simulated(patch_name: str, data_dir: Path, cache: Path) -> dict[str, Maps]:
     inside = np.asarray(imager.grid.inside, dtype=bool)
     images = running_mean2(run.pressure.astype(np.float64))
     baseline = np.nanmedian(images[:n_cal], axis=0)
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    pixel = float(abs(imager.grid.x[1] - imager.grid.x[0]))
-    kernel = ClassifierConfig().detect_kernel * float(np.median(spread[inside])) / pixel
-    detector = PooledDetector(inside, kernel, ClassifierConfig().k_detect)
+    detector = pooled_detector(imager, FINGER_RADIUS_M)
     pooled = pooled_maps(
         detector, inside, [images[i] - baseline for i in (cal_idx, quiet_idx, touch_idx)]
     )
@@ -208,10 +216,7 @@ def real(name: str) -> tuple[dict[str, Maps], float]:
     def images(change):
         return imager.images(imager.relative_change(reference + change, reference)).astype(float)
 
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix, radius_m=radius)
-    pixel = float(abs(imager.grid.x[1] - imager.grid.x[0]))
-    kernel = ClassifierConfig().detect_kernel * float(np.median(spread[inside])) / pixel
-    detector = PooledDetector(inside, kernel, ClassifierConfig().k_detect)
+    detector = pooled_detector(imager, radius)
     pooled = pooled_maps(detector, inside, [images(c) for c in (cal, quiet, touch)])
     patterns = disc_patterns(imager.grid, imager.mesh, imager.matrix.jacobian, radius)
     if imager.signs is not None:  # a magnitude device: the frames carry the model's signs
