@@ -19,6 +19,7 @@ from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.resources import config_path
+from eit_skin.ros.node_runner import REJECT_LOG_PERIOD_S
 from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.touch.pairing import StampPairer
@@ -469,3 +470,40 @@ def test_stamp_pairer_pairs_the_nearest_stamp_within_the_slop() -> None:
     assert pairer.flush() == []  # p3 waited for nothing yet
     assert pairer.push_pressure(1_200_000_000, "p4") == []
     assert pairer.flush() == [("p3", None)] and pairer.unpaired == 1
+
+
+def test_images_that_do_not_fit_are_counted_dropped_and_logged_once(tmp_path) -> None:
+    """Wrong-size and truncated pressure images at 50 Hz: every one is counted as
+    ``rejected``, none is classified, the node stays up, and its log gets one line per
+    5 s however many come."""
+    case = elbow(tmp_path)
+    patch = load_patch(config_path(case.config))
+    topics = patch_topics(patch, case.namespace + "_bad")
+    grid = layer_image_grid(patch.layer(case.pressure))
+    probe, pub = classifier_probe("classifier_bad_probe", topics, case.pressure)
+    log = tmp_path / "classifier.log"
+    params = {"patch_config": case.config, "diagnostics_period_s": 0.05}
+    node = start_node("eit_classifier", case.namespace + "_bad", params, log)
+    try:
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, EVENT_S), log.read_text()
+        assert probe.spin_until(lambda: classifier_values(probe), EVENT_S), log.read_text()
+        started = time.monotonic()
+        sent = 0
+        # best effort: keep sending until 20 were counted (a busy reader may drop some)
+        while int(classifier_values(probe).get("rejected", 0)) < 20:
+            assert time.monotonic() - started < EVENT_S, classifier_values(probe)
+            wrong = image_msg(grid, sent, np.zeros(grid.shape))
+            wrong.width -= 1  # the patch grid's height x (width - 1): another grid
+            short = image_msg(grid, sent, np.zeros(grid.shape))
+            short.data = bytes(short.data)[: len(short.data) // 2]
+            pub.publish(wrong if sent % 2 else short)
+            sent += 1
+            probe.spin_for(0.02)
+        values = classifier_values(probe)
+        assert values["images"] == "0" and node.poll() is None, values
+        text = log.read_text()
+        lines = text.count("does not match the patch grid") + text.count("is shorter than")
+        assert 1 <= lines <= 1 + (time.monotonic() - started) / REJECT_LOG_PERIOD_S, text
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()

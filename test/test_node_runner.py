@@ -11,7 +11,7 @@ import rclpy
 from rclpy.context import Context
 from std_msgs.msg import UInt32
 
-from eit_skin.ros.node_runner import EXECUTOR_ENV, make_executor, spin_nodes
+from eit_skin.ros.node_runner import EXECUTOR_ENV, ThrottledLog, make_executor, spin_nodes
 
 pytestmark = pytest.mark.ros
 
@@ -248,3 +248,29 @@ def test_a_signal_during_the_interpreter_exit_is_quiet() -> None:
     finally:
         process.kill()
     assert (process.returncode, stderr) == (0, ""), stderr
+
+
+def test_throttled_log_prints_once_per_period_and_counts_what_it_held_back() -> None:
+    lines: list[str] = []
+    now = [100.0]
+    log = ThrottledLog(lines.append, 5.0, clock=lambda: now[0])
+    built: list[int] = []
+
+    def message() -> str:
+        built.append(1)
+        return "late"
+
+    assert log("bad frame") is True
+    for _ in range(99):  # a bad stream at 100 Hz for a second: held, nothing built
+        now[0] += 0.01
+        assert log(message) is False
+    assert lines == ["bad frame"] and not built and log.held == 99
+    now[0] = 105.0  # the period is over
+    assert log(message) is True
+    assert lines[1] == "late (99 more since the last such line, 5.0 s ago)"
+    assert log.held == 0 and len(built) == 1
+    now[0] = 120.0  # nothing held back: no count
+    log("again")
+    assert lines[2] == "again"
+    with pytest.raises(ValueError, match="period_s"):
+        ThrottledLog(lines.append, -1.0)

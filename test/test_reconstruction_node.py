@@ -20,6 +20,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
+from eit_skin.ros.node_runner import REJECT_LOG_PERIOD_S
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.scenario import resolve_scenario
@@ -251,6 +252,7 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
         wait_ready(probe, "/arm", recon, log)
         bad = EitFrame(n_electrodes=16, drive_pattern="adjacent", voltages=[0.1] * 100)
         wrong_pattern = EitFrame(n_electrodes=16, drive_pattern="opposite", voltages=[0.1] * 208)
+        started = time.monotonic()
         for _ in range(5):
             publisher.publish(bad)
             publisher.publish(wrong_pattern)
@@ -261,7 +263,11 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
         status = diagnostics_of(probe, "pressure")
         assert status["level"] == 1 and "expects" in status["message"]
         assert recon.poll() is None
-        assert "100 values" in log.read_text() or "opposite" in log.read_text()
+        text = log.read_text()
+        assert "100 values" in text or "opposite" in text
+        # every rejected frame is counted, but a bad stream logs one line per 5 s
+        lines = text.count("rejected frame on layer")
+        assert 1 <= lines <= 1 + (time.monotonic() - started) / REJECT_LOG_PERIOD_S, text
         assert probe.messages["/arm/pressure/image"] == []
     finally:
         assert stop_node(recon) == 0

@@ -49,6 +49,8 @@ from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
+    REJECT_LOG_PERIOD_S,
+    ThrottledLog,
     declare_read_only,
     diagnostic_status,
     run_node,
@@ -125,6 +127,7 @@ class ClassifierNode(Node):
         self.pairer: StampPairer[tuple[Image, np.ndarray], np.ndarray] = StampPairer(
             int(float(p["pair_slop_s"]) * 1e9), int(float(p["pair_timeout_s"]) * 1e9)
         )
+        self._log_reject = ThrottledLog(self.get_logger().error, REJECT_LOG_PERIOD_S)
         self.counts = {
             "images": 0,
             "rejected": 0,
@@ -180,10 +183,9 @@ class ClassifierNode(Node):
         shape = self.grid.shape
         if msg.encoding != "32FC1" or (msg.height, msg.width) != shape:
             self.counts["rejected"] += 1
-            self.get_logger().error(
+            self._log_reject(
                 f"image {msg.encoding} {msg.height}x{msg.width} does not match the patch "
-                f"grid 32FC1 {shape[0]}x{shape[1]}; dropped",
-                throttle_duration_sec=5.0,
+                f"grid 32FC1 {shape[0]}x{shape[1]}; dropped"
             )
             return None
         dtype = np.dtype(">f4" if msg.is_bigendian else "<f4")
@@ -191,7 +193,10 @@ class ClassifierNode(Node):
         data = np.frombuffer(bytes(msg.data), dtype=dtype)
         if data.size < msg.height * row:
             self.counts["rejected"] += 1
-            self.get_logger().error("image data shorter than height x step; dropped")
+            self._log_reject(
+                f"image data of {data.size * 4} bytes is shorter than height {msg.height} x "
+                f"step {row * 4}; dropped"
+            )
             return None
         return data[: msg.height * row].reshape(msg.height, row)[:, : msg.width].astype(np.float32)
 

@@ -65,6 +65,53 @@ def diagnostic_status(
 EXECUTOR_ENV = "EIT_SKIN_EXECUTOR"
 
 
+#: Shortest time between two log lines about rejected input, s (each one is also counted).
+REJECT_LOG_PERIOD_S = 5.0
+
+
+class ThrottledLog:
+    """One log line per ``period_s`` at most, for a message a bad stream repeats every frame.
+
+    rclpy's ``throttle_duration_sec`` looks up its caller's source line on every call, also
+    when it prints nothing (about 150 us: more than imaging a frame), so a device sending
+    wrong frames at 100 Hz cost a core's percent per patch in logging alone. This checks the
+    clock first. A line printed after others were held back says how many.
+
+    Args:
+        log: prints one line (e.g. ``node.get_logger().error``).
+        period_s: the shortest time between two lines, s (>= 0).
+        clock: monotonic seconds (tests pass their own).
+    """
+
+    def __init__(
+        self,
+        log: Callable[[str], object],
+        period_s: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not period_s >= 0:
+            raise ValueError(f"period_s must be >= 0, got {period_s}")
+        self.log = log
+        self.period_s = float(period_s)
+        self.clock = clock
+        self.held = 0  # lines held back since the last one printed
+        self._last: float | None = None
+
+    def __call__(self, message: str | Callable[[], str]) -> bool:
+        """Print ``message`` (or what it returns, built only when printed); True if printed."""
+        now = self.clock()
+        if self._last is not None and now - self._last < self.period_s:
+            self.held += 1
+            return False
+        text = message() if callable(message) else message
+        if self.held:
+            text += f" ({self.held} more since the last such line, {now - self._last:.1f} s ago)"
+        self.log(text)
+        self._last = now
+        self.held = 0
+        return True
+
+
 def make_executor(kind: str | None = None, context: Context | None = None) -> Executor:
     """The executor every eit_skin process spins its nodes with.
 

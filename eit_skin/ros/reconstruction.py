@@ -51,6 +51,8 @@ from eit_skin.pipeline.processor import (
 from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, PostureSync
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
+    REJECT_LOG_PERIOD_S,
+    ThrottledLog,
     declare_read_only,
     diagnostic_status,
     run_node,
@@ -112,6 +114,7 @@ class ReconstructionNode(Node):
         joint = str(p["joint_name"])
         self.joint = joint
         self.layers: dict[str, LayerState] = {}
+        self._log_reject = ThrottledLog(self.get_logger().error, REJECT_LOG_PERIOD_S)
         topics = patch_topics(self.patch)
         for layer in self.patch.layers:
             started = time.perf_counter()
@@ -195,9 +198,7 @@ class ReconstructionNode(Node):
     def _reject(self, state: LayerState, reason: str) -> None:
         state.rejected += 1
         state.last_reject = reason
-        self.get_logger().error(
-            f"rejected frame on layer {state.layer.name}: {reason}", throttle_duration_sec=5.0
-        )
+        self._log_reject(f"rejected frame on layer {state.layer.name}: {reason}")
 
     def _on_frame(self, name: str, msg) -> None:
         state = self.layers[name]
