@@ -177,20 +177,59 @@ def face_copy(i: int, directory: Path) -> str:
     return str(path)
 
 
-def worker(k: int, cache: str) -> None:
+#: What a worker's nodes do with a frame once their reference is captured
+#: (:func:`staged_node`); ``full`` is the shipped node.
+STAGES = ("receive", "publish", "reconstruct", "full")
+
+
+def staged_node(stage: str) -> type:
+    """The reconstruction node cut after ``stage`` of its per-frame work (:data:`STAGES`).
+
+    * ``receive``: the frame taken from DDS, decoded and checked (``_on_frame``), no more;
+    * ``publish``: and the latest image published again (a real ``Image`` per frame);
+    * ``reconstruct``: and the frame's relative change computed first (reference scaling,
+      the matrix product);
+    * ``full``: the node as shipped (drift tracking, contact test, fault checks, the
+      physical image, its diagnostics bookkeeping).
+
+    Until a layer has its reference and first image, every stage runs the full step.
+    """
+    from eit_skin.ros.reconstruction import ReconstructionNode
+
+    if stage == "full":
+        return ReconstructionNode
+    if stage not in STAGES:
+        raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
+
+    class StagedNode(ReconstructionNode):
+        def _image(self, state, msg, frame, flags, angle) -> None:
+            if not state.processor.reference_ready or state.last_image is None:
+                super()._image(state, msg, frame, flags, angle)
+                return
+            if stage == "reconstruct":
+                state.imager.relative_change(frame, state.processor.reference())
+            if stage != "receive":
+                self._publish_images(state, msg.header, state.last_image)
+            state.imaged += 1
+
+    return StagedNode
+
+
+def worker(k: int, cache: str, stage: str = "full") -> None:
     """K reconstruction nodes of the face patch in this one process (pinned to CPU 0).
 
     Prints ``ready`` once built, ``steady`` once every node has its reference, and on SIGINT
-    its CPU and images since ``steady`` and the nodes' own latencies.
+    its CPU and images since ``steady`` and the nodes' own latencies. ``stage``: how much of
+    a frame's work the nodes do (:func:`staged_node`).
     """
     os.sched_setaffinity(0, {0})
     from eit_skin.ros.node_runner import freeze_start_up_heap, spin_nodes
-    from eit_skin.ros.reconstruction import ReconstructionNode
 
+    node_class = staged_node(stage)
     rclpy.init()
     nodes = []
     for i in range(k):
-        node = ReconstructionNode(
+        node = node_class(
             namespace=f"/p{i}",
             parameter_overrides=[
                 rclpy.parameter.Parameter("patch_config", value=face_copy(i, Path(cache))),
@@ -290,7 +329,7 @@ def _stop(proc: subprocess.Popen) -> str:
 
 
 def throughput(
-    k: int, seconds: float, workdir: Path, cache: Path, frames: np.ndarray
+    k: int, seconds: float, workdir: Path, cache: Path, frames: np.ndarray, stage: str = "full"
 ) -> dict[str, float]:
     """K patches at 100 Hz each, fed unsynchronised: imaged and received shares, CPU, latency.
 
@@ -305,10 +344,13 @@ def throughput(
     callbacks, timers), start-up CPU per patch (reference capture, channel noise,
     hyperparameters: paid once), latency frame publish -> image received by the sink
     (median, p99; DDS both ways included) and the node's own latency (frame stamp -> image
-    published, its last 500 images per patch).
+    published, its last 500 images per patch). ``stage``: the worker nodes' share of the
+    per-frame work (:func:`staged_node`; ``full`` for the shipped node).
     """
     os.sched_setaffinity(0, {1})
-    worker_proc = _start(["--worker", str(k), "--cache", str(cache)], workdir / f"worker_{k}.log")
+    worker_proc = _start(
+        ["--worker", str(k), "--cache", str(cache), "--stage", stage], workdir / f"worker_{k}.log"
+    )
     received = workdir / f"sink_{k}.npy"
     sink_proc = _start(["--sink", str(k), "--out", str(received)], workdir / f"sink_{k}.log")
     probe = Probe(f"bench_feed_{k}")
@@ -483,6 +525,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--worker", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--cache", default="", help=argparse.SUPPRESS)
+    parser.add_argument("--stage", default="full", help=argparse.SUPPRESS)
     parser.add_argument("--sink", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--steadiness", type=float, default=0.0, help=argparse.SUPPRESS)
     parser.add_argument("--memory-seconds", type=float, default=600.0)
@@ -492,7 +535,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("skin.md"))
     args = parser.parse_args()
     if args.worker:
-        worker(args.worker, args.cache)
+        worker(args.worker, args.cache, args.stage)
         return
     if args.sink:
         sink(args.sink, str(args.out))
