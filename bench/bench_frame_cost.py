@@ -21,10 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_skin
+import numpy as np
 
 #: What each stage adds to the one before (report rows).
 ADDS = {
