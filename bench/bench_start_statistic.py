@@ -5,10 +5,14 @@ come last (docs/classifier.md). The early START detector thresholds the reconstr
 pooled over a fingertip-sized Gaussian (``PooledDetector``), in its own per-pixel noise. Under
 white channel noise the linear statistic that best tells a fingertip at pixel ``p`` from
 noise is the whitened change projected on that disc's own whitened boundary pattern
-(``J disc_p / sigma``: the matched filter), with the sheet-wide drift pattern (the
-reference) projected out; the regularised image keeps only a smoothed part of it. This
-benchmark asks whether the matched filter would be the better START statistic, on the
-simulator's scenes and on real recordings, with everything else the same:
+(``J disc_p |v_ref| / sigma``, the relative Jacobian in volts: the matched filter), with the
+sheet-wide drift pattern (the reference) projected out; the regularised image keeps only a
+smoothed part of it. A real sheet's electrodes also change their contact impedance while
+nothing touches (sweat, creep, a connector); the third statistic projects the 16 patterns of
+those changes out too (``contacts out``: the model's ``dV/dz_l`` per electrode, as relative
+changes; a physical nuisance, no constant). This benchmark asks which would be the better
+START statistic, on the simulator's scenes and on real recordings, with everything else the
+same:
 
 * both are linear in the frames' change; both are divided by their own per-pixel RMS over
   the same no-touch *calibration* frames, each map's median over the sheet removed (as the
@@ -23,8 +27,10 @@ simulator's scenes and on real recordings, with everything else the same:
 Sets (disc radius: the classifier's 6 mm fingertip on the patches, the target's radius on
 the tanks and the hydrogel):
 
-* ``sim <patch>``: the REPORT seed's ``light_push`` scene of ``bench_hard_scenes`` (frames
-  and images as that benchmark makes them: LayerProcessor, the node's pipeline); 2-frame
+* ``sim <patch> <scene>``: the REPORT seed's ``light_push`` (the slowest STARTs) and
+  ``electrode_push`` (where the contact patterns take most) scenes of
+  ``bench_hard_scenes`` (frames and images as that benchmark makes them: LayerProcessor,
+  the node's pipeline); 2-frame
   running means as the classifier sees them; no-touch frames 0.5 s away from any touch,
   first half calibration, second half false-alarm side; touch maps 40-100 ms after each
   touch's first frame of force (where a START within 100 ms is decided).
@@ -57,8 +63,10 @@ import real_data_scoring as scoring
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.channel_noise import difference_noise
+from eit_skin.inverse.one_step import reference_scale
 from eit_skin.patch.loading import load_patch
-from eit_skin.pipeline.builder import LayerImager
+from eit_skin.patch.model import Layer
+from eit_skin.pipeline.builder import LayerImager, forward_model
 from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
 from eit_skin.touch.contacts import PooledDetector
@@ -69,6 +77,8 @@ THRESHOLDS = (4.0, 5.5, 7.0)
 SEED = scenes.SEEDS["report"][0]
 QUIET_MARGIN_S = 0.5
 TOUCH_WINDOW_S = (0.04, 0.10)
+#: Simulated scenes: the slowest STARTs, and touches where the contact patterns matter most.
+SIM_SCENES = ("light_push", "electrode_push")
 
 
 @dataclass
@@ -91,19 +101,45 @@ def disc_patterns(grid: ImageGrid, mesh: Mesh, jacobian: np.ndarray, radius_m: f
     )
 
 
-def matched_maps(patterns, sigma, reference, changes: list[np.ndarray]) -> list[np.ndarray]:
-    """Matched-filter maps ``[T, P]`` of each ``[T, M]`` change, drift projected out."""
+def contact_patterns(layer: Layer, imager: LayerImager) -> np.ndarray:
+    """``[M, E]`` relative change of every channel per unit change of each electrode's
+    contact impedance (the model's, at the sheet's conductance; the device's signs)."""
+    model = forward_model(layer)
+    sheet = layer.material.sheet_conductance_s
+    patterns = model.contact_jacobian(sheet) / reference_scale(model.voltages(sheet))[:, None]
+    return patterns if imager.signs is None else patterns * imager.signs[:, None]
+
+
+def matched_maps(
+    patterns, sigma, reference, changes: list[np.ndarray], nuisance: np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Matched-filter maps ``[T, P]`` of each ``[T, M]`` change (volts).
+
+    ``patterns`` ``[P, M]`` and ``nuisance`` ``[M, K]`` are relative changes (the Jacobian's
+    unit): times ``|reference|`` they are volts, divided by ``sigma`` whitened. The sheet-wide
+    drift pattern (the reference) and the span of ``nuisance`` are projected out.
+    """
     ok = np.isfinite(sigma) & (sigma > 0) & np.isfinite(reference)
-    rows = patterns[:, ok] / sigma[ok]
-    d = reference[ok] / sigma[ok]
-    d /= np.linalg.norm(d)
-    rows = rows - np.outer(rows @ d, d)
+    scale = np.abs(reference[ok]) / sigma[ok]
+    rows = patterns[:, ok] * scale
+    columns = [reference[ok] / sigma[ok]]
+    if nuisance is not None:
+        columns += list((nuisance[ok] * scale[:, None]).T)
+    basis, _ = np.linalg.qr(np.column_stack(columns))
+    rows = rows - (rows @ basis) @ basis.T
     rows /= np.linalg.norm(rows, axis=1, keepdims=True)
-    out = []
-    for change in changes:
-        x = np.nan_to_num(change[:, ok] / sigma[ok])
-        out.append(x @ rows.T)
-    return out
+    return [np.nan_to_num(change[:, ok] / sigma[ok]) @ rows.T for change in changes]
+
+
+def statistics(pooled, patterns, contacts, sigma, reference, changes) -> dict[str, Maps]:
+    """The three statistics' maps of one set (``changes``: calibration, no-touch, touch)."""
+    return {
+        "pooled image": Maps(*pooled),
+        "matched filter": Maps(*matched_maps(patterns, sigma, reference, changes)),
+        "matched filter, contacts out": Maps(
+            *matched_maps(patterns, sigma, reference, changes, contacts)
+        ),
+    }
 
 
 def pooled_detector(imager: LayerImager, radius_m: float) -> PooledDetector:
@@ -158,11 +194,11 @@ def running_mean2(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a[:1], 0.5 * (a[1:] + a[:-1])])
 
 
-def simulated(patch_name: str, data_dir: Path, cache: Path) -> dict[str, Maps]:
+def simulated(patch_name: str, scene: str, data_dir: Path, cache: Path) -> dict[str, Maps]:
     patch = load_patch(config_path(patch_name))
     layer, _ = classifier_layers(patch)
     imager = LayerImager.build(layer, cache_dir=cache)
-    run = scenes.simulate(patch, "light_push", SEED, scenes.SECONDS, data_dir, cache)
+    run = scenes.simulate(patch, scene, SEED, scenes.SECONDS, data_dir, cache)
     t = run.t
     near = np.zeros(t.size, dtype=bool)
     touch = np.zeros(t.size, dtype=bool)
@@ -185,10 +221,9 @@ def simulated(patch_name: str, data_dir: Path, cache: Path) -> dict[str, Maps]:
     sigma = difference_noise(volts[:n_cal])
     changes = running_mean2(volts - reference)
     patterns = disc_patterns(imager.grid, imager.mesh, imager.matrix.jacobian, FINGER_RADIUS_M)
-    matched = matched_maps(
-        patterns, sigma, reference, [changes[i] for i in (cal_idx, quiet_idx, touch_idx)]
-    )
-    return {"pooled image": Maps(*pooled), "matched filter": Maps(*matched)}
+    contacts = contact_patterns(layer, imager)
+    sets = [changes[i] for i in (cal_idx, quiet_idx, touch_idx)]
+    return statistics(pooled, patterns, contacts, sigma, reference, sets)
 
 
 def real(name: str) -> tuple[dict[str, Maps], float]:
@@ -223,8 +258,9 @@ def real(name: str) -> tuple[dict[str, Maps], float]:
         patterns = patterns * imager.signs
     # channel noise: the repeated object-free frames, else the first 51 pre-press frames
     sigma = difference_noise(repeated if repeated is not None else extra["ups"][:51])
-    matched = matched_maps(patterns, sigma, reference, [cal, quiet, touch])
-    return {"pooled image": Maps(*pooled), "matched filter": Maps(*matched)}, data.expected_sign
+    contacts = contact_patterns(layer, imager)
+    sets = statistics(pooled, patterns, contacts, sigma, reference, [cal, quiet, touch])
+    return sets, data.expected_sign
 
 
 def main() -> None:
@@ -242,9 +278,10 @@ def main() -> None:
         "|---" * (6 + len(THRESHOLDS)) + "|",
     ]
     for name in args.patches:
-        for statistic, maps in simulated(name, args.data_dir, args.cache_dir).items():
-            lines.append(row(f"sim {name}", statistic, normalised(maps, 1.0), True))
-            print(lines[-1], flush=True)
+        for scene in SIM_SCENES:
+            for statistic, maps in simulated(name, scene, args.data_dir, args.cache_dir).items():
+                lines.append(row(f"sim {name} {scene}", statistic, normalised(maps, 1.0), True))
+                print(lines[-1], flush=True)
     for name in ("sciospec_adjacent", "hydrogel_ohmc16"):
         sets, sign = real(name)
         for statistic, maps in sets.items():
@@ -252,12 +289,13 @@ def main() -> None:
             lines.append(row(name, statistic, normalised(maps, sign), tails))
             print(lines[-1], flush=True)
     report = [
-        "# START statistic: pooled image against a matched filter on the raw frames",
+        "# START statistic: pooled image against matched filters on the raw frames",
         "",
         "Produced by `.venv/bin/python bench/bench_start_statistic.py` (its docstring has the",
         f"method) on {time.strftime('%Y-%m-%d', time.gmtime())}, load average {load:.1f};"
         " no time is measured.",
-        f"Simulated sets: the REPORT seed ({SEED}) of `bench_hard_scenes`' `light_push`; real",
+        f"Simulated sets: the REPORT seed ({SEED}) of `bench_hard_scenes`' "
+        f"{' and '.join(f'`{s}`' for s in SIM_SCENES)}; real",
         "sets: `data/real/` (other groups' devices).",
         "",
         *lines,
