@@ -46,7 +46,7 @@ from eit_skin.sim.scenario import HARD_SCENES, Scenario, hard_scenario, random_s
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import LABELS, TouchClassifier, classifier_layers
 from eit_skin.touch.frame_evidence import channel_electrodes
-from eit_skin.touch.shapes import single_contact_spread
+from eit_skin.touch.shapes import contact_geometry
 
 RATE_HZ = 50.0
 SECONDS = 20.0
@@ -169,12 +169,15 @@ def classify(
     faults: bool = True,
     features=None,
     channels=None,
+    disc_rel=None,
+    contact_rel=None,
 ):
     """Every event of one scene; the pipeline's faulty electrodes fed each frame.
 
     ``features``: a dict that receives each touch's final features (by touch id).
     ``channels``: ``[M, E]`` bool channel-electrode map of the pressure layer; with it the
-    scene's raw frames go to the classifier too (``shape_z``).
+    scene's raw frames go to the classifier too (``shape_z``); ``disc_rel`` and
+    ``contact_rel`` (with ``channels``): a touch STARTs from those frames' filter too.
     """
     clf = TouchClassifier(
         x,
@@ -183,6 +186,8 @@ def classify(
         contact_spread_m=spread,
         electrodes_m=electrodes_m,
         channel_electrodes=channels,
+        disc_rel=disc_rel if channels is not None else None,
+        contact_rel=contact_rel,
     )
     volts = run.volts if channels is not None else None
     events, last = [], None
@@ -218,14 +223,31 @@ def no_touch_s(run: Run, calibration_s: float) -> float:
     return float(np.count_nonzero(~busy & (t >= t[0] + calibration_s)) / RATE_HZ)
 
 
-def evaluate(patch_name: str, seeds, seconds: float, data: Path, cache: Path, faults=True):
-    """Per-scene rows and false events of one patch."""
+def evaluate(
+    patch_name: str,
+    seeds,
+    seconds: float,
+    data: Path,
+    cache: Path,
+    faults: bool = True,
+    detector: str = "frames",
+):
+    """Per-scene rows and false events of one patch.
+
+    ``detector``: what STARTs a touch before its contacts, ``"frames"`` the pooled image and
+    the raw frames' filter (as the node and ``eit-skin classify``), ``"image"`` the pooled
+    image alone (the classifier before 2026-11-27).
+    """
     patch = load_patch(config_path(patch_name))
     layer, _ = classifier_layers(patch)
     imager = LayerImager.build(layer, cache_dir=cache)
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    geometry = contact_geometry(layer, cache)
+    spread = geometry.spread_m
     electrodes = np.array([e.center for e in layer.electrodes])
     channels = channel_electrodes(imager.protocol)
+    disc = contact = None
+    if detector == "frames":
+        disc, contact = geometry.disc_rel, geometry.contact_rel
     per_scene, touches = {}, []
     for scene in SCENES:
         rows, false, quiet = [], [], 0.0
@@ -233,7 +255,17 @@ def evaluate(patch_name: str, seeds, seconds: float, data: Path, cache: Path, fa
             run = simulate(patch, scene, seed, seconds, data, cache)
             feats = {}
             events = classify(
-                run, imager.grid.x, imager.grid.y, spread, electrodes, None, faults, feats, channels
+                run,
+                imager.grid.x,
+                imager.grid.y,
+                spread,
+                electrodes,
+                None,
+                faults,
+                feats,
+                channels,
+                disc,
+                contact,
             )
             r, f = score(events, run.truth)
             rows += r
@@ -312,6 +344,12 @@ def main() -> None:
     parser.add_argument("--set", choices=tuple(SEEDS), default="report")
     parser.add_argument("--seconds", type=float, default=SECONDS)
     parser.add_argument("--no-faults", action="store_true", help="do not tell the classifier")
+    parser.add_argument(
+        "--detector",
+        choices=("frames", "image"),
+        default="frames",
+        help="early START from the pooled image and the raw frames' filter, or the image alone",
+    )
     parser.add_argument("--data-dir", type=Path, default=Path("/tmp/eit_skin_hard_scenes"))
     parser.add_argument("--cache-dir", type=Path, default=Path("/tmp/eit_skin_classifier_cache"))
     parser.add_argument(
@@ -332,7 +370,13 @@ def main() -> None:
     for name in args.patches:
         t0 = time.time()
         per_scene, held_out[name] = evaluate(
-            name, seeds, args.seconds, args.data_dir, args.cache_dir, not args.no_faults
+            name,
+            seeds,
+            args.seconds,
+            args.data_dir,
+            args.cache_dir,
+            not args.no_faults,
+            args.detector,
         )
         if args.set == "report":  # the tuning scenes train the learned alternative
             train += evaluate(
@@ -342,6 +386,7 @@ def main() -> None:
                 args.data_dir,
                 args.cache_dir,
                 not args.no_faults,
+                args.detector,
             )[1]
         s = summarise(name, per_scene)
         rec = " / ".join(f"{v:.2f}" for v in s["recall"])

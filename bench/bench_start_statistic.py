@@ -60,17 +60,13 @@ import bench_hard_scenes as scenes
 import numpy as np
 import real_data_scoring as scoring
 
-from eit_skin.fem.image_grid import ImageGrid
-from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.channel_noise import difference_noise
-from eit_skin.inverse.one_step import reference_scale
 from eit_skin.patch.loading import load_patch
-from eit_skin.patch.model import Layer
-from eit_skin.pipeline.builder import LayerImager, forward_model
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
 from eit_skin.touch.contacts import PooledDetector
-from eit_skin.touch.shapes import FINGER_RADIUS_M, fingertip_discs, single_contact_spread
+from eit_skin.touch.shapes import FINGER_RADIUS_M, raw_patterns, single_contact_spread
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
 THRESHOLDS = (4.0, 5.5, 7.0)
@@ -88,26 +84,6 @@ class Maps:
     calibration: np.ndarray
     quiet: np.ndarray
     touch: np.ndarray
-
-
-def disc_patterns(grid: ImageGrid, mesh: Mesh, jacobian: np.ndarray, radius_m: float):
-    """``[P, M]`` change of every channel for a disc of unit relative change on each pixel."""
-    xx, yy = np.meshgrid(grid.x, grid.y)
-    inside = np.asarray(grid.inside, dtype=bool)
-    points = np.column_stack([xx[inside], yy[inside]])
-    chunks = range(0, len(points), 512)  # [512, N] indicators at a time
-    return np.concatenate(
-        [fingertip_discs(points[i : i + 512], mesh, radius_m) @ jacobian.T for i in chunks]
-    )
-
-
-def contact_patterns(layer: Layer, imager: LayerImager) -> np.ndarray:
-    """``[M, E]`` relative change of every channel per unit change of each electrode's
-    contact impedance (the model's, at the sheet's conductance; the device's signs)."""
-    model = forward_model(layer)
-    sheet = layer.material.sheet_conductance_s
-    patterns = model.contact_jacobian(sheet) / reference_scale(model.voltages(sheet))[:, None]
-    return patterns if imager.signs is None else patterns * imager.signs[:, None]
 
 
 def matched_maps(
@@ -220,8 +196,8 @@ def simulated(patch_name: str, scene: str, data_dir: Path, cache: Path) -> dict[
     reference = volts[:n_cal].mean(axis=0)
     sigma = difference_noise(volts[:n_cal])
     changes = running_mean2(volts - reference)
-    patterns = disc_patterns(imager.grid, imager.mesh, imager.matrix.jacobian, FINGER_RADIUS_M)
-    contacts = contact_patterns(layer, imager)
+    disc, contacts = raw_patterns(layer, imager, FINGER_RADIUS_M)
+    patterns = disc[inside]
     sets = [changes[i] for i in (cal_idx, quiet_idx, touch_idx)]
     return statistics(pooled, patterns, contacts, sigma, reference, sets)
 
@@ -253,12 +229,10 @@ def real(name: str) -> tuple[dict[str, Maps], float]:
 
     detector = pooled_detector(imager, radius)
     pooled = pooled_maps(detector, inside, [images(c) for c in (cal, quiet, touch)])
-    patterns = disc_patterns(imager.grid, imager.mesh, imager.matrix.jacobian, radius)
-    if imager.signs is not None:  # a magnitude device: the frames carry the model's signs
-        patterns = patterns * imager.signs
+    disc, contacts = raw_patterns(layer, imager, radius)  # with a magnitude device's signs
+    patterns = disc[inside]
     # channel noise: the repeated object-free frames, else the first 51 pre-press frames
     sigma = difference_noise(repeated if repeated is not None else extra["ups"][:51])
-    contacts = contact_patterns(layer, imager)
     sets = statistics(pooled, patterns, contacts, sigma, reference, [cal, quiet, touch])
     return sets, data.expected_sign
 

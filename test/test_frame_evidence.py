@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import eit_skin.touch.classifier as classifier_module
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
@@ -16,12 +17,13 @@ from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ELECTRODE_FLICKER, ClassifierConfig, TouchClassifier
 from eit_skin.touch.frame_evidence import (
     FrameEvidence,
+    TouchFilter,
     channel_electrodes,
     electrode_roughness,
     shape_change_z,
 )
-from eit_skin.touch.shapes import fingertip_discs
-from test.synthetic_touches import X, Y, envelope, sequence
+from eit_skin.touch.shapes import fingertip_discs, raw_patterns
+from test.synthetic_touches import INSIDE, X, Y, envelope, sequence
 
 M = 208
 RATE_HZ = 50.0
@@ -269,3 +271,95 @@ def test_pinch_shape_z_is_a_validated_switch() -> None:
     events = [e for k in range(len(t)) for e in clf.step(t[k], images[k], None, volts[k])]
     assert [e.label for e in events + clf.finish() if e.state == "end"] == ["push"]
     assert np.isnan(clf.last_features.shape_z)
+
+
+# ---------------------------------------------------------------- the raw frames' START filter
+def _sciospec_filter(contacts: bool):
+    """The START filter of the sciospec tank's patch (a real device, data/real/), its 20
+    object-free frames' reference and noise, and the patterns it was built from."""
+    data = np.load(DATA / "sciospec_adjacent.npz")
+    frames = data["reference_frames"].astype(float)
+    layer = load_patch(DATA / "sciospec_adjacent.yaml").layers[0]
+    imager = LayerImager.build(layer, cache_dir=None)
+    disc, contact = raw_patterns(layer, imager, 0.1 * float(np.abs(layer.outline).max()))
+    evidence = FrameEvidence()
+    evidence.calibrate(frames)
+    inside = np.asarray(imager.grid.inside, dtype=bool)
+    start = TouchFilter(disc, inside, contact if contacts else None)
+    return start, evidence, frames, disc, contact, inside
+
+
+def test_the_start_filter_reads_white_noise_as_unit_normal_and_drift_as_nothing() -> None:
+    start, evidence, _, disc, _, inside = _sciospec_filter(contacts=True)
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal((400, evidence.reference.size))
+    z = start.statistic(white, evidence.sigma, evidence.reference)[:, inside]
+    spread = np.std(z, axis=0)  # per pixel, from 400 frames: standard error 0.035
+    assert np.mean(spread) == pytest.approx(1.0, abs=0.01)
+    assert np.all(np.abs(spread - 1.0) < 0.2)
+    # a sheet-wide change of the conductivity (every channel by the same fraction)
+    drift = 0.01 * evidence.reference / evidence.sigma
+    assert np.nanmax(np.abs(start.statistic(drift, evidence.sigma, evidence.reference))) < 1e-6 * (
+        np.linalg.norm(drift)
+    )
+    # a fingertip at a pixel reads highest at that pixel (or next to it)
+    rows, cols = np.nonzero(inside)
+    for i in rng.choice(len(rows), 5, replace=False):
+        r, c = rows[i], cols[i]
+        change = disc[r, c] * np.abs(evidence.reference) / evidence.sigma
+        peak = np.unravel_index(
+            np.nanargmax(start.statistic(change, evidence.sigma, evidence.reference)), inside.shape
+        )
+        assert abs(peak[0] - r) <= 1 and abs(peak[1] - c) <= 1
+
+
+def test_an_electrode_contact_change_on_a_real_device_starts_nothing() -> None:
+    """Sciospec EIT32's object-free frames (noise correlated in time and across channels),
+    one electrode's contact impedance changing by as much as 30 noise sigmas along its
+    pattern: with the contact patterns projected out the filter stays under the START bar;
+    without them the same change reads as a touch at the boundary."""
+    for contacts in (True, False):
+        start, evidence, frames, _, contact, inside = _sciospec_filter(contacts)
+        white = (frames - evidence.reference) / evidence.sigma
+        # each pixel's statistic in units of its RMS over the object-free frames
+        rms = np.sqrt(
+            np.mean(
+                start.statistic(white, evidence.sigma, evidence.reference)[:, inside] ** 2, axis=0
+            )
+        )
+        worst = 0.0
+        for electrode in range(contact.shape[1]):
+            pattern = contact[:, electrode] * np.abs(evidence.reference) / evidence.sigma
+            step = 30.0 * pattern / np.sqrt(np.mean(pattern**2))
+            z = start.statistic(white + step, evidence.sigma, evidence.reference)[:, inside]
+            worst = max(worst, float(np.max(z / rms)))
+        if contacts:
+            assert worst < ClassifierConfig().k_detect, worst
+        else:
+            assert worst > 2 * ClassifierConfig().k_detect, worst
+
+
+def _noisy_electrode_events(monkeypatch=None) -> list:
+    """No touch; from 1 s the channels of electrode 3 get 10x their noise (a degrading
+    electrode before the pipeline names it). Images of noise only; the START filter built
+    from arbitrary fingertip patterns (every one of them sees those channels)."""
+    if monkeypatch is not None:  # the raw frames' electrode test off
+        monkeypatch.setattr(classifier_module, "ELECTRODE_FLICKER", np.inf)
+    t, images = sequence(lambda t: ([], 0.0), 3.0, seed=2)
+    rng = np.random.default_rng(4)
+    disc = rng.standard_normal((*images.shape[1:], M)).astype(np.float32)
+    disc[~INSIDE] = np.nan
+    clf = TouchClassifier(X, Y, channel_electrodes=CHANNEL_ELECTRODES, disc_rel=disc)
+    noisy = CHANNEL_ELECTRODES[:, 3]
+    events = []
+    for tk, image in zip(t, images, strict=True):
+        volts = 1.0 + 1e-3 * rng.standard_normal(M) * np.where(noisy & (tk >= 1.0), 10.0, 1.0)
+        events += clf.step(float(tk), image, None, volts)
+    assert clf.start_detector is not None  # the filter was in use
+    return events + clf.finish()
+
+
+def test_an_electrodes_noise_starts_nothing_from_the_raw_frames_filter(monkeypatch) -> None:
+    assert _noisy_electrode_events() == []
+    # it is the raw frames' electrode test that holds it: without it the noise STARTs
+    assert [e for e in _noisy_electrode_events(monkeypatch) if e.state == "start"]

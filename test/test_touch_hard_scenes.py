@@ -15,7 +15,7 @@ from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenar
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
 from eit_skin.touch.frame_evidence import channel_electrodes
-from eit_skin.touch.shapes import single_contact_spread
+from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 from test.patch_copies import small_disc_patch
 from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, blobs, envelope, sequence
 
@@ -217,19 +217,21 @@ def _degrading_electrode_images(tmp_path, seconds: float = 4.0, onset_s: float =
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
     electrodes = np.array([e.center for e in layer.electrodes])
     table = channel_electrodes(protocol)
-    return rec.t, np.array(images), faulty, imager.grid, spread, electrodes, frames, table
+    patterns = raw_patterns(layer, imager)
+    return rec.t, np.array(images), faulty, imager.grid, spread, electrodes, frames, table, patterns
 
 
 def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
     # issue 18: 10x noise on one electrode's channels, no touch; the pipeline's fault check
     # (every second) names it, but the noise of the frames before reaches the images
-    t, images, faulty, grid, spread, electrodes, volts, table = _degrading_electrode_images(
-        tmp_path
+    t, images, faulty, grid, spread, electrodes, volts, table, patterns = (
+        _degrading_electrode_images(tmp_path)
     )
     assert any(3 in f for f in faulty)  # named by the pipeline in the end ...
     assert not any(faulty[k] for k in range(len(t)) if t[k] < 2.0)  # ... not at once
 
-    def events(config=None, raw=False):
+    def events(config=None, raw=False, start_filter=False):
+        disc, contact = patterns if start_filter else (None, None)
         clf = TouchClassifier(
             grid.x,
             grid.y,
@@ -237,6 +239,8 @@ def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
             contact_spread_m=spread,
             electrodes_m=electrodes,
             channel_electrodes=table if raw else None,
+            disc_rel=disc,
+            contact_rel=contact,
         )
         out = []
         for k in range(len(t)):
@@ -247,6 +251,9 @@ def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
     assert events() == []
     # with the raw frames too: they name electrode 3, so the flicker is a fault's
     assert events(raw=True) == []
+    # and with their START filter, which the noisy channels reach before the pipeline
+    # names the electrode: the same raw-frame test keeps it from STARTing
+    assert events(raw=True, start_filter=True) == []
     # the flicker rule is what keeps it quiet: without it, the noise starts a touch
     assert ends(events(ClassifierConfig(start_roughness=0.0)))
     assert ends(events(ClassifierConfig(start_roughness=0.0), raw=True))

@@ -85,7 +85,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
     from eit_skin.resources import config_path
     from eit_skin.touch.classifier import TouchClassifier, classifier_layers
     from eit_skin.touch.frame_evidence import channel_electrodes
-    from eit_skin.touch.shapes import single_contact_spread
+    from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
@@ -113,6 +113,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
         stretch = _images(stretch_imager, stretch_reader, args, runs, patch.name)
     # one fingertip's blur at every pixel, m
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    disc, contact = raw_patterns(pressure_layer, imager)  # the raw frames' START filter
     electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
     classifier = TouchClassifier(
         imager.grid.x,
@@ -120,6 +121,8 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
         contact_spread_m=spread,
         electrodes_m=electrodes,
         channel_electrodes=channel_electrodes(imager.protocol),
+        disc_rel=disc,
+        contact_rel=contact,
     )
     t0 = None
     for times, pressure in _images(imager, reader, args, runs, patch.name):

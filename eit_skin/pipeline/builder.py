@@ -44,7 +44,7 @@ from eit_skin.inverse.methods import (
     METHODS_WITH_PRIOR,
     Reconstructor,
 )
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.one_step import ReconstructionMatrix, reference_scale
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.model import Layer
@@ -75,6 +75,23 @@ def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
         layer.contact_impedance_ohm_m,
         layer.current_a,
     )
+
+
+def contact_patterns(layer: Layer) -> np.ndarray:
+    """``[M, E]`` relative change of every channel per unit change of an electrode's contact.
+
+    The change per unit contact impedance of each electrode on the homogeneous sheet (V/V
+    per ohm m).
+
+    ``dV/dz_l`` of the layer's forward model (:meth:`ForwardModel.contact_jacobian`) over
+    ``|v|`` floored like a reference (:func:`~eit_skin.inverse.one_step.reference_scale`):
+    the unit of the relative Jacobian, so times ``|v_ref|`` both are volts. An electrode's
+    contact changing while nothing touches (sweat, creep, a connector) moves the frames
+    along its column.
+    """
+    model = forward_model(layer)
+    sheet = layer.material.sheet_conductance_s
+    return model.contact_jacobian(sheet) / reference_scale(model.voltages(sheet))[:, None]
 
 
 def choose_layer_model(layer: Layer, cache_dir: Path | str | None = "default") -> ModelChoice:

@@ -120,6 +120,8 @@ class ClassifierNode(Node):
             contact_spread_m=spread,
             electrodes_m=np.array([e.center for e in layer.electrodes], dtype=np.float64),
             channel_electrodes=channel_electrodes(protocol),
+            disc_rel=geometry.disc_rel,  # the raw frames' START filter
+            contact_rel=geometry.contact_rel,
         )
         self._frames: dict[int, np.ndarray] = {}  # stamp ns -> raw frame [M] V, oldest first
         self.pressure_layer = layer.name

@@ -54,7 +54,12 @@ from eit_skin.touch.contacts import (
     estimate_noise_map,
     noise_sample_frames,
 )
-from eit_skin.touch.frame_evidence import FrameEvidence, electrode_roughness, shape_change_z
+from eit_skin.touch.frame_evidence import (
+    FrameEvidence,
+    TouchFilter,
+    electrode_roughness,
+    shape_change_z,
+)
 from eit_skin.touch.shapes import BLOB_FRACTION, FINGER_RADIUS_M, blob_moments
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -595,6 +600,15 @@ class TouchClassifier:
         channel_electrodes: ``[M, E]`` bool, the electrodes each raw channel of the pressure
             layer uses (:func:`~eit_skin.touch.frame_evidence.channel_electrodes`), so that a
             faulty electrode's channels stay out of ``shape_z``; ``None``: all channels stay.
+        disc_rel: ``[H, W, M]`` relative change of every raw channel for a fingertip on
+            each pixel (:func:`~eit_skin.touch.shapes.disc_patterns`). With it, and a raw
+            frame with every calibration frame, a touch also STARTs from the raw frames'
+            filter (:class:`~eit_skin.touch.frame_evidence.TouchFilter`, in its own
+            :class:`~eit_skin.touch.contacts.PooledDetector`: :attr:`start_detector`);
+            ``None``: from the pooled image alone.
+        contact_rel: ``[M, E]`` relative change of every raw channel per change of each
+            electrode's contact impedance (:func:`~eit_skin.pipeline.builder.contact_patterns`),
+            projected out of that filter; ``None``: only the drift is.
     """
 
     def __init__(
@@ -607,6 +621,8 @@ class TouchClassifier:
         contact_spread_m: float | np.ndarray | None = None,
         electrodes_m: np.ndarray | None = None,
         channel_electrodes: np.ndarray | None = None,
+        disc_rel: np.ndarray | None = None,
+        contact_rel: np.ndarray | None = None,
     ) -> None:
         self.x = np.asarray(x, dtype=np.float64)
         self.y = np.asarray(y, dtype=np.float64)
@@ -630,6 +646,13 @@ class TouchClassifier:
         self._calibration_stretch: list[np.ndarray] = []
         self._calibration_volts: list[np.ndarray] = []
         self.evidence = FrameEvidence(channel_electrodes)
+        if disc_rel is not None and np.shape(disc_rel)[:2] != self._xx.shape:
+            raise ValueError(
+                f"disc_rel: [H, W, M] with [H, W] = {self._xx.shape}, got {np.shape(disc_rel)}"
+            )
+        self._disc_rel = disc_rel
+        self._contact_rel = contact_rel
+        self.touch_filter: TouchFilter | None = None  # set at calibration (raw frames given)
         self._change: np.ndarray | None = None  # the latest frame's whitened raw change
         self._run_changes: list[np.ndarray | None] = []  # beside _run_shapes
         self._t0: float | None = None
@@ -643,7 +666,10 @@ class TouchClassifier:
         self._noise_floor = 0.0
         self._touch: _Touch | None = None
         self.detector: PooledDetector | None = None
+        # START from the raw frames' filter (``disc_rel`` and raw frames given), else None
+        self.start_detector: PooledDetector | None = None
         self._armed = True
+        self._start_armed = True
         self._times: list[float] = []
         self._next_id = 1
         self.last_contacts: list[Contact] = []
@@ -756,6 +782,8 @@ class TouchClassifier:
                 self.stretch_noise = estimate_noise(s_stack)
         self.segmenter = ContactSegmenter(self.x, self.y, sigma, self.config.segmentation)
         inside = np.isfinite(stack).any(axis=0)
+        if len(self._calibration_volts) >= 3:
+            self.evidence.calibrate(np.stack(self._calibration_volts))
         if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():
             finger_m = float(np.median(self.contact_spread_m[inside]))
             kernel_px = self.config.detect_kernel * finger_m / self.pixel_m
@@ -763,8 +791,15 @@ class TouchClassifier:
                 inside, kernel_px, self.config.k_detect, n_avg, self.config.learn_fraction
             )
             self.detector.calibrate(averaged - self.baseline)
-        if len(self._calibration_volts) >= 3:
-            self.evidence.calibrate(np.stack(self._calibration_volts))
+            volts = np.stack(self._calibration_volts) if self._calibration_volts else None
+            if self._disc_rel is not None and volts is not None and len(volts) == len(stack):
+                # every calibration image came with its raw frame: START from their filter
+                self.touch_filter = TouchFilter(self._disc_rel, inside, self._contact_rel)
+                self.start_detector = PooledDetector(
+                    inside, kernel_px, self.config.k_detect, n_avg, self.config.learn_fraction
+                )
+                changes = _running_mean(self.evidence.whiten(volts), n_avg)
+                self.start_detector.calibrate_pooled(self._filtered(changes))
         self._calibration = []
         self._calibration_stretch = []
         self._calibration_volts = []
@@ -820,7 +855,19 @@ class TouchClassifier:
             self.detector.rising = not self.faulty and self._flicker < FLICKER
             run = self.detector.update(signal)
             self._armed = self._armed or not self.detector.hit
-            if self._armed and run >= self.config.start_frames:
+            run = run if self._armed else 0  # after an END, until the image fell silent
+            start = self.start_detector
+            if start is not None and self._whites:  # no raw frame: the image decides alone
+                start.rising = self.detector.rising
+                n = start.frames_per_sample
+                change = np.mean(self._whites[-n:], axis=0)
+                change[~self.evidence.usable(self.faulty)] = np.nan
+                filtered = start.update_pooled(self._filtered(change))
+                self._start_armed = self._start_armed or not start.hit
+                # an electrode's channels flickering like a fault START nothing
+                if self._start_armed and not (len(self._whites) >= 3 and self._fault_like()):
+                    run = max(run, filtered)
+            if run >= self.config.start_frames:
                 detected = self._times[-min(run, len(self._times))]
         contacts, parts = self.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
@@ -846,6 +893,10 @@ class TouchClassifier:
                 if volts is not None:
                     self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
         return self._advance(t_s, contacts, stretch_peak, shape, detected)
+
+    def _filtered(self, change: np.ndarray) -> np.ndarray:
+        """The raw frames' matched-filter maps ``[..., H, W]`` of whitened changes ``[..., M]``."""
+        return self.touch_filter.statistic(change, self.evidence.sigma, self.evidence.reference)
 
     def _sheet_offset(self, image: np.ndarray) -> float:
         """Sheet-wide offset of a baseline-free ``image`` ``[H, W]``: its median away from touch.
@@ -983,6 +1034,9 @@ class TouchClassifier:
             if not self.detector.quiet:  # possibly a weak touch building up: not noise
                 return
             self.detector.follow_noise(alpha)
+            start = self.start_detector
+            if start is not None and start.quiet:  # its own maps quiet too
+                start.follow_noise(alpha)
         if self._noise_var is None:
             return
         ok = np.isfinite(signal)
@@ -1041,7 +1095,7 @@ class TouchClassifier:
             else:  # the pooled detector saw it first: no contact segmented yet
                 self.tracker.reset()
                 touch.t_last_s = t_s
-                touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
+                touch.detect_centroid_m = self._seeing().peak_m(self.x, self.y)
             self._relabel(touch)
             return [self._event(touch, "start", t_s)]
         if not contacts:
@@ -1049,10 +1103,11 @@ class TouchClassifier:
             self.tracker.update(t_s, [])
             pending = not touch.counts  # started by the pooled detector, no contact yet
             if pending and self.detector is not None:
-                if self.detector.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
+                seeing = self._seeing()
+                if seeing.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
                     touch.t_last_s = t_s
                     touch.missing = 0
-                    touch.detect_centroid_m = self.detector.peak_m(self.x, self.y)
+                    touch.detect_centroid_m = seeing.peak_m(self.x, self.y)
                     return self._maybe_update(touch, t_s)
                 if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
                     return self._end(touch, t_s)
@@ -1072,6 +1127,14 @@ class TouchClassifier:
         self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
         return self._maybe_update(touch, t_s)
 
+    def _seeing(self) -> PooledDetector:
+        """The START detector that sees a touch before any contact.
+
+        The raw frames' filter when it has a hit, else the pooled image.
+        """
+        start = self.start_detector
+        return start if start is not None and start.hit else self.detector
+
     def _maybe_update(self, touch: _Touch, t_s: float) -> list[TouchEvent]:
         if t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
             self._relabel(touch)
@@ -1083,6 +1146,7 @@ class TouchClassifier:
         """END; the pooled detector waits for a silent pooled image before it starts again."""
         self._touch = None
         self._armed = False
+        self._start_armed = False
         self._relabel(touch)
         return [self._event(touch, "end", t_s)]
 

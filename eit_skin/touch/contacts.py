@@ -475,7 +475,14 @@ class PooledDetector:
         samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500); ``n`` counts the
         frames over :func:`noise_sample_frames` of the pooled maps.
         """
-        pooled = self.pool(images)
+        self.calibrate_pooled(self.pool(images))
+
+    def calibrate_pooled(self, pooled: np.ndarray) -> None:
+        """:meth:`calibrate` from already pooled no-touch maps ``[T, H, W]``.
+
+        E.g. the raw frames' :class:`~eit_skin.touch.frame_evidence.TouchFilter` statistic.
+        """
+        pooled = np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan)
         sigma = estimate_noise_map(pooled, window=1)
         self._noise_floor = 0.5 * estimate_noise(pooled)
         self._noise_var = sigma**2
@@ -490,9 +497,16 @@ class PooledDetector:
 
     def update(self, signal: np.ndarray) -> int:
         """Pool one baseline-free image ``[H, W]``; the longest run (frames) of ``z > k``."""
+        return self.update_pooled(self.pool(signal))
+
+    def update_pooled(self, pooled: np.ndarray) -> int:
+        """:meth:`update` from an already pooled map ``[H, W]``; the longest run of ``z > k``.
+
+        The map is of the kind given to :meth:`calibrate_pooled`.
+        """
         if self.noise is None:
             raise RuntimeError("PooledDetector.update before calibrate")
-        self.pooled = self.pool(signal)
+        self.pooled = np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan)
         # the previous frame's neighbourhood: needed by the rising-press rule only
         before = ndimage.maximum_filter(self.z, size=3, mode="constant") if self.rising else None
         with np.errstate(invalid="ignore"):

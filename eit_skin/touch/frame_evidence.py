@@ -84,13 +84,16 @@ class FrameEvidence:
         self.reference[ok] += alpha * (frame_v[ok] - self.reference[ok])
 
     def whiten(self, frame_v: np.ndarray | None) -> np.ndarray | None:
-        """``[M]`` change of ``frame_v`` from the reference in noise units (NaN: unusable)."""
+        """``[..., M]`` change of ``frame_v`` ``[..., M]`` from the reference, noise units.
+
+        NaN: unusable.
+        """
         if frame_v is None or self.reference is None:
             return None
         frame_v = np.asarray(frame_v, dtype=np.float64)
-        if frame_v.shape != self.reference.shape:
+        if frame_v.shape[-1:] != self.reference.shape:
             raise ValueError(
-                f"frame has {frame_v.size} channels, the calibration {self.reference.size}"
+                f"frame has {frame_v.shape[-1]} channels, the calibration {self.reference.size}"
             )
         return (frame_v - self.reference) / self.sigma
 
@@ -200,3 +203,55 @@ def shape_change_z(
     s2 = float(np.sum(resid * resid)) / ((a.size - design.shape[1]) * dof)
     c_t = coef[-1]
     return float((float(c_t @ c_t) / (var_t * s2) - dof) / math.sqrt(2.0 * dof))
+
+
+class TouchFilter:
+    """Matched filter of the whitened raw frames for a fingertip disc at every pixel.
+
+    The disc's pattern in volts is its relative pattern times ``|reference|``; whitened by
+    each channel's noise. A sheet-wide conductivity change (the reference's own pattern)
+    and each electrode's contact-impedance change (``nuisance``) are projected out of both
+    the patterns and the frames: they read zero. ``z_p = (P f_p) . x / |P f_p|``.
+
+    Args:
+        disc_rel: ``[H, W, M]`` relative change of every channel for a fingertip disc of
+            unit relative conductivity change on each pixel (NaN off the sheet).
+        inside: ``[H, W]`` bool.
+        nuisance_rel: ``[M, K]`` relative patterns to project out besides the drift.
+    """
+
+    def __init__(self, disc_rel, inside, nuisance_rel=None) -> None:
+        disc_rel = np.asarray(disc_rel, dtype=np.float64)
+        inside = np.asarray(inside, dtype=bool)
+        if disc_rel.ndim != 3 or disc_rel.shape[:2] != inside.shape:
+            raise ValueError(
+                f"disc_rel: [H, W, M] with [H, W] = {inside.shape}, got {disc_rel.shape}"
+            )
+        self.inside = inside & np.isfinite(disc_rel).all(axis=2)
+        if not self.inside.any():
+            raise ValueError("TouchFilter: no pixel inside the sheet")
+        self._disc = disc_rel[self.inside]  # [P, M]
+        self._nuisance = None if nuisance_rel is None else np.asarray(nuisance_rel, float)
+        self._rows: np.ndarray | None = None  # [P, M'] projected, unit-norm rows
+        self._usable: np.ndarray | None = None
+
+    def statistic(self, change, sigma, reference) -> np.ndarray:
+        """``[..., H, W]`` z maps of whitened changes ``[..., M]`` (NaN: channel left out)."""
+        change = np.asarray(change, dtype=np.float64)
+        usable = np.isfinite(change).reshape(-1, change.shape[-1]).all(axis=0)
+        usable &= np.isfinite(sigma) & np.isfinite(reference)
+        if self._rows is None or not np.array_equal(usable, self._usable):
+            self._usable = usable
+            scale = np.abs(reference[usable]) / sigma[usable]
+            rows = self._disc[:, usable] * scale
+            columns = [reference[usable] / sigma[usable]]
+            if self._nuisance is not None:
+                columns += list((self._nuisance[usable] * scale[:, None]).T)
+            basis, _ = np.linalg.qr(np.column_stack(columns))
+            rows = rows - (rows @ basis) @ basis.T
+            norm = np.linalg.norm(rows, axis=1, keepdims=True)
+            self._rows = rows / np.maximum(norm, np.finfo(float).tiny)
+        x = change[..., usable]
+        out = np.full((*change.shape[:-1], *self.inside.shape), np.nan)
+        out[..., self.inside] = x @ self._rows.T
+        return out

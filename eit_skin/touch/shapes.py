@@ -29,7 +29,13 @@ from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
-from eit_skin.pipeline.builder import LayerImager, cache_key, default_cache_dir, resolve_layer
+from eit_skin.pipeline.builder import (
+    LayerImager,
+    cache_key,
+    contact_patterns,
+    default_cache_dir,
+    resolve_layer,
+)
 
 BLOB_FRACTION = 0.3
 """Pixels count towards the moments by how far they exceed this fraction of the maximum
@@ -147,6 +153,31 @@ def single_contact_spread(
     return values[iy, ix]
 
 
+def disc_patterns(
+    grid: ImageGrid, mesh: Mesh, jacobian: np.ndarray, radius_m: float = FINGER_RADIUS_M
+) -> np.ndarray:
+    """``[H, W, M]`` float32 relative change of every channel for a fingertip on each pixel.
+
+    The fingertip is :func:`fingertip_discs` (``radius_m``) of unit relative conductivity
+    change; its pattern is ``J disc`` (``jacobian`` ``[M, N]``, relative, over ``mesh``'s
+    ``N`` elements): times ``|v_ref|`` it is volts. NaN on pixels outside the sheet. The raw
+    frames' START filter (:class:`~eit_skin.touch.frame_evidence.TouchFilter`).
+    """
+    jacobian = np.asarray(jacobian, dtype=np.float64)
+    inside = np.asarray(grid.inside, dtype=bool)
+    xx, yy = np.meshgrid(grid.x, grid.y)
+    points = np.column_stack([xx[inside], yy[inside]])
+    rows = np.concatenate(
+        [
+            fingertip_discs(points[i : i + 512], mesh, radius_m) @ jacobian.T  # 512 at a time
+            for i in range(0, len(points), 512)
+        ]
+    )
+    out = np.full((*inside.shape, jacobian.shape[0]), np.nan, dtype=np.float32)
+    out[inside] = rows
+    return out
+
+
 def layer_image_grid(layer: Layer) -> ImageGrid:
     """The pixel grid ``layer`` is imaged on, without any reconstruction matrix.
 
@@ -158,6 +189,23 @@ def layer_image_grid(layer: Layer) -> ImageGrid:
     )
 
 
+def raw_patterns(
+    layer: Layer, imager: LayerImager, radius_m: float = FINGER_RADIUS_M
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(disc_rel [H, W, M], contact_rel [M, E])`` of ``layer`` imaged by ``imager``.
+
+    A fingertip on each pixel (:func:`disc_patterns`) and each electrode's contact impedance
+    (:func:`~eit_skin.pipeline.builder.contact_patterns`), as relative channel changes; with
+    a magnitude-only device's signs (its frames are ``|v|``, they change by ``sign(v) dv``).
+    """
+    disc = disc_patterns(imager.grid, imager.mesh, imager.matrix.jacobian, radius_m)
+    contact = contact_patterns(layer)
+    if imager.signs is not None:
+        disc = disc * imager.signs.astype(np.float32)
+        contact = contact * imager.signs[:, None]
+    return disc, contact
+
+
 @dataclass(frozen=True)
 class ContactGeometry:
     """What touch classification needs of a pressure layer, and where it came from.
@@ -166,13 +214,21 @@ class ContactGeometry:
         grid: the layer's pixel grid (``[H, W]`` images).
         spread_m: ``[H, W]`` one fingertip's spread at every pixel, m
             (:func:`single_contact_spread`).
+        disc_rel: ``[H, W, M]`` float32 relative change of every raw channel for a
+            fingertip on each pixel (:func:`disc_patterns`; NaN off the sheet).
+        contact_rel: ``[M, E]`` relative change of every raw channel per change of each
+            electrode's contact impedance (:func:`~eit_skin.pipeline.builder.contact_patterns`).
         source: ``"spread cache"`` (no matrix touched), ``"matrix cache"`` (matrix rebuilt
             from the Jacobian the reconstruction cached) or ``"built"`` (forward model
             solved; its Jacobian is cached for the reconstruction too).
+
+    Both patterns carry a magnitude-only device's signs (its frames are ``|v|``).
     """
 
     grid: ImageGrid
     spread_m: np.ndarray
+    disc_rel: np.ndarray
+    contact_rel: np.ndarray
     source: str
 
 
@@ -183,15 +239,17 @@ def contact_geometry(
     stride: int = 2,
     fraction: float = BLOB_FRACTION,
 ) -> ContactGeometry:
-    """The pixel grid and single-finger spread map of ``layer``, reusing the cache.
+    """The pixel grid, single-finger spread map and raw-channel patterns of ``layer``, cached.
 
     The spread needs the layer's Jacobian and reconstruction matrix (the image of a disc is
-    ``R J disc``). It is computed once and stored in ``cache_dir`` next to the matrices the
-    reconstruction caches, as ``<cache_key(layer)>-spread.npz`` (keyed by the layer's content
-    hash, so an edited layer never reads a stale map; the disc parameters are checked on
-    load). A hit builds only the grid (the inverse mesh, no forward model, no matrix). A miss
-    takes the matrix from the reconstruction's cache (:meth:`LayerImager.build`), or builds
-    and caches it there, then stores the spread. ``cache_dir=None``: no cache at all.
+    ``R J disc``), the fingertip patterns the Jacobian (``J disc``), the contact patterns
+    the forward model. All are computed once and stored in ``cache_dir`` next to the
+    matrices the reconstruction caches, as ``<cache_key(layer)>-spread.npz`` (keyed by the
+    layer's content hash, so an edited layer never reads a stale map; the disc parameters
+    are checked on load). A hit builds only the grid (the inverse mesh, no forward model, no
+    matrix). A miss takes the matrix from the reconstruction's cache
+    (:meth:`LayerImager.build`), or builds and caches it there, then stores the rest.
+    ``cache_dir=None``: no cache at all.
     """
     directory = default_cache_dir() if cache_dir == "default" else cache_dir
     layer = resolve_layer(layer, directory)  # an accuracy target: its chosen model's grid
@@ -202,22 +260,29 @@ def contact_geometry(
         try:
             with np.load(path) as cached:
                 spread, stored = cached["spread_m"], cached["parameters"]
+                disc, contact = cached["disc_rel"], cached["contact_rel"]
             if (
                 spread.shape == grid.shape
+                and disc.shape[:2] == grid.shape
+                and contact.shape == (disc.shape[2], layer.n_electrodes)
                 and np.array_equal(stored, params)
                 and np.all(np.isfinite(spread) & (spread > 0))
             ):
-                return ContactGeometry(grid, spread, "spread cache")
+                return ContactGeometry(grid, spread, disc, contact, "spread cache")
         except (OSError, KeyError, ValueError):
-            pass  # unreadable or stale: recompute and overwrite below
+            pass  # unreadable or stale (or from before the patterns): recompute below
     imager = LayerImager.build(layer, cache_dir=directory)
     spread = single_contact_spread(
         imager.grid, imager.mesh, imager.matrix, radius_m, stride, fraction
     )
+    disc, contact = raw_patterns(layer, imager, radius_m)
     if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            write_npz_atomic(path, spread_m=spread, parameters=params)
+            write_npz_atomic(
+                path, spread_m=spread, disc_rel=disc, contact_rel=contact, parameters=params
+            )
         except OSError:
             pass  # a read-only cache only costs the computation next time
-    return ContactGeometry(imager.grid, spread, "matrix cache" if imager.from_cache else "built")
+    source = "matrix cache" if imager.from_cache else "built"
+    return ContactGeometry(imager.grid, spread, disc, contact, source)
