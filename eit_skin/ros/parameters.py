@@ -147,7 +147,7 @@ CLASSIFIER: ParameterTable = [
     ("baseline_tau_s", _CFG.baseline_tau_s, "baseline drift-following time constant, s"),
     ("start_frames", _CFG.start_frames, "consecutive frames with contact before START"),
     ("detect_kernel", _CFG.detect_kernel, "early START detector kernel, finger spreads; 0: off"),
-    ("k_detect", _CFG.k_detect, "early START threshold, multiples of the pooled image's noise"),
+    ("k_detect", _CFG.k_detect, "early START threshold, multiples of each detector's noise"),
     ("confirm_s", _CFG.confirm_s, "an early START with no contact segmented by then ends, s"),
     ("end_hold_s", _CFG.end_hold_s, "time without contact before END, s"),
     ("update_period_s", _CFG.update_period_s, "shortest time between UPDATEs, s"),
