@@ -42,7 +42,7 @@ from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import PostureTrack
 from eit_skin.touch.classifier import LABELS, ClassifierConfig, classify_stream
 from eit_skin.touch.frame_evidence import channel_electrodes
-from eit_skin.touch.shapes import single_contact_spread
+from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 
 RATE_HZ = 50.0
 LATENCY_TARGET_S = 0.150
@@ -148,10 +148,15 @@ def simulate(
 
 
 def evaluate(
-    runs: list[Run], spread: np.ndarray, config: ClassifierConfig | None = None, channels=None
+    runs: list[Run],
+    spread: np.ndarray,
+    config: ClassifierConfig | None = None,
+    channels=None,
+    patterns=(None, None),
 ):
     """(rows, unmatched END events) over touch runs; ``channels``: the pressure layer's
-    ``[M, E]`` channel-electrode map, given to hand the classifier the raw frames too."""
+    ``[M, E]`` channel-electrode map, given to hand the classifier the raw frames too;
+    ``patterns``: ``(disc_rel, contact_rel)`` of their START filter (``raw_patterns``)."""
     rows, extra = [], 0
     for run in runs:
         events = classify_stream(
@@ -164,6 +169,8 @@ def evaluate(
             contact_spread_m=spread,
             volts=None if channels is None else run.volts,
             channel_electrodes=channels,
+            disc_rel=None if channels is None else patterns[0],
+            contact_rel=None if channels is None else patterns[1],
         )
         r, false = score(events, run.truth)
         rows += r
@@ -217,8 +224,9 @@ def main() -> None:
         imager = LayerImager.build(patch.layers[0], args.cache_dir)
         spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
         channels = channel_electrodes(imager.protocol)
+        patterns = raw_patterns(patch.layers[0], imager)  # the node's START filter
         runs = [sim("touch", s, args.seconds) for s in seeds]
-        rows, extra = evaluate(runs, spread, None, channels)
+        rows, extra = evaluate(runs, spread, None, channels, patterns)
         idle = sim("idle", idle_seed, args.idle_seconds)
         idle_events = [
             e
@@ -231,6 +239,8 @@ def main() -> None:
                 contact_spread_m=spread,
                 volts=idle.volts,
                 channel_electrodes=channels,
+                disc_rel=patterns[0],
+                contact_rel=patterns[1],
             )
             if e.state == "end"
         ]
@@ -263,7 +273,7 @@ def main() -> None:
             conditions.append((f"{FAULT}, fault-tolerant imaging", "fault", fault_seeds))
         for title, kind, kind_seeds in conditions:
             runs = [sim(kind, s, args.seconds) for s in kind_seeds]
-            rows_c, _ = evaluate(runs, spread, None, channels)
+            rows_c, _ = evaluate(runs, spread, None, channels, patterns)
             cm_c = confusion(rows_c)
             acc = float(np.trace(cm_c[:, :4]) / max(cm_c.sum(), 1))
             line = (

@@ -670,6 +670,7 @@ class TouchClassifier:
         self.start_detector: PooledDetector | None = None
         self._armed = True
         self._start_armed = True
+        self._start_fresh = False  # the filter's map is of this frame
         self._times: list[float] = []
         self._next_id = 1
         self.last_contacts: list[Contact] = []
@@ -857,9 +858,11 @@ class TouchClassifier:
             self._armed = self._armed or not self.detector.hit
             run = run if self._armed else 0  # after an END, until the image fell silent
             start = self.start_detector
-            if start is not None and self._whites:  # no raw frame: the image decides alone
+            n = 0 if start is None else start.frames_per_sample
+            # a running mean of n raw frames, as calibrated (none yet: the image decides)
+            self._start_fresh = start is not None and len(self._whites) >= n
+            if self._start_fresh:
                 start.rising = self.detector.rising
-                n = start.frames_per_sample
                 change = np.mean(self._whites[-n:], axis=0)
                 change[~self.evidence.usable(self.faulty)] = np.nan
                 filtered = start.update_pooled(self._filtered(change))
@@ -1035,7 +1038,7 @@ class TouchClassifier:
                 return
             self.detector.follow_noise(alpha)
             start = self.start_detector
-            if start is not None and start.quiet:  # its own maps quiet too
+            if start is not None and self._start_fresh and start.quiet:  # its map quiet too
                 start.follow_noise(alpha)
         if self._noise_var is None:
             return
@@ -1260,15 +1263,23 @@ def classify_stream(
     contact_spread_m: float | np.ndarray | None = None,
     volts: np.ndarray | None = None,
     channel_electrodes: np.ndarray | None = None,
+    disc_rel: np.ndarray | None = None,
+    contact_rel: np.ndarray | None = None,
 ) -> list[TouchEvent]:
     """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise.
 
     ``contact_spread_m``: one fingertip's spread; ``volts``: ``[T, M]`` the pressure layer's
-    raw frames, V, and ``channel_electrodes`` their ``[M, E]`` electrode map (see
-    :class:`TouchClassifier`).
+    raw frames, V, ``channel_electrodes`` their ``[M, E]`` electrode map, ``disc_rel`` and
+    ``contact_rel`` the patterns of their START filter (see :class:`TouchClassifier`).
     """
     classifier = TouchClassifier(
-        x, y, config, contact_spread_m=contact_spread_m, channel_electrodes=channel_electrodes
+        x,
+        y,
+        config,
+        contact_spread_m=contact_spread_m,
+        channel_electrodes=channel_electrodes,
+        disc_rel=disc_rel,
+        contact_rel=contact_rel,
     )
     events: list[TouchEvent] = []
     for k in range(len(t_s)):
