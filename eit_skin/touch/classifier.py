@@ -601,9 +601,10 @@ class TouchClassifier:
             layer uses (:func:`~eit_skin.touch.frame_evidence.channel_electrodes`), so that a
             faulty electrode's channels stay out of ``shape_z``; ``None``: all channels stay.
         disc_rel: ``[H, W, M]`` relative change of every raw channel for a fingertip on
-            each pixel (:func:`~eit_skin.touch.shapes.disc_patterns`). With it, and a raw
-            frame with every calibration frame, a touch also STARTs from the raw frames'
-            filter (:class:`~eit_skin.touch.frame_evidence.TouchFilter`, in its own
+            each pixel (:func:`~eit_skin.touch.shapes.disc_patterns`). With it, a raw frame
+            with every calibration frame and ``channel_electrodes`` (its fault test needs
+            them), a touch also STARTs from the raw frames' filter
+            (:class:`~eit_skin.touch.frame_evidence.TouchFilter`, in its own
             :class:`~eit_skin.touch.contacts.PooledDetector`: :attr:`start_detector`);
             ``None``: from the pooled image alone.
         contact_rel: ``[M, E]`` relative change of every raw channel per change of each
