@@ -13,6 +13,7 @@ from eit_skin.resources import config_path
 from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenario
 from eit_skin.sim.simulator import SkinSimulator
+from eit_skin.sim.stimuli import Push
 from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
@@ -288,3 +289,47 @@ def test_a_palm_wide_press_starts_at_once_when_its_raw_frames_name_no_electrode(
     assert held >= 0.15  # the images alone: the flicker rule holds START back
     assert _palm_press_start_s("none", ClassifierConfig(start_roughness=0.0)) <= 0.06
     assert _palm_press_start_s("broad") <= 0.06
+
+
+def test_a_light_push_starts_sooner_from_its_raw_frames(tmp_path) -> None:
+    """A 0.05 N press in the middle of the small disc (0.25 s ramp): the pooled image alone
+    STARTs it past 100 ms; the raw frames' filter (docs/classifier.md 4b) at least a frame
+    sooner and within 100 ms, with the same label and END."""
+    path = tmp_path / "small.yaml"
+    path.write_text(small_disc_patch())
+    patch = load_patch(path)
+    layer = patch.layers[0]
+    push = Push(1.0, 1.0, (0.0, 0.0), 0.05, 0.006, 0.25)
+    sim = SkinSimulator(patch, Scenario("light", (push,), 2.5), 50.0, seed=7, drift=NO_DRIFT)
+    rec = sim.run(duration_s=2.5)
+    frames = rec.layers[layer.name].frames
+    imager = LayerImager.build(layer, cache_dir=tmp_path / "cache")
+    proc = LayerProcessor(imager)
+    n_ref = proc.reference_frames
+    proc.set_reference(frames[:n_ref].mean(axis=0), 0.0, frames[:n_ref])
+    images = [proc.step(frames[k], float(rec.t[k])).image for k in range(len(rec.t))]
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    disc, contact = raw_patterns(layer, imager)
+
+    def events(start_filter: bool):
+        clf = TouchClassifier(
+            imager.grid.x,
+            imager.grid.y,
+            contact_spread_m=spread,
+            channel_electrodes=channel_electrodes(imager.protocol),
+            disc_rel=disc if start_filter else None,
+            contact_rel=contact if start_filter else None,
+        )
+        out = []
+        for k in range(len(rec.t)):
+            out += clf.step(float(rec.t[k]), images[k], None, frames[k])
+        out = [e for e in out + clf.finish() if e.state != "update"]
+        assert [e.state for e in out] == ["start", "end"], out
+        return out
+
+    image_start, image_end = events(False)
+    start, end = events(True)
+    assert image_start.t_s - push.t_start_s > 0.1  # the image alone: late
+    assert start.t_s - push.t_start_s <= 0.1
+    assert start.t_s <= image_start.t_s - 0.02 + 1e-9
+    assert (end.label, end.t_s) == (image_end.label, image_end.t_s)
