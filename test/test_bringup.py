@@ -9,10 +9,15 @@ import subprocess
 import pytest
 from PIL import Image as PilImage
 
+from eit_skin.cli.run import _monitor_aware
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.bringup import find_executable
+from eit_skin.ros.node_graph import patch_nodes
+from eit_skin.ros.probe import Probe, start_node, stop_node
+from eit_skin.ros.topics import patch_topics
+from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -73,3 +78,33 @@ def test_bad_arguments_fail_clearly(tmp_path, env) -> None:
     assert result.returncode == 2 and "--all" in result.stderr
     result = run(["--patch", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)], env, 30)
     assert result.returncode == 2 and "missing.yaml" in result.stderr
+
+
+def test_the_runs_simulated_driver_waits_for_every_reader_of_its_frames(tmp_path, env) -> None:
+    """The driver of `eit-skin run` holds its script until all who read the pressure
+    layer's frames listen: the patch's own nodes that subscribe to them (counted here on
+    the real graph) and the run's monitor. One fewer let two of them start the script
+    without the third (a reconstruction that took its reference during the first push)."""
+    specs = patch_nodes("face", namespace="wait_face", sim=True, scenario="push", loop=False)
+    specs = [_monitor_aware(spec, specs) for spec in specs]
+    driver = next(spec for spec in specs if spec.executable == "eit_driver")
+    topic = patch_topics(load_patch(config_path("face")), "/wait_face").layers["pressure"].frames
+    probe = Probe("wait_probe")
+    logs, nodes = [], []
+    try:
+        for spec in specs:
+            if spec.executable != "eit_driver":
+                log = tmp_path / f"{spec.executable}.log"
+                params = {**spec.parameters, "cache_dir": env["EIT_SKIN_CACHE"]}
+                nodes.append(start_node(spec.executable, spec.namespace, params, log))
+                logs.append(log)
+        readers = len(nodes)  # each subscribes to the frames once
+        assert probe.spin_until(lambda: probe.node.count_subscribers(topic) >= readers, EVENT_S), (
+            "\n".join(log.read_text() for log in logs)
+        )
+        assert probe.node.count_subscribers(topic) == readers
+        assert driver.parameters["wait_for_subscribers"] == readers + 1  # and the monitor
+    finally:
+        for node in nodes:
+            assert stop_node(node) == 0
+        probe.close()

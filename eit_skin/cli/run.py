@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
                 ports=ports,
             )
         script_frames = {} if serial or args.duration else _script_frames(args, specs)
-        specs = [_monitor_aware(spec) for spec in specs]
+        specs = [_monitor_aware(spec, specs) for spec in specs]
         if args.calibration:
             specs = [_calibrated(spec, args.calibration) for spec in specs]
     except (ValueError, OSError) as error:
@@ -107,18 +107,27 @@ def _calibrated(spec, calibration: str):
     return replace(spec, parameters={**spec.parameters, "calibration": calibration})
 
 
-def _monitor_aware(spec):
-    """A simulated driver that waits for two frame subscribers: reconstruction and monitor.
+#: Nodes of a patch's graph that subscribe to its raw frames (besides the run's monitor).
+FRAME_READERS = ("eit_reconstruction", "eit_classifier")
 
-    The run's monitor also listens to the frames; waiting for one subscriber would let
-    the monitor alone start the script, and the reconstruction would miss the untouched
-    frames its reference is taken from.
+
+def _monitor_aware(spec, specs):
+    """A simulated driver that holds its script until every reader of its frames listens.
+
+    The patch's reconstruction reads every layer's frames, its classifier the pressure
+    layer's (``shape_z`` and the START filter), and the run's monitor all of them: the
+    driver starts once one of its publishers (the pressure layer's) has them all. Waiting
+    for fewer let two of them start the script without the third: the reconstruction then
+    took its reference during the first push (no first touch), or the monitor's clock
+    started a second late. One participant's subscriptions are discovered together, so the
+    other layers' readers are there too.
     """
     from dataclasses import replace
 
     if spec.executable != "eit_driver" or spec.parameters.get("port"):
         return spec
-    return replace(spec, parameters={**spec.parameters, "wait_for_subscribers": 2})
+    readers = sum(s.namespace == spec.namespace and s.executable in FRAME_READERS for s in specs)
+    return replace(spec, parameters={**spec.parameters, "wait_for_subscribers": readers + 1})
 
 
 def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:
