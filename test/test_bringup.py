@@ -9,7 +9,7 @@ import subprocess
 import pytest
 from PIL import Image as PilImage
 
-from eit_skin.cli.run import _monitor_aware
+from eit_skin.cli.run import waiting_for_readers
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
@@ -86,7 +86,7 @@ def test_the_runs_simulated_driver_waits_for_every_reader_of_its_frames(tmp_path
     the real graph) and the run's monitor. One fewer let two of them start the script
     without the third (a reconstruction that took its reference during the first push)."""
     specs = patch_nodes("face", namespace="wait_face", sim=True, scenario="push", loop=False)
-    specs = [_monitor_aware(spec, specs) for spec in specs]
+    specs = [waiting_for_readers(spec, specs) for spec in specs]
     driver = next(spec for spec in specs if spec.executable == "eit_driver")
     topic = patch_topics(load_patch(config_path("face")), "/wait_face").layers["pressure"].frames
     probe = Probe("wait_probe")

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
                 ports=ports,
             )
         script_frames = {} if serial or args.duration else _script_frames(args, specs)
-        specs = [_monitor_aware(spec, specs) for spec in specs]
+        specs = [waiting_for_readers(spec, specs) for spec in specs]
         if args.calibration:
             specs = [_calibrated(spec, args.calibration) for spec in specs]
     except (ValueError, OSError) as error:
@@ -111,7 +111,7 @@ def _calibrated(spec, calibration: str):
 FRAME_READERS = ("eit_reconstruction", "eit_classifier")
 
 
-def _monitor_aware(spec, specs):
+def waiting_for_readers(spec, specs):
     """A simulated driver that holds its script until every reader of its frames listens.
 
     The patch's reconstruction reads every layer's frames, its classifier the pressure
