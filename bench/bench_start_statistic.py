@@ -66,6 +66,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
 from eit_skin.touch.contacts import PooledDetector
+from eit_skin.touch.frame_evidence import TouchFilter
 from eit_skin.touch.shapes import FINGER_RADIUS_M, raw_patterns, single_contact_spread
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
@@ -87,33 +88,26 @@ class Maps:
 
 
 def matched_maps(
-    patterns, sigma, reference, changes: list[np.ndarray], nuisance: np.ndarray | None = None
+    disc, inside, sigma, reference, changes: list[np.ndarray], nuisance: np.ndarray | None = None
 ) -> list[np.ndarray]:
-    """Matched-filter maps ``[T, P]`` of each ``[T, M]`` change (volts).
+    """Matched-filter maps ``[T, P]`` (pixels ``inside``) of each ``[T, M]`` change (volts).
 
-    ``patterns`` ``[P, M]`` and ``nuisance`` ``[M, K]`` are relative changes (the Jacobian's
-    unit): times ``|reference|`` they are volts, divided by ``sigma`` whitened. The sheet-wide
-    drift pattern (the reference) and the span of ``nuisance`` are projected out.
+    The classifier's own filter (``TouchFilter``): ``disc`` ``[H, W, M]`` and ``nuisance``
+    ``[M, K]`` are relative changes, times ``|reference|`` volts; the changes are whitened by
+    ``sigma``; the sheet-wide drift pattern (the reference) and the span of ``nuisance`` are
+    projected out.
     """
-    ok = np.isfinite(sigma) & (sigma > 0) & np.isfinite(reference)
-    scale = np.abs(reference[ok]) / sigma[ok]
-    rows = patterns[:, ok] * scale
-    columns = [reference[ok] / sigma[ok]]
-    if nuisance is not None:
-        columns += list((nuisance[ok] * scale[:, None]).T)
-    basis, _ = np.linalg.qr(np.column_stack(columns))
-    rows = rows - (rows @ basis) @ basis.T
-    rows /= np.linalg.norm(rows, axis=1, keepdims=True)
-    return [np.nan_to_num(change[:, ok] / sigma[ok]) @ rows.T for change in changes]
+    start = TouchFilter(disc, inside, nuisance)
+    return [start.statistic(change / sigma, sigma, reference)[:, inside] for change in changes]
 
 
-def statistics(pooled, patterns, contacts, sigma, reference, changes) -> dict[str, Maps]:
+def statistics(pooled, disc, inside, contacts, sigma, reference, changes) -> dict[str, Maps]:
     """The three statistics' maps of one set (``changes``: calibration, no-touch, touch)."""
     return {
         "pooled image": Maps(*pooled),
-        "matched filter": Maps(*matched_maps(patterns, sigma, reference, changes)),
+        "matched filter": Maps(*matched_maps(disc, inside, sigma, reference, changes)),
         "matched filter, contacts out": Maps(
-            *matched_maps(patterns, sigma, reference, changes, contacts)
+            *matched_maps(disc, inside, sigma, reference, changes, contacts)
         ),
     }
 
@@ -197,9 +191,8 @@ def simulated(patch_name: str, scene: str, data_dir: Path, cache: Path) -> dict[
     sigma = difference_noise(volts[:n_cal])
     changes = running_mean2(volts - reference)
     disc, contacts = raw_patterns(layer, imager, FINGER_RADIUS_M)
-    patterns = disc[inside]
     sets = [changes[i] for i in (cal_idx, quiet_idx, touch_idx)]
-    return statistics(pooled, patterns, contacts, sigma, reference, sets)
+    return statistics(pooled, disc, inside, contacts, sigma, reference, sets)
 
 
 def real(name: str) -> tuple[dict[str, Maps], float]:
@@ -230,10 +223,9 @@ def real(name: str) -> tuple[dict[str, Maps], float]:
     detector = pooled_detector(imager, radius)
     pooled = pooled_maps(detector, inside, [images(c) for c in (cal, quiet, touch)])
     disc, contacts = raw_patterns(layer, imager, radius)  # with a magnitude device's signs
-    patterns = disc[inside]
     # channel noise: the repeated object-free frames, else the first 51 pre-press frames
     sigma = difference_noise(repeated if repeated is not None else extra["ups"][:51])
-    sets = statistics(pooled, patterns, contacts, sigma, reference, [cal, quiet, touch])
+    sets = statistics(pooled, disc, inside, contacts, sigma, reference, [cal, quiet, touch])
     return sets, data.expected_sign
 
 
