@@ -497,16 +497,20 @@ class PooledDetector:
 
     def update(self, signal: np.ndarray) -> int:
         """Pool one baseline-free image ``[H, W]``; the longest run (frames) of ``z > k``."""
-        return self.update_pooled(self.pool(signal))
+        return self._step(self.pool(signal))  # pooled maps are NaN off the sheet already
 
     def update_pooled(self, pooled: np.ndarray) -> int:
         """:meth:`update` from an already pooled map ``[H, W]``; the longest run of ``z > k``.
 
         The map is of the kind given to :meth:`calibrate_pooled`.
         """
+        return self._step(np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan))
+
+    def _step(self, pooled: np.ndarray) -> int:
+        """One float64 map ``[H, W]``, NaN off the sheet; the longest run of ``z > k``."""
         if self.noise is None:
             raise RuntimeError("PooledDetector.update before calibrate")
-        self.pooled = np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan)
+        self.pooled = pooled
         # the previous frame's neighbourhood: needed by the rising-press rule only
         before = ndimage.maximum_filter(self.z, size=3, mode="constant") if self.rising else None
         with np.errstate(invalid="ignore"):

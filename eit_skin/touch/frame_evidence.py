@@ -211,7 +211,10 @@ class TouchFilter:
     The disc's pattern in volts is its relative pattern times ``|reference|``; whitened by
     each channel's noise. A sheet-wide conductivity change (the reference's own pattern)
     and each electrode's contact-impedance change (``nuisance``) are projected out of both
-    the patterns and the frames: they read zero. ``z_p = (P f_p) . x / |P f_p|``.
+    the patterns and the frames: they read zero. ``z_p = (P f_p) . x / |P f_p|``. The
+    projected rows are built on the first call and again whenever the set of usable channels
+    changes, with that call's ``|reference|`` and ``sigma`` (a reference that follows slow
+    drift moves them by far less than the noise).
 
     Args:
         disc_rel: ``[H, W, M]`` relative change of every channel for a fingertip disc of
