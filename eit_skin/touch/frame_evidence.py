@@ -213,8 +213,8 @@ class TouchFilter:
     and each electrode's contact-impedance change (``nuisance``) are projected out of both
     the patterns and the frames: they read zero. ``z_p = (P f_p) . x / |P f_p|``. The
     projected rows are built on the first call and again whenever the set of usable channels
-    changes, with that call's ``|reference|`` and ``sigma`` (a reference that follows slow
-    drift moves them by far less than the noise).
+    changes, with that call's ``|reference|`` and ``sigma`` (a sheet-wide drift of the
+    reference scales every channel alike, which the unit-norm rows do not see).
 
     Args:
         disc_rel: ``[H, W, M]`` relative change of every channel for a fingertip disc of
