@@ -182,6 +182,7 @@ def test_colcon_build_installs_both_packages(repo: Path, tmp_path: Path) -> None
 MODULE_KEYS = {
     "numpy": "python3-numpy",
     "scipy": "python3-scipy",
+    "numba": "python3-numba",
     "yaml": "python3-yaml",
     "serial": "python3-serial",
     "matplotlib": "python3-matplotlib",

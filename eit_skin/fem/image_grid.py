@@ -169,7 +169,7 @@ class ImageGrid:
             )
         h, w = self.shape
         padded = np.concatenate([v2, np.full((v2.shape[0], 1), np.nan, np.float32)], axis=1)
-        return np.take(padded, self._owner, axis=1, mode="wrap").reshape(-1, h, w)[
+        return np.take(padded, self.pixel_owner, axis=1, mode="wrap").reshape(-1, h, w)[
             0 if single else slice(None)
         ]
 
@@ -179,10 +179,10 @@ class ImageGrid:
         The gathers use ``mode="wrap"``: every index is in range, and numpy's default mode
         checks and buffers (a 4096-pixel gather takes ~6 us instead of ~4).
         """
-        return row.take(self._owner, mode="wrap").reshape(self.shape)
+        return row.take(self.pixel_owner, mode="wrap").reshape(self.shape)
 
     @cached_property
-    def _owner(self) -> np.ndarray:
+    def pixel_owner(self) -> np.ndarray:
         """``[H*W]`` element under each pixel; ``N`` (a NaN column) where there is none.
 
         Every row of :attr:`matrix` holds at most one 1, so imaging is one gather, several
@@ -310,7 +310,7 @@ class PixelMatrix:
             raise ValueError(f"scale must be finite and non-zero, got {scale}")
         if not floor <= ceiling:
             raise ValueError(f"floor {floor} is above ceiling {ceiling}")
-        element = grid._owner  # [H*W], N where no element is
+        element = grid.pixel_owner  # [H*W], N where no element is
         elements, owner = np.unique(element[element < n], return_inverse=True)
         pixel_row = np.full(element.size, elements.size, dtype=np.intp)
         pixel_row[element < n] = owner.ravel()

@@ -4,7 +4,8 @@ Modules: ``builder`` (the only place that builds layer -> meshes -> forward mode
 layer's reconstruction method, cached on disk by content hash), ``model_choice`` (the
 coarsest model meeting a layer's accuracy target), ``reference`` (no-load
 reference: capture, drift, posture), ``processor`` (the per-frame pipeline of one layer:
-reference, drift, flags, faults, units, images), ``colour_scale`` (false colour for rviz).
+reference, drift, flags, faults, units, images), ``frame_kernel`` (its common case compiled
+with numba, bit for bit the numpy step), ``colour_scale`` (false colour for rviz).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "ColourScale": "colour_scale",
+    "FrameKernel": "frame_kernel",
     "LayerImager": "builder",
     "Operator": "builder",
     "LayerImages": "processor",
@@ -33,6 +35,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "ColourScale",
+    "FrameKernel",
     "LayerImager",
     "LayerImages",
     "LayerProcessor",
@@ -59,6 +62,7 @@ if TYPE_CHECKING:
         with_method,
     )
     from eit_skin.pipeline.colour_scale import ColourScale
+    from eit_skin.pipeline.frame_kernel import FrameKernel
     from eit_skin.pipeline.processor import LayerImages, LayerProcessor
     from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 

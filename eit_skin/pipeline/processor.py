@@ -29,7 +29,9 @@ Per frame ``[M]`` volts at frame time ``t_s``:
    as a contact and drift tracking learns touches into the reference.
 4. **Image.** Relative change per element against the current reference, then contact
    decision and drift tracking (the reference follows untouched frames), then the physical
-   image (the layer's unit) on the image grid.
+   image (the layer's unit) on the image grid. A frame of a pressure layer whose every
+   channel is used takes these four in one compiled call
+   (:class:`~eit_skin.pipeline.frame_kernel.FrameKernel`), bit for bit the numpy steps.
 
 Same frames, same times, same settings: bit-identical images, whichever process runs it.
 """
@@ -47,6 +49,7 @@ from eit_skin.frames import FLAG_INVALID, flagged_as_nan
 from eit_skin.inverse.channel_noise import UnusableReferenceError
 from eit_skin.inverse.electrode_faults import faulty_electrodes
 from eit_skin.pipeline.builder import LayerImager, ReferenceReport
+from eit_skin.pipeline.frame_kernel import FrameKernel
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 
 #: Defaults shared by the node's parameters and the offline commands' options.
@@ -113,6 +116,8 @@ class LayerProcessor:
         fault_check_period_s: frame time between fault checks, s; <= 0: never.
         fault_check_phase: checks fall at frame times ``(k + phase) * period``, phase in
             [0, 1) (:func:`fault_check_phase`).
+        compiled_step: False: every frame takes the numpy path (the reference
+            implementation the compiled step is tested against).
     """
 
     def __init__(
@@ -124,6 +129,7 @@ class LayerProcessor:
         posture: PostureReferences | None = None,
         fault_check_period_s: float = DEFAULT_FAULT_CHECK_PERIOD_S,
         fault_check_phase: float = 0.0,
+        compiled_step: bool = True,
     ) -> None:
         if not 0.0 <= fault_check_phase < 1.0:
             raise ValueError(f"fault_check_phase must be in [0, 1), got {fault_check_phase}")
@@ -136,6 +142,9 @@ class LayerProcessor:
             float(contact_k),
             posture,
         )
+        self._kernel = FrameKernel(imager, compiled_step)
+        self._excluded_seen: np.ndarray | None = None
+        self._excluded_any = False
         self.fault_check_period_s = float(fault_check_period_s)
         self.fault_check_phase = float(fault_check_phase)
         self._recent: deque[np.ndarray] = deque(maxlen=FAULT_WINDOW_FRAMES)
@@ -149,6 +158,7 @@ class LayerProcessor:
         self.frames_in = 0
         self.frames_imaged = 0
         self.frames_unusable = 0
+        self.frames_compiled = 0  # imaged by the compiled step (FrameKernel)
 
     # ------------------------------------------------------------ diagnostics
     @property
@@ -261,13 +271,14 @@ class LayerProcessor:
             return None
         self._recent.append(frame)
         self._check_faults_if_due(t_s, reference)
-        excluded = self.imager.reference_excluded
-        if (
+        excluded = self._reference_excluded()
+        common = (
             n_finite == m
             and not self._faulty.size
             and excluded is None
             and np.isfinite(reference).all()
-        ):
+        )
+        if common:
             used = m  # the common case, without building the mask
         else:
             usable = finite & np.isfinite(reference) & ~self._fault_mask
@@ -277,10 +288,15 @@ class LayerProcessor:
         if used == 0:
             self.frames_unusable += 1
             return None
-        values = self.imager.relative_change(frame, reference, self._fault_flags)
-        touching = tracker.touching(values)
-        tracker.track(frame, t_s, touching)
-        image = self.imager.physical_image(values)
+        compiled = self._compiled_step(frame, reference, t_s) if common else None
+        if compiled is None:
+            values = self.imager.relative_change(frame, reference, self._fault_flags)
+            touching = tracker.touching(values)
+            tracker.track(frame, t_s, touching)
+            image = self.imager.physical_image(values)
+        else:
+            values, image, touching = compiled
+            self.frames_compiled += 1
         self.frames_imaged += 1
         faulty = tuple(int(e) for e in self._faulty)
         return LayerImages(t_s, values, image, touching, used, faulty, frame)
@@ -299,6 +315,37 @@ class LayerProcessor:
             self.step(frames[k], times[k], None if flags is None else flags[k])
             for k in range(frames.shape[0])
         ]
+
+    def _reference_excluded(self) -> np.ndarray | None:
+        """The channels the reference check left out (bool ``[M]``); None for none.
+
+        Looked at again only when the check made a new mask.
+        """
+        excluded = self.imager.reference_excluded
+        if excluded is not self._excluded_seen:
+            self._excluded_seen = excluded
+            self._excluded_any = excluded is not None and bool(excluded.any())
+        return excluded if self._excluded_any else None
+
+    def _compiled_step(
+        self, frame: np.ndarray, reference: np.ndarray, t_s: float
+    ) -> tuple[np.ndarray, np.ndarray, bool] | None:
+        """Relative change, image and contact of a frame by the compiled kernel, or None.
+
+        For frames whose every channel is used; drift tracking included. None: the frame
+        takes the numpy path.
+        """
+        kernel, tracker = self._kernel, self.tracker
+        if kernel.kernel is None or tracker.posture is not None or not kernel.usable():
+            return None
+        alpha = tracker.drift_alpha(t_s)
+        out = kernel.step(frame, reference, tracker.element_noise, tracker.contact_k, alpha)
+        if out is None:
+            return None
+        values, image, base, touching = out
+        if not touching and alpha is not None:
+            tracker.follow(base, t_s)
+        return values, image, touching
 
     # ----------------------------------------------------------------- faults
     def _reference_ready(self, t_s: float) -> None:

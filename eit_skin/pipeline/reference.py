@@ -315,7 +315,8 @@ class ReferenceTracker:
 
         Channels whose value is non-finite in the frame keep their reference.
         """
-        if self._base is None or touching or self.drift_time_constant_s <= 0:
+        alpha = None if touching else self.drift_alpha(t_s)
+        if alpha is None:
             return
         frame = self._frame(frame_v)
         if self.posture is None:
@@ -327,14 +328,29 @@ class ReferenceTracker:
         all_finite = bool(finite.all())
         if not all_finite and not finite.any():
             return
-        dt = 0.0 if self.updated_at_s is None else max(0.0, t_s - self.updated_at_s)
-        alpha = 1.0 - math.exp(-dt / self.drift_time_constant_s)
         if all_finite:  # the common case: every channel follows
-            self._base = self._base + alpha * (target - self._base)
+            self.follow(self._base + alpha * (target - self._base), t_s)
         else:
             with np.errstate(invalid="ignore"):  # inf targets: masked out below
                 moved = self._base + alpha * (target - self._base)
-            self._base = np.where(finite, moved, self._base)
+            self.follow(np.where(finite, moved, self._base), t_s)
+
+    def drift_alpha(self, t_s: float) -> float | None:
+        """Weight in [0, 1) an untouched frame at ``t_s`` s gets in the reference.
+
+        None while there is no reference or tracking is off.
+        """
+        if self._base is None or self.drift_time_constant_s <= 0:
+            return None
+        dt = 0.0 if self.updated_at_s is None else max(0.0, t_s - self.updated_at_s)
+        return 1.0 - math.exp(-dt / self.drift_time_constant_s)
+
+    def follow(self, base_v: np.ndarray, t_s: float) -> None:
+        """Take ``base_v`` ``[M]`` V as the reference followed up to ``t_s`` s.
+
+        ``base_v``: the reference moved towards the frame with :meth:`drift_alpha` ``(t_s)``.
+        """
+        self._base = base_v
         self.updated_at_s = t_s
         self.drift_updates += 1
 

@@ -43,6 +43,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, default_cache_dir
 from eit_skin.pipeline.colour_scale import ColourScale
+from eit_skin.pipeline.frame_kernel import compiled_step_status
 from eit_skin.pipeline.processor import (
     LayerProcessor,
     fault_check_phase,
@@ -191,7 +192,8 @@ class ReconstructionNode(Node):
             self.create_timer(float(p["marker_period_s"]), self._publish_markers)
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): layers {list(self.layers)}; "
-            f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}"
+            f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}; "
+            f"per-frame step {compiled_step_status()}"
         )
 
     # ------------------------------------------------------------------ frames
@@ -383,6 +385,7 @@ class ReconstructionNode(Node):
                 "frames_dropped": str(state.dropped),
                 "frames_rejected": str(state.rejected),
                 "frames_unusable": str(processor.frames_unusable),
+                "frames_compiled": str(processor.frames_compiled),
                 "reference_ready": str(processor.reference_ready).lower(),
                 "reference_age_s": f"{processor.reference_age_s(now * 1e-9):.1f}",
                 "drift_updates": str(processor.drift_updates),
