@@ -149,6 +149,7 @@ class LayerProcessor:
         self.fault_check_phase = float(fault_check_phase)
         self._recent: deque[np.ndarray] = deque(maxlen=FAULT_WINDOW_FRAMES)
         self._faulty = np.zeros(0, dtype=np.int64)
+        self._faulty_names: tuple[int, ...] = ()  # the same, as each image carries them
         self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
         self._fault_flags: np.ndarray | None = None
         self._next_fault_check_s: float | None = None
@@ -298,8 +299,7 @@ class LayerProcessor:
             values, image, touching = compiled
             self.frames_compiled += 1
         self.frames_imaged += 1
-        faulty = tuple(int(e) for e in self._faulty)
-        return LayerImages(t_s, values, image, touching, used, faulty, frame)
+        return LayerImages(t_s, values, image, touching, used, self._faulty_names, frame)
 
     def process(
         self, frames_v: np.ndarray, t_s: np.ndarray, flags: np.ndarray | None = None
@@ -392,6 +392,7 @@ class LayerProcessor:
         if np.array_equal(faulty, self._faulty):
             return False
         self._faulty = faulty
+        self._faulty_names = tuple(int(e) for e in faulty)
         if faulty.size:
             self._fault_mask = protocol.touching(faulty)
             self._fault_flags = self._fault_mask.astype(np.uint8) * np.uint8(FLAG_INVALID)
