@@ -209,7 +209,7 @@ def staged_node(stage: str) -> type:
             if stage == "reconstruct":
                 state.imager.relative_change(frame, state.processor.reference())
             if stage != "receive":
-                self._publish_images(state, msg.header, state.last_image)
+                self._publish_images(state, msg, state.last_image)
             state.imaged += 1
 
     return StagedNode

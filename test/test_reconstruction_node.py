@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
@@ -268,6 +269,20 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
         # every rejected frame is counted, but a bad stream logs one line per 5 s
         lines = text.count("rejected frame on layer")
         assert 1 <= lines <= 1 + (time.monotonic() - started) / REJECT_LOG_PERIOD_S, text
+        # bytes that are not a whole EitFrame (the node reads the CDR itself) are counted too
+        rejected = int(status["frames_rejected"])
+        damaged = serialize_message(wrong_pattern)[:60]
+        for _ in range(5):
+            publisher.publish(damaged)
+            probe.spin_for(0.1)
+        assert probe.spin_until(
+            lambda: (
+                int(diagnostics_of(probe, "pressure")["frames_rejected"]) >= rejected + 3
+                and "undecodable frame: byte" in diagnostics_of(probe, "pressure")["message"]
+            ),
+            EVENT_S,
+        )
+        assert recon.poll() is None
         assert probe.messages["/arm/pressure/image"] == []
     finally:
         assert stop_node(recon) == 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -21,6 +22,7 @@ from eit_skin.io.cdr import (
     decode_eit_frame_cdr,
     eit_frame_msgdef,
     encode_eit_frame_cdr,
+    read_eit_frame,
 )
 from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
 from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
@@ -133,6 +135,71 @@ def test_real_eit_frame_messages():
     assert decode_eit_frame_cdr(serialization.serialize_message(msg)) == rec
     back = serialization.deserialize_message(encode_eit_frame_cdr(rec), msgs.EitFrame)
     assert FrameRecord.from_msg(back) == rec
+
+
+def _cdr(rec: FrameRecord, order: str) -> bytes:
+    """An EitFrame as plain CDR in byte order ``order`` ("<" or ">"), written field by field
+    from the message definition (alignment counted after the 4-byte header)."""
+    out = bytearray(b"\x00\x01\x00\x00" if order == "<" else b"\x00\x00\x00\x00")
+
+    def put(fmt: str, *values) -> None:
+        size = struct.calcsize(fmt)
+        out.extend(b"\x00" * (-(len(out) - 4) % size))
+        out.extend(struct.pack(order + fmt, *values))
+
+    def text(value: str) -> None:
+        put("I", len(value) + 1)
+        out.extend(value.encode() + b"\x00")
+
+    put("iI", *divmod(rec.stamp_ns, 10**9))
+    text(rec.frame_id)
+    text(rec.patch)
+    text(rec.layer)
+    put("H", rec.n_electrodes)
+    text(rec.drive_pattern)
+    put("d", rec.current_a)
+    put("I", rec.sequence)
+    put("I", rec.voltages.size)
+    out.extend(rec.voltages.astype(order + "f4").tobytes())
+    put("I", rec.channel_flags.size)
+    out.extend(rec.channel_flags.tobytes())
+    return bytes(out)
+
+
+NAMES = [
+    ("arm_link", "arm", "pressure", "adjacent"),
+    ("", "", "", ""),
+    ("a", "bc", "def", "skip-2"),
+    ("abc", "d", "ef", "g"),
+]
+
+
+@pytest.mark.parametrize("names", NAMES)
+def test_frames_are_read_from_cdr_of_either_byte_order_with_every_string_length(names):
+    """``read_eit_frame`` (the reconstruction node's decoder): every padding case of the four
+    strings before the double, little- and big-endian, and rclpy's own bytes."""
+    serialization = pytest.importorskip("rclpy.serialization")
+    frame_id, patch, layer, pattern = names
+    base = record(4, m=24)
+    rec = FrameRecord(base.stamp_ns, frame_id, patch, layer, 16, pattern, 2.5e-4, 7,
+                      base.voltages, base.channel_flags)  # fmt: skip
+    little = _cdr(rec, "<")
+    assert little == encode_eit_frame_cdr(rec)  # the helper writes what the codec writes
+    for data in (little, _cdr(rec, ">"), serialization.serialize_message(rec.to_msg())):
+        assert decode_eit_frame_cdr(data) == rec
+        fields = read_eit_frame(data)
+        assert (fields.stamp_ns, fields.sequence, fields.drive_pattern) == (
+            rec.stamp_ns, 7, pattern)  # fmt: skip
+        assert not fields.voltages.flags.writeable
+
+
+def test_truncated_or_foreign_bytes_are_refused_with_the_byte_offset():
+    data = encode_eit_frame_cdr(record(3, m=12))
+    for cut in range(len(data)):
+        with pytest.raises(ValueError, match=r"^byte \d+: "):
+            read_eit_frame(data[:cut])
+    with pytest.raises(ValueError, match="byte 0: not a plain CDR EitFrame"):
+        read_eit_frame(b"\x00\x03" + data[2:])  # XCDR2 / parameter-list encapsulation
 
 
 def test_writer_accepts_ros_messages(tmp_path):

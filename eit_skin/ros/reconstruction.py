@@ -34,12 +34,13 @@ from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from eit_skin.calibration.online import OnlineLocaliser
 from eit_skin.hardware.sources import RateMeter, pattern_name
+from eit_skin.io.cdr import EitFrameFields, read_eit_frame
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager, default_cache_dir
@@ -160,11 +161,12 @@ class ReconstructionNode(Node):
                 frames_topic=topic.frames,
                 marker_topic=topic.marker,
             )
-            self.create_subscription(
+            self.create_subscription(  # CDR bytes: read_eit_frame beats rclpy's message
                 _frame_type(),
                 topic.frames,
-                lambda msg, name=layer.name: self._on_frame(name, msg),
+                lambda data, name=layer.name: self._on_frame(name, data),
                 FRAME_QOS,
+                raw=True,
             )
         self.joint = joint
         self.calibrated_pub = None
@@ -209,14 +211,19 @@ class ReconstructionNode(Node):
         state.last_reject = reason
         self._log_reject(f"rejected frame on layer {state.layer.name}: {reason}")
 
-    def _on_frame(self, name: str, msg) -> None:
+    def _on_frame(self, name: str, data: bytes) -> None:
         state = self.layers[name]
         state.last_arrival = time.monotonic()
+        try:
+            msg = read_eit_frame(data)
+        except ValueError as error:
+            self._reject(state, f"undecodable frame: {error}")
+            return
         m = state.imager.n_measurements
-        if len(msg.voltages) != m or msg.n_electrodes != state.layer.n_electrodes:
+        if msg.voltages.size != m or msg.n_electrodes != state.layer.n_electrodes:
             self._reject(
                 state,
-                f"frame has {len(msg.voltages)} values / {msg.n_electrodes} electrodes, "
+                f"frame has {msg.voltages.size} values / {msg.n_electrodes} electrodes, "
                 f"patch config {self.patch.name}/{name} expects {m} / {state.layer.n_electrodes}",
             )
             return
@@ -232,23 +239,24 @@ class ReconstructionNode(Node):
             if 1 < gap < 2**31:
                 state.dropped += gap - 1
         state.last_sequence = msg.sequence
-        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        frame = np.frombuffer(msg.voltages, dtype=np.float32).astype(np.float64)
-        flags = np.frombuffer(msg.channel_flags, np.uint8) if len(msg.channel_flags) else None
+        frame = msg.voltages.astype(np.float64)
+        flags = msg.channel_flags if msg.channel_flags.size else None
         if flags is not None and flags.size != m:
             self._reject(state, f"frame has {flags.size} channel flags for {m} values")
             return
         if self.joint:  # image it once the joint angle at its acquisition time is known
             self._release(
-                self.posture_sync.push(stamp_ns, time.monotonic_ns(), (state, msg, frame, flags))
+                self.posture_sync.push(
+                    msg.stamp_ns, time.monotonic_ns(), (state, msg, frame, flags)
+                )
             )
             return
         self._image(state, msg, frame, flags, None)
 
-    def _image(self, state: LayerState, msg, frame: np.ndarray, flags, angle) -> None:
+    def _image(self, state: LayerState, msg: EitFrameFields, frame: np.ndarray, flags, angle):
         """Step the layer's processor with a decoded frame and publish what it gives."""
         name = state.layer.name
-        stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        stamp_ns = msg.stamp_ns
         started = time.perf_counter()
         processor = state.processor
         was_ready = processor.reference_ready
@@ -260,19 +268,20 @@ class ReconstructionNode(Node):
         if out is None:
             return
         if self.calibrated_pub is not None and name == self.calibration.layer_name:
-            self._publish_calibrated(msg.header, frame, flags, out, processor)
-        self._publish_images(state, msg.header, out.image)
+            self._publish_calibrated(_header(msg), frame, flags, out, processor)
+        self._publish_images(state, msg, out.image)
         state.last_image = out.image
         state.imaged += 1
         state.rate.tick()
         state.latencies_ms.append((time.time_ns() - stamp_ns) * 1e-6)
         state.processing_ms.append((time.perf_counter() - started) * 1e3)
 
-    def _publish_images(self, state: LayerState, header, physical: np.ndarray) -> None:
+    def _publish_images(self, state: LayerState, msg: EitFrameFields, physical: np.ndarray):
         """Publish the float image (and the colour one to a viewer) of one frame.
 
-        The messages are built once per layer and refilled: ``publish`` serialises before it
-        returns, so reuse is safe, and it saves the message constructors' per-field checks.
+        Stamped and framed like the frame ``msg``. The messages are built once per layer and
+        refilled: ``publish`` serialises before it returns, so reuse is safe, and it saves the
+        message constructors' per-field checks.
         """
         height, width = physical.shape
         image = state.image_msg
@@ -280,7 +289,10 @@ class ReconstructionNode(Node):
             image = state.image_msg = Image(height=height, width=width, encoding="32FC1")
             image.is_bigendian = int(sys.byteorder == "big")
             image.step = width * 4
-        image.header = header
+        header = image.header
+        header.stamp.sec, header.stamp.nanosec = msg.stamp_sec, msg.stamp_nanosec
+        if header.frame_id != msg.frame_id:
+            header.frame_id = msg.frame_id
         data = array.array("B")
         data.frombytes(memoryview(np.ascontiguousarray(physical, dtype=np.float32)).cast("B"))
         image.data = data
@@ -290,7 +302,7 @@ class ReconstructionNode(Node):
             state.colour_wanted = state.colour_pub.get_subscription_count() > 0
             state.colour_checked_s = now
         if state.colour_wanted:  # rendered only for a viewer
-            colour = Image(header=header, height=height, width=width, encoding="rgb8")
+            colour = Image(header=_header(msg), height=height, width=width, encoding="rgb8")
             colour.step = width * 3
             colour.data = state.scale.to_rgb(physical).tobytes()
             state.colour_pub.publish(colour)
@@ -434,6 +446,13 @@ class ReconstructionNode(Node):
                 )
             )
         self.diagnostics.publish(msg)
+
+
+def _header(msg: EitFrameFields) -> Header:
+    """A frame's header as a message (stamp, frame_id)."""
+    header = Header(frame_id=msg.frame_id)
+    header.stamp.sec, header.stamp.nanosec = msg.stamp_sec, msg.stamp_nanosec
+    return header
 
 
 def _frame_type():
