@@ -94,38 +94,6 @@ class _CdrWriter:
         self.buf += values.tobytes()
 
 
-class _CdrReader:
-    def __init__(self, data: bytes) -> None:
-        if data[:2] != b"\x00\x01":
-            raise ValueError(f"not little-endian plain CDR (encapsulation {data[:4].hex()})")
-        self.data = memoryview(data)[4:]
-        self.pos = 0
-
-    def align(self, n: int) -> None:
-        self.pos += -self.pos % n
-
-    def unpack(self, fmt: str) -> Any:
-        size = struct.calcsize(fmt)
-        self.align(size)
-        (value,) = struct.unpack_from("<" + fmt, self.data, self.pos)
-        self.pos += size
-        return value
-
-    def string(self) -> str:
-        n = self.unpack("I")
-        text = bytes(self.data[self.pos : self.pos + n]).rstrip(b"\x00").decode()
-        self.pos += n
-        return text
-
-    def array(self, dtype: str) -> np.ndarray:
-        n = self.unpack("I")
-        dt = np.dtype(dtype)
-        self.align(dt.itemsize)
-        values = np.frombuffer(self.data, dt, n, self.pos).copy()
-        self.pos += n * dt.itemsize
-        return values
-
-
 def encode_eit_frame_cdr(record: FrameRecord) -> bytes:
     """Serialise an EitFrame to CDR bytes (with the 4-byte encapsulation header)."""
     w = _CdrWriter()
