@@ -3,7 +3,7 @@
 The same three-process set-up as ``bench_skin.py``'s throughput runs (K face patches at
 100 Hz in one worker process pinned to CPU 0, a feeder and a sink on CPU 1), run once per
 stage of the node's per-frame work (``bench_skin.staged_node``): the frame only received,
-then also an image published, then also the matrix product, then the node as shipped. The
+then also an image published, then the node as shipped. The
 differences between the stages are what each part costs in that process (caches shared by
 K patches, DDS threads included).
 
@@ -26,11 +26,10 @@ import numpy as np
 
 #: What each stage adds to the one before (report rows).
 ADDS = {
-    "receive": "take the frame from DDS, decode and check it (rclpy, `_on_frame`)",
+    "receive": "take the frame from DDS as CDR bytes, read and check it (`_on_frame`)",
     "publish": "publish a 32FC1 image (the face grid, 64 x 45)",
-    "reconstruct": "the relative change: reference scaling and the matrix product",
-    "full": "the rest of the shipped step: drift tracking, contact test, fault-check "
-    "buffer, physical image, bookkeeping",
+    "full": "the per-frame step (compiled kernel: relative change, contact test, drift, "
+    "physical image; fault-check buffer) and the node's bookkeeping",
 }
 
 
@@ -89,7 +88,7 @@ def main() -> None:
         "such a stretch while 50 x 100 x (CPU per frame) x slowdown stays under 1000 ms: "
         "0.108-0.133 ms per frame. What that leaves for the imaging itself is "
         f"{0.108 - io:.3f}-{0.133 - io:.3f} ms against the "
-        f"{median['full'] - io:.3f} ms it takes in Python.",
+        f"{median['full'] - io:.3f} ms it takes (the compiled step and the Python around it).",
         "",
     ]
     args.out.write_text("\n".join(lines))

@@ -179,18 +179,18 @@ def face_copy(i: int, directory: Path) -> str:
 
 #: What a worker's nodes do with a frame once their reference is captured
 #: (:func:`staged_node`); ``full`` is the shipped node.
-STAGES = ("receive", "publish", "reconstruct", "full")
+STAGES = ("receive", "publish", "full")
 
 
 def staged_node(stage: str) -> type:
     """The reconstruction node cut after ``stage`` of its per-frame work (:data:`STAGES`).
 
-    * ``receive``: the frame taken from DDS, decoded and checked (``_on_frame``), no more;
+    * ``receive``: the frame taken from DDS as CDR bytes, read and checked (``_on_frame``),
+      no more;
     * ``publish``: and the latest image published again (a real ``Image`` per frame);
-    * ``reconstruct``: and the frame's relative change computed first (reference scaling,
-      the matrix product);
-    * ``full``: the node as shipped (drift tracking, contact test, fault checks, the
-      physical image, its diagnostics bookkeeping).
+    * ``full``: the node as shipped (the per-frame step: the compiled kernel's relative
+      change, contact test, drift tracking and physical image, the fault-check buffer; its
+      diagnostics bookkeeping).
 
     Until a layer has its reference and first image, every stage runs the full step.
     """
@@ -206,8 +206,6 @@ def staged_node(stage: str) -> type:
             if not state.processor.reference_ready or state.last_image is None:
                 super()._image(state, msg, frame, flags, angle)
                 return
-            if stage == "reconstruct":
-                state.imager.relative_change(frame, state.processor.reference())
             if stage != "receive":
                 self._publish_images(state, msg, state.last_image)
             state.imaged += 1
