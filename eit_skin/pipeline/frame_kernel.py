@@ -150,7 +150,7 @@ class FrameKernel:
         self._no_noise = np.zeros(0)
         self.kernel = _compiled()[0] if enabled and self._pressure else None
         self._checked: object = None  # the reconstructor :meth:`usable` last looked at
-        self._usable = False
+        self._plan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # its matrix
 
     def usable(self) -> bool:
         """Whether frames of this layer can take the compiled step now.
@@ -161,13 +161,20 @@ class FrameKernel:
         rec = self.imager.reconstructor
         if rec is not self._checked:
             self._checked = rec
-            self._usable = (
+            self._plan = None
+            if (
                 self.kernel is not None
                 and isinstance(rec, ReconstructionMatrix)
                 and rec.channels.size == rec.n_channels
                 and rec.matrix.shape[0] == self.imager.mesh.n_triangles
-            )
-        return self._usable
+            ):
+                a, index, weights, _ = rec.merged_matrix()  # in the kernel's exact types
+                self._plan = (
+                    np.asfortranarray(a, dtype=np.float32),
+                    np.ascontiguousarray(index, dtype=np.int64),
+                    np.ascontiguousarray(weights, dtype=np.float64),
+                )
+        return self._plan is not None
 
     def step(
         self,
@@ -194,7 +201,7 @@ class FrameKernel:
             tracking, touching)``, or None when the numpy path must decide (the reference's
             sum of squares or the product is not finite). Call only when :meth:`usable`.
         """
-        a, index, weights, _ = self.imager.reconstructor.merged_matrix()
+        a, index, weights = self._plan
         ss = float(reference_v @ reference_v)  # numpy's ddot, as the numpy path
         if not math.isfinite(ss):
             return None
