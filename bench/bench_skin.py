@@ -19,6 +19,7 @@ import argparse
 import array
 import contextlib
 import json
+import math
 import os
 import platform
 import struct
@@ -645,7 +646,7 @@ def main() -> None:
             f"A worker whose core is {100 * busy:.0f} % busy (50 patches, median of this report's "
             f"runs) builds a queue in every window more than {1 / busy:.2f}x slower, so the "
             "p99 at 50 patches follows how many fall in its window."
-            if busy == busy
+            if math.isfinite(busy)
             else ""
         ),
         "",

@@ -128,8 +128,8 @@ def decode_eit_frame_cdr(data: bytes) -> FrameRecord:
         drive_pattern=f.drive_pattern,
         current_a=f.current_a,
         sequence=f.sequence,
-        voltages=f.voltages.astype(np.float32),
-        channel_flags=f.channel_flags.copy(),
+        voltages=f.voltages,  # FrameRecord copies both (native float32, read-only)
+        channel_flags=f.channel_flags,
     )
 
 

@@ -140,7 +140,6 @@ class FrameKernel:
         self._low, self._high = np.float32(low), np.float32(high)
         scale = material.pressure_scale_pa if material.quantity == "pressure" else None
         self._scale = float(scale or 0.0)
-        self._pressure = self._scale > 0
         self._owner = np.ascontiguousarray(imager.grid.pixel_owner, dtype=np.intp)
         self._shape = imager.grid.shape
         m = imager.n_measurements
@@ -148,7 +147,7 @@ class FrameKernel:
             np.ones(m) if imager.signs is None else np.asarray(imager.signs, dtype=np.float64)
         )
         self._no_noise = np.zeros(0)
-        self.kernel = _compiled()[0] if enabled and self._pressure else None
+        self.kernel = _compiled()[0] if enabled and self._scale > 0 else None
         self._checked: object = None  # the reconstructor :meth:`usable` last looked at
         self._plan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # its matrix
 

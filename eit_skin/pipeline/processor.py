@@ -336,7 +336,7 @@ class LayerProcessor:
         takes the numpy path.
         """
         kernel, tracker = self._kernel, self.tracker
-        if kernel.kernel is None or tracker.posture is not None or not kernel.usable():
+        if tracker.posture is not None or not kernel.usable():
             return None
         alpha = tracker.drift_alpha(t_s)
         out = kernel.step(frame, reference, tracker.element_noise, tracker.contact_k, alpha)

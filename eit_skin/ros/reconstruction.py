@@ -268,7 +268,7 @@ class ReconstructionNode(Node):
         if out is None:
             return
         if self.calibrated_pub is not None and name == self.calibration.layer_name:
-            self._publish_calibrated(_header(msg), frame, flags, out, processor)
+            self._publish_calibrated(_stamped(Header(), msg), frame, flags, out, processor)
         self._publish_images(state, msg, out.image)
         state.last_image = out.image
         state.imaged += 1
@@ -289,10 +289,7 @@ class ReconstructionNode(Node):
             image = state.image_msg = Image(height=height, width=width, encoding="32FC1")
             image.is_bigendian = int(sys.byteorder == "big")
             image.step = width * 4
-        header = image.header
-        header.stamp.sec, header.stamp.nanosec = msg.stamp_sec, msg.stamp_nanosec
-        if header.frame_id != msg.frame_id:
-            header.frame_id = msg.frame_id
+        _stamped(image.header, msg)
         data = array.array("B")
         data.frombytes(memoryview(np.ascontiguousarray(physical, dtype=np.float32)).cast("B"))
         image.data = data
@@ -302,7 +299,9 @@ class ReconstructionNode(Node):
             state.colour_wanted = state.colour_pub.get_subscription_count() > 0
             state.colour_checked_s = now
         if state.colour_wanted:  # rendered only for a viewer
-            colour = Image(header=_header(msg), height=height, width=width, encoding="rgb8")
+            colour = Image(
+                header=_stamped(Header(), msg), height=height, width=width, encoding="rgb8"
+            )
             colour.step = width * 3
             colour.data = state.scale.to_rgb(physical).tobytes()
             state.colour_pub.publish(colour)
@@ -448,10 +447,14 @@ class ReconstructionNode(Node):
         self.diagnostics.publish(msg)
 
 
-def _header(msg: EitFrameFields) -> Header:
-    """A frame's header as a message (stamp, frame_id)."""
-    header = Header(frame_id=msg.frame_id)
+def _stamped(header: Header, msg: EitFrameFields) -> Header:
+    """``header``, given the frame ``msg``'s stamp and frame_id, returned.
+
+    The frame_id is set only when it differs (the image message is reused per frame).
+    """
     header.stamp.sec, header.stamp.nanosec = msg.stamp_sec, msg.stamp_nanosec
+    if header.frame_id != msg.frame_id:
+        header.frame_id = msg.frame_id
     return header
 
 
