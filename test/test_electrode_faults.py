@@ -8,6 +8,7 @@ from eit_skin.inverse.electrode_faults import (
     bad_channels,
     excluded_channels,
     faulty_electrodes,
+    median_of_rows,
     shared_fraction,
     spoiled_channels,
 )
@@ -60,6 +61,33 @@ def test_healthy_frames_have_no_fault():
     assert faulty_electrodes(frames, ref, PROTOCOL).size == 0
     assert not bad_channels(frames, ref).any()
     assert not spoiled_channels(frames, ref).any()
+
+
+@pytest.mark.parametrize("t", [1, 2, 7, 48, 50])
+def test_median_of_rows_equals_numpys_median(t):
+    """The fault check's medians (one sort of [M, T] rows) equal np.median: odd and
+    even counts, ties, signed zeros (equal, whichever sign), infinities, and NaN (a row
+    with one is NaN)."""
+    rng = np.random.default_rng(t)
+    x = 1.0 + 1e-3 * rng.standard_normal((208, t))
+    x[3] = np.round(x[3], 3)  # ties
+    x[4] = 0.0
+    x[4, ::2] = -0.0
+    x[5, 0] = np.inf
+    x[6, -1] = -np.inf
+    x[7, t // 2] = np.nan
+    expected = np.median(x, axis=1)
+    np.testing.assert_array_equal(median_of_rows(x), expected)
+    np.testing.assert_array_equal(median_of_rows(x.T.copy().T), expected)  # any layout
+    assert np.isnan(median_of_rows(x)[7])
+
+
+def test_the_touching_table_is_made_once_and_cannot_be_changed():
+    table = PROTOCOL.touching_table()
+    assert PROTOCOL.touching_table() is table
+    np.testing.assert_array_equal(table[5], PROTOCOL.touching([5]))
+    with pytest.raises(ValueError):
+        table[0, 0] = not table[0, 0]
 
 
 def test_a_neighbour_shares_half_of_an_electrodes_channels():

@@ -57,6 +57,7 @@ faulty electrodes removed; the reconstructor caches what it needs per excluded-c
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -118,16 +119,17 @@ def _channel_state(
     v = np.atleast_2d(np.asarray(frames, dtype=np.float64))
     ref = np.asarray(reference, dtype=np.float64)
     spoiled = bad_channels(v, ref, saturation_v)
+    # channel by row [M, T]: each median below is then one sort of contiguous rows
     with np.errstate(invalid="ignore"):
-        q = 1.0 + (v - ref) * np.sign(ref) / reference_scale(ref)  # [T, M], v / v_ref
-    q[:, spoiled] = 0.0
-    level = np.median(q, axis=0)
+        q = 1.0 + (v.T - ref[:, None]) * (np.sign(ref) / reference_scale(ref))[:, None]
+    q[spoiled] = 0.0
+    level = median_of_rows(q)
     spoiled |= (level < 1.0 / CONDUCTANCE_RATIO_LIMIT) | (level > CONDUCTANCE_RATIO_LIMIT)
     relative = np.zeros(spoiled.shape)
     if v.shape[0] > 1:
-        steps = np.diff(q, n=min(2, v.shape[0] - 1), axis=0)  # [T-2, M]: a ramp's are 0
-        noise = _MAD_TO_STD * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0)
-        typical = float(np.median(noise[~spoiled])) if (~spoiled).any() else 0.0
+        steps = np.diff(q, n=min(2, v.shape[0] - 1), axis=1)  # [M, T-2]: a ramp's are 0
+        noise = _MAD_TO_STD * median_of_rows(np.abs(steps - median_of_rows(steps)[:, None]))
+        typical = float(median_of_rows(noise[None, ~spoiled])[0]) if (~spoiled).any() else 0.0
         spoiled |= noise > 1.0 / CONDUCTANCE_RATIO_LIMIT
         if typical > 0:
             spoiled |= noise > threshold * typical
@@ -135,6 +137,7 @@ def _channel_state(
     return spoiled, relative
 
 
+@functools.lru_cache(maxsize=64)  # per protocol (compared by identity): each fault check
 def shared_fraction(protocol: Protocol) -> float:
     """Largest fraction of one electrode's channels that touch another given electrode.
 
@@ -203,6 +206,24 @@ def faulty_electrodes(
         if others.any() and not (touch[i] & ~touch[others].any(axis=0)).any():
             faulty[i] = False
     return np.flatnonzero(faulty).astype(np.int64)
+
+
+def median_of_rows(x: np.ndarray) -> np.ndarray:
+    """``[R]``: the median of each row of ``x`` ``[R, T]``, equal to ``np.median(x, axis=1)``.
+
+    The mean of the two middle values for an even ``T``, NaN for a row with a NaN. One sort
+    of the contiguous rows instead of numpy's partition: the sort is vectorised and does not
+    branch on the data, while the partition's branches, on fresh frames each fault check,
+    made a median of 208 channels x 50 frames cost ~0.13 ms instead of ~0.014 ms.
+    """
+    ordered = np.sort(np.ascontiguousarray(x, dtype=np.float64), axis=1)  # NaN sort last
+    n = ordered.shape[1]
+    if n == 0:
+        return np.full(ordered.shape[0], np.nan)
+    # an even count: np.median's mean of the two, (a + b) / 2, is exactly 0.5 * (a + b)
+    high = ordered[:, n // 2]
+    middle = high if n % 2 else 0.5 * (ordered[:, n // 2 - 1] + high)
+    return np.where(np.isnan(ordered[:, -1]), np.nan, middle)
 
 
 def row_medians(values: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -58,6 +58,7 @@ value; ``"magnitude"`` also implies model signs, as a magnitude has none.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -466,11 +467,20 @@ class Protocol:
         return u[..., k, p] - u[..., k, m]
 
     def touching_table(self) -> np.ndarray:
-        """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone."""
+        """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone (read-only).
+
+        Made once per protocol: every fault check asks for it.
+        """
+        return self._touching_table
+
+    @functools.cached_property
+    def _touching_table(self) -> np.ndarray:
         drives = (self.current_patterns != 0).T  # [E, n_inj]
         on = np.eye(self.n_electrodes, dtype=bool)
         k, p, m = self.measurements.T
-        return drives[:, k] | on[:, p] | on[:, m]
+        table = drives[:, k] | on[:, p] | on[:, m]
+        table.flags.writeable = False
+        return table
 
     def touching(self, electrodes) -> np.ndarray:
         """``[M]`` bool: measurements whose drive or measure electrodes include any given one."""
