@@ -63,13 +63,20 @@ def stream(imager: LayerImager, layer, seed: int = 3) -> np.ndarray:
 
 
 def run_both(imager: LayerImager, frames: np.ndarray, flags: dict | None = None):
-    """Both processors over ``frames`` at 50 Hz; asserts every output is the same."""
+    """Both processors over ``frames`` at 50 Hz; asserts every output is the same.
+
+    The compiled one gets each frame in one reused buffer, as a driver refilling its array
+    would hand them: what it keeps of a frame (the fault window) must be its own copy.
+    """
     compiled = LayerProcessor(imager, 20, drift_time_constant_s=1.0, compiled_step=True)
     numpy_path = LayerProcessor(imager, 20, drift_time_constant_s=1.0, compiled_step=False)
     touching = 0
+    buffer = np.empty(frames.shape[1])
     for k, frame in enumerate(frames):
         f = (flags or {}).get(k)
-        a, b = compiled.step(frame, 0.02 * k, f), numpy_path.step(frame, 0.02 * k, f)
+        buffer[:] = frame
+        a, b = compiled.step(buffer, 0.02 * k, f), numpy_path.step(frame, 0.02 * k, f)
+        np.testing.assert_array_equal(compiled.faulty_electrodes, numpy_path.faulty_electrodes)
         assert (a is None) == (b is None), k
         if a is None:
             continue
@@ -79,6 +86,8 @@ def run_both(imager: LayerImager, frames: np.ndarray, flags: dict | None = None)
         np.testing.assert_array_equal(compiled.reference(), numpy_path.reference(), f"frame {k}")
         touching += a.touching
     assert compiled.drift_updates == numpy_path.drift_updates
+    assert compiled.frames_in == numpy_path.frames_in == len(frames)
+    assert compiled.frames_unusable == numpy_path.frames_unusable
     return compiled, numpy_path, touching
 
 
@@ -112,6 +121,21 @@ def test_frames_the_kernel_does_not_cover_take_the_numpy_path_with_the_same_resu
     compiled, _, _ = run_both(imager, frames, {80: saturated})
     assert compiled.frames_imaged == 200
     assert compiled.frames_compiled == 197  # all but the three frames above
+
+
+def test_an_electrode_that_dies_is_found_at_the_same_frame_on_both_paths(tmp_path):
+    """The fault checks see the same frames whichever path imaged them: an electrode whose
+    channels lose their signal at frame 100 is named at the same check, and both image
+    without it from then on (the numpy path's frames, as the kernel needs every channel)."""
+    layer = layer_of(tmp_path)
+    imager = LayerImager.build(layer, cache_dir=None)
+    frames = stream(imager, layer)
+    dead = imager.protocol.touching([5])
+    frames[100:, dead] *= 1e-3  # a broken lead: the channels through electrode 5 collapse
+    compiled, _, _ = run_both(imager, frames)  # asserts both name it at the same frame
+    np.testing.assert_array_equal(compiled.faulty_electrodes, [5])
+    # frames before the first check after frame 100 took the kernel; none after it
+    assert 80 <= compiled.frames_compiled < 150
 
 
 def test_a_reference_channel_under_the_floor_is_normalised_by_it_as_in_numpy(tmp_path):

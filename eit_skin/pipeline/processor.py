@@ -242,6 +242,10 @@ class LayerProcessor:
         Raises:
             ValueError: wrong frame or flags shape, non-finite time.
         """
+        if flags is None and angle_rad is None:
+            images = self._common_step(frame_v, t_s)
+            if images is not None:
+                return images
         m = self.n_measurements
         frame = np.asarray(frame_v, dtype=np.float64)
         if frame.shape != (m,):
@@ -315,6 +319,44 @@ class LayerProcessor:
             self.step(frames[k], times[k], None if flags is None else flags[k])
             for k in range(frames.shape[0])
         ]
+
+    def _common_step(self, frame_v: np.ndarray, t_s: float) -> LayerImages | None:
+        """:meth:`step` of the frame most frames are, in the fewest calls; None: not one.
+
+        That frame: a ready, usable reference without excluded channels, no faulty electrode,
+        no posture table, no fault check due, every value finite (the kernel finds out), a
+        layer the compiled kernel takes. The same result and bookkeeping as the full step,
+        without its finiteness checks and masks (about 3 us less per frame at 50 patches, a
+        tenth of the step). Nothing changes when it returns None: the full step then takes
+        the frame (a frame with a missing value has then gone through the kernel twice).
+        """
+        tracker = self.tracker
+        if (
+            tracker.posture is not None
+            or not tracker.ready
+            or self.reference_error is not None
+            or self._faulty.size
+            or np.shape(frame_v) != (self.n_measurements,)
+        ):
+            return None
+        t = float(t_s)
+        due = self._next_fault_check_s
+        if not math.isfinite(t) or (due is not None and t >= due):
+            return None
+        if self._reference_excluded() is not None:
+            return None
+        frame = np.array(frame_v, dtype=np.float64)  # a copy: the fault window keeps it
+        compiled = self._compiled_step(frame, tracker.reference(), t)
+        if compiled is None:
+            return None
+        values, image, touching = compiled
+        self.frames_in += 1
+        self._recent.append(frame)
+        self.frames_compiled += 1
+        self.frames_imaged += 1
+        return LayerImages(
+            t, values, image, touching, self.n_measurements, self._faulty_names, frame
+        )
 
     def _reference_excluded(self) -> np.ndarray | None:
         """The channels the reference check left out (bool ``[M]``); None for none.
