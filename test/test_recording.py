@@ -19,6 +19,7 @@ from eit_skin.frames import FrameRecord
 from eit_skin.hardware.sources import ReplaySource
 from eit_skin.io.cdr import (
     EIT_FRAME_SCHEMA,
+    Float32ImageCdr,
     decode_eit_frame_cdr,
     eit_frame_msgdef,
     encode_eit_frame_cdr,
@@ -191,6 +192,30 @@ def test_frames_are_read_from_cdr_of_either_byte_order_with_every_string_length(
         assert (fields.stamp_ns, fields.sequence, fields.drive_pattern) == (
             rec.stamp_ns, 7, pattern)  # fmt: skip
         assert not fields.voltages.flags.writeable
+
+
+@pytest.mark.parametrize("frame_id", ["", "a", "ab", "abc", "arm_link", "ünï"])
+def test_image_bytes_are_a_sensor_msgs_image_for_every_frame_id_length(frame_id):
+    """The node's float images go out as bytes (Float32ImageCdr): rclpy reads them as the
+    Image it would have serialised itself (every padding case of frame_id and encoding),
+    stamped and filled anew per frame in the same bytes."""
+    serialization = pytest.importorskip("rclpy.serialization")
+    from sensor_msgs.msg import Image
+
+    cdr = Float32ImageCdr(3, 5, frame_id)
+    assert cdr.fits(3, 5, frame_id) and not cdr.fits(5, 3, frame_id)
+    assert not cdr.fits(3, 5, frame_id + "x")
+    for sec, nanosec, scale in ((-5, 999_999_999, 1.0), (1_800_000_000, 7, -2.5)):
+        image = scale * np.arange(15, dtype=np.float32).reshape(3, 5) - 0.5
+        image[1, 2] = np.nan
+        data = cdr.fill(sec, nanosec, image.astype(np.float64))
+        msg = serialization.deserialize_message(data, Image)
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (sec, nanosec)
+        assert msg.header.frame_id == frame_id
+        assert (msg.height, msg.width, msg.encoding, msg.step) == (3, 5, "32FC1", 20)
+        assert msg.is_bigendian == 0
+        assert bytes(msg.data) == image.astype("<f4").tobytes()
+        assert len(serialization.serialize_message(msg)) == len(data)
 
 
 def test_truncated_or_foreign_bytes_are_refused_with_the_byte_offset():

@@ -219,3 +219,47 @@ def read_eit_frame(data: bytes) -> EitFrameFields:
         sec, nanosec, frame_id, patch, layer, n_electrodes, pattern, current, sequence,
         voltages, flags,
     )  # fmt: skip
+
+
+class Float32ImageCdr:
+    """A ``sensor_msgs/Image`` 32FC1 ``[H, W]`` kept as its CDR bytes, refilled per frame.
+
+    Publishing these bytes (rclpy's ``publish`` of ``bytes``) skips rclpy's conversion of a
+    Python ``Image`` into a C message and its serialisation: the image node publishes every
+    frame's float image this way. The layout is fixed at construction (``frame_id``, shape);
+    :meth:`fill` writes the stamp and the pixels (little endian, ``is_bigendian`` 0) in place.
+
+    Args:
+        height, width: image shape, pixels.
+        frame_id: header.frame_id.
+    """
+
+    def __init__(self, height: int, width: int, frame_id: str) -> None:
+        self.height, self.width, self.frame_id = int(height), int(width), frame_id
+        n_bytes = 4 * self.height * self.width
+        w = _CdrWriter()
+        w.pack("i", 0)  # header.stamp.sec, nanosec: set by fill
+        w.pack("I", 0)
+        w.string(frame_id)
+        w.pack("I", self.height)
+        w.pack("I", self.width)
+        w.string("32FC1")
+        w.pack("B", 0)  # is_bigendian: the pixels are written little endian
+        w.pack("I", 4 * self.width)  # step, bytes per row
+        w.pack("I", n_bytes)  # data: uint8[] of that many bytes
+        offset = len(_CDR_HEADER) + len(w.buf)
+        self._buffer = bytearray(_CDR_HEADER + w.buf) + bytearray(n_bytes)
+        self._pixels = np.frombuffer(self._buffer, "<f4", self.height * self.width, offset)
+
+    def fits(self, height: int, width: int, frame_id: str) -> bool:
+        """Whether an image of this shape and frame_id can be written into these bytes."""
+        return (height, width, frame_id) == (self.height, self.width, self.frame_id)
+
+    def fill(self, stamp_sec: int, stamp_nanosec: int, image: np.ndarray) -> bytes:
+        """The message's bytes for ``image`` ``[H, W]`` (any float) stamped ``sec.nanosec``."""
+        _STAMP_LE.pack_into(self._buffer, 4, stamp_sec, stamp_nanosec)
+        self._pixels[:] = image.reshape(-1)
+        return bytes(self._buffer)
+
+
+_STAMP_LE = struct.Struct("<iI")
