@@ -27,9 +27,10 @@ import numpy as np
 #: What each stage adds to the one before (report rows).
 ADDS = {
     "receive": "take the frame from DDS as CDR bytes, read and check it (`_on_frame`)",
-    "publish": "publish a 32FC1 image (the face grid, 64 x 45)",
+    "publish": "publish a 32FC1 image (the face grid, 64 x 45) as its CDR bytes",
     "full": "the per-frame step (compiled kernel: relative change, contact test, drift, "
-    "physical image; fault-check buffer) and the node's bookkeeping",
+    "physical image; the fault window, and a fault check each second) and the node's "
+    "bookkeeping",
 }
 
 

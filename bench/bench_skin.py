@@ -188,10 +188,10 @@ def staged_node(stage: str) -> type:
 
     * ``receive``: the frame taken from DDS as CDR bytes, read and checked (``_on_frame``),
       no more;
-    * ``publish``: and the latest image published again (a real ``Image`` per frame);
+    * ``publish``: and the latest image published again (its CDR bytes, as the node does);
     * ``full``: the node as shipped (the per-frame step: the compiled kernel's relative
-      change, contact test, drift tracking and physical image, the fault-check buffer; its
-      diagnostics bookkeeping).
+      change, contact test, drift tracking and physical image, the fault window and a
+      fault check each second; its diagnostics bookkeeping).
 
     Until a layer has its reference and first image, every stage runs the full step.
     """
