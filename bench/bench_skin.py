@@ -273,11 +273,14 @@ def sink(k: int, out: str) -> None:
     """Subscriber to the K patches' images in its own process (pinned to CPU 1).
 
     Records (frame stamp, reception time) ns per image; writes them to ``out`` (``.npy``,
-    ``[n, 3]``: patch, stamp, reception) on SIGINT. It takes the images as raw CDR bytes and
-    reads only their stamps, into a flat array the garbage collector never walks: it shares
-    its core with the feeder, and a sink that decoded 5,000 images a second into Python
-    objects (and stalled 30-50 ms in full collections over its growing list) delayed both
-    and showed its own stalls as the node's latency.
+    ``[n, 3]``: patch, stamp, reception) on SIGINT. Prints ``receiving`` once an image of
+    every patch has come: the feeder's window starts after it, since the sink's
+    subscriptions can match the worker's publishers later than the feeder sees them. It
+    takes the images as raw CDR bytes and reads only their stamps, into a flat array the
+    garbage collector never walks: it shares its core with the feeder, and a sink that
+    decoded 5,000 images a second into Python objects (and stalled 30-50 ms in full
+    collections over its growing list) delayed both and showed its own stalls as the
+    node's latency.
     """
     os.sched_setaffinity(0, {1})
     from eit_skin.ros.node_runner import freeze_start_up_heap, spin_nodes
@@ -286,10 +289,16 @@ def sink(k: int, out: str) -> None:
     node = rclpy.create_node("bench_sink")
     face = load_patch(config_path("face"))
     rows = array.array("q")  # patch, stamp ns, reception ns per image, flat
+    waiting = [set(range(k))]  # patches not heard from yet; [None] once every one was
 
     def received(i: int, cdr: bytes) -> None:
         sec, nanosec = CDR_STAMP[cdr[1] & 1].unpack_from(cdr)
         rows.extend((i, sec * 10**9 + nanosec, time.time_ns()))
+        if waiting[0] is not None:
+            waiting[0].discard(i)
+            if not waiting[0]:
+                waiting[0] = None
+                print("receiving", flush=True)
 
     for i in range(k):
         topic = patch_topics(face, f"/p{i}").layers["pressure"].image
@@ -337,7 +346,8 @@ def throughput(
     sends its frames at ``i / K`` of the 10 ms period, as K devices with their own clocks
     would, not all at the same instant.
 
-    Counted over ``seconds`` from one second after every node has its reference:
+    Counted over ``seconds`` from one second after every node has its reference and the
+    sink has had an image of every patch:
     ``imaged`` (the worker's images over frames sent), ``received`` (images the sink got over
     frames sent), the worker's CPU per image in that state (all its threads: DDS, executor,
     callbacks, timers), start-up CPU per patch (reference capture, channel noise,
@@ -366,11 +376,14 @@ def throughput(
     )
     if not up:
         raise RuntimeError("worker or sink did not match the feeder's topics")
-    steady = threading.Event()
-    threading.Thread(
-        target=lambda: steady.set() if worker_proc.stdout.readline().strip() == "steady" else None,
-        daemon=True,
-    ).start()
+    steady, receiving = threading.Event(), threading.Event()  # the worker's, the sink's line
+    for proc, line, event in ((worker_proc, "steady", steady), (sink_proc, "receiving", receiving)):
+        threading.Thread(
+            target=lambda p=proc, s=line, e=event: (
+                e.set() if p.stdout.readline().strip() == s else None
+            ),
+            daemon=True,
+        ).start()
     serialized = SerializedFrames("pressure", frames)
     period = 0.01
     phase = period * np.arange(k) / k
@@ -381,10 +394,13 @@ def throughput(
     window_ns = 0
     n = 0  # period count
     while time.perf_counter() < window[1]:
-        if steady.is_set() and window[0] == float("inf"):
+        if steady.is_set() and receiving.is_set() and window[0] == float("inf"):
             window = (time.perf_counter() + 1.0, time.perf_counter() + 1.0 + seconds)
-        if time.perf_counter() - start > WARM_UP_LIMIT_S and not steady.is_set():
-            raise RuntimeError(f"{k} patches not steady after {WARM_UP_LIMIT_S:.0f} s")
+        if time.perf_counter() - start > WARM_UP_LIMIT_S and window[0] == float("inf"):
+            raise RuntimeError(
+                f"{k} patches not steady (worker {steady.is_set()}, sink {receiving.is_set()}) "
+                f"after {WARM_UP_LIMIT_S:.0f} s"
+            )
         base = start + n * period
         for i in range(k):  # patch i's frame n at its own phase of the period
             wait = base + phase[i] - time.perf_counter()
