@@ -55,6 +55,17 @@ REFERENCE_FLOOR = 1e-2
 _PROVISIONAL_H = 0.05
 
 
+def reference_floor(reference: np.ndarray) -> float:
+    """``floor * rms(v_ref)`` (``rms`` 1 for an all-zero reference), volts: the least ``s_ref``.
+
+    ``reference``: float64 ``[M]`` volts. One ``ddot``; not finite for a reference that is
+    not (callers that need a finite floor check it). Shared by :func:`reference_scale` and
+    the single-frame paths, which must give its numbers bit for bit.
+    """
+    ss = float(reference @ reference)
+    return REFERENCE_FLOOR * (math.sqrt(ss / max(reference.size, 1)) or 1.0)
+
+
 def reference_scale(reference: np.ndarray) -> np.ndarray:
     """Per-channel normalisation ``s_ref = max(|v_ref|, floor * rms(v_ref))``, ``[M]`` volts.
 
@@ -62,8 +73,7 @@ def reference_scale(reference: np.ndarray) -> np.ndarray:
     """
     ref = np.asarray(reference, dtype=np.float64)
     if ref.ndim == 1 and np.isfinite(ref).all():  # the common case, once per frame in a node
-        rms = float(np.sqrt(ref @ ref / max(ref.size, 1))) or 1.0
-        return np.maximum(np.abs(ref), REFERENCE_FLOOR * rms)
+        return np.maximum(np.abs(ref), reference_floor(ref))
     finite = np.isfinite(ref)
     rms = float(np.sqrt(np.mean(ref[finite] ** 2))) if finite.any() else 0.0
     if rms == 0.0:
@@ -511,12 +521,12 @@ class ReconstructionMatrix:
         but the merged matrix.
         """
         a, index, weights, gemv = self.merged_matrix()
-        ss = float(ref @ ref)
-        if not math.isfinite(ss):
+        floor = reference_floor(ref)
+        if not math.isfinite(floor):
             return None
         m = ref.size
         scale = np.abs(ref)
-        np.maximum(scale, REFERENCE_FLOOR * (math.sqrt(ss / max(m, 1)) or 1.0), out=scale)
+        np.maximum(scale, floor, out=scale)
         d = np.empty(m + 1)
         d[m] = 0.0  # the zero input of unpaired channels
         dm = d[:m]

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eit_skin.inverse.one_step import REFERENCE_FLOOR, ReconstructionMatrix
+from eit_skin.inverse.one_step import ReconstructionMatrix, reference_floor
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 
 if TYPE_CHECKING:
@@ -198,14 +198,12 @@ class FrameKernel:
         Returns:
             ``(values float32 [N], image float32 [H, W], reference [M] V after drift
             tracking, touching)``, or None when the numpy path must decide (the reference's
-            sum of squares or the product is not finite). Call only when :meth:`usable`.
+            floor or the product is not finite). Call only when :meth:`usable`.
         """
         a, index, weights = self._plan
-        ss = float(reference_v @ reference_v)  # numpy's ddot, as the numpy path
-        if not math.isfinite(ss):
+        floor = reference_floor(reference_v)  # numpy's ddot, as the numpy path
+        if not math.isfinite(floor):
             return None
-        m = reference_v.size
-        floor = REFERENCE_FLOOR * (math.sqrt(ss / max(m, 1)) or 1.0)
         h, w = self._shape
         y, base, image, touching, finite = self.kernel(
             frame_v, reference_v, self._signs, a, index, weights, floor,
