@@ -14,19 +14,25 @@ absent port as an open error. Both close the port, record the error and schedule
 after ``backoff_initial_s``, doubling up to ``backoff_max_s``; the delay resets once a
 reconnected port delivers bytes. pyserial discards bytes pending in the OS buffer when it
 opens the port, and the parser is reset on every (re)connect.
+
+Boards that need the host to speak (a mode line, a setup, a start command) get it from the
+parser: a parser with ``commands(now_s) -> bytes`` (a board profile's reader,
+:mod:`eit_skin.hardware.boards`) is asked on every poll and what it returns is written, and
+its ``farewell()`` bytes are written before the port is closed by :meth:`SerialLink.stop`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import enum
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
-from eit_skin.hardware.wire import DeviceFrame, FrameParser, ParserStats
+from eit_skin.hardware.wire import FrameParser
 
 
 class LinkState(enum.Enum):
@@ -38,9 +44,12 @@ class LinkState(enum.Enum):
 
 @dataclass(frozen=True)
 class ReceivedFrame:
-    """A parsed frame and the host time its last chunk was read, ns (``time.time_ns()``)."""
+    """A parsed frame and the host time its last chunk was read, ns (``time.time_ns()``).
 
-    frame: DeviceFrame
+    The frame is a DeviceFrame (wire protocol) or a board profile's BoardFrame.
+    """
+
+    frame: Any
     host_time_ns: int
 
 
@@ -58,6 +67,7 @@ class LinkStatus:
         last_error: text of the most recent error ('' if none).
         retry_in_s: seconds until the next open attempt (0 while connected).
         bytes_received: bytes read from the port, all connections.
+        bytes_sent: bytes the host wrote to the board (commands), all connections.
         parser: a copy of the parser's counters.
     """
 
@@ -70,7 +80,8 @@ class LinkStatus:
     last_error: str
     retry_in_s: float
     bytes_received: int
-    parser: ParserStats
+    parser: Any  # ParserStats, or a board reader's ReaderStats
+    bytes_sent: int = 0
 
 
 def _open_serial(port: str, baud: int) -> Any:
@@ -85,7 +96,8 @@ class SerialLink:
     Args:
         port: device path, e.g. ``/dev/eit_skin_arm`` (a udev symlink).
         baud: baud rate (ignored by USB CDC-ACM and ptys).
-        parser: parser to feed (a new one by default); it is reset on every (re)connect.
+        parser: parser to feed (a new wire-protocol FrameParser by default; or a board
+            profile's reader); it is reset on every (re)connect.
         backoff_initial_s: first retry delay after a failure, seconds.
         backoff_max_s: upper bound of the doubling retry delay, seconds.
         read_size: maximum bytes per read call.
@@ -99,7 +111,7 @@ class SerialLink:
         port: str,
         baud: int = 921_600,
         *,
-        parser: FrameParser | None = None,
+        parser: Any = None,
         backoff_initial_s: float = 0.1,
         backoff_max_s: float = 5.0,
         read_size: int = 65_536,
@@ -115,7 +127,7 @@ class SerialLink:
         self.backoff_max_s = backoff_max_s
         self.read_size = read_size
         self._opener = opener
-        self._clock = clock
+        self.clock = clock
         self._serial: Any = None
         self._backoff = backoff_initial_s
         self._next_attempt = clock()
@@ -124,6 +136,7 @@ class SerialLink:
         self._failed = 0
         self._disconnects = 0
         self._bytes = 0
+        self._sent = 0
         self._last_error = ""
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -147,9 +160,10 @@ class SerialLink:
                 last_error=self._last_error,
                 retry_in_s=0.0
                 if self._serial is not None
-                else max(0.0, self._next_attempt - self._clock()),
+                else max(0.0, self._next_attempt - self.clock()),
                 bytes_received=self._bytes,
-                parser=replace(self.parser.stats),
+                parser=copy.deepcopy(self.parser.stats),
+                bytes_sent=self._sent,
             )
 
     def _notify(self) -> None:
@@ -167,13 +181,13 @@ class SerialLink:
             else:
                 self._failed += 1
             self._last_error = f"{type(error).__name__}: {error}"
-            self._next_attempt = self._clock() + self._backoff
+            self._next_attempt = self.clock() + self._backoff
             self._backoff = min(2.0 * self._backoff, self.backoff_max_s)
         if lost:
             self._notify()
 
     def _try_open(self) -> bool:
-        if self._clock() < self._next_attempt:
+        if self.clock() < self._next_attempt:
             return False
         try:
             port = self._opener(self.port, self.baud)
@@ -196,11 +210,12 @@ class SerialLink:
         """
         if self._serial is None and not self._try_open():
             if timeout_s > 0:
-                delay = max(0.0, self._next_attempt - self._clock())
+                delay = max(0.0, self._next_attempt - self.clock())
                 self._stop.wait(min(timeout_s, delay))
             return []
         port = self._serial
         try:
+            self._write_commands(port)
             if port.timeout != timeout_s:
                 port.timeout = timeout_s
             waiting = port.in_waiting
@@ -220,6 +235,17 @@ class SerialLink:
                 self._backoff = self.backoff_initial_s
             frames = self.parser.feed(data)
         return [ReceivedFrame(f, host_ns) for f in frames]
+
+    def _write_commands(self, port: Any) -> None:
+        """Write what the parser asks the host to say now (nothing for a plain parser)."""
+        commands = getattr(self.parser, "commands", None)
+        if commands is None:
+            return
+        with self._lock:
+            data = commands(self.clock())
+        if data:
+            port.write(data)
+            self._sent += len(data)
 
     def start(
         self,
@@ -243,11 +269,19 @@ class SerialLink:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the thread started by ``start`` (if any) and close the port."""
+        """Stop the thread started by ``start``, say the parser's farewell, close the port.
+
+        The farewell is e.g. a stop command (a board profile's reader).
+        """
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
+        farewell = getattr(self.parser, "farewell", None)
+        if farewell is not None and self._serial is not None and farewell():
+            with contextlib.suppress(Exception):  # a dead port cannot be told anything
+                self._serial.write(farewell())
+                self._serial.flush()
         self.close()
 
     def close(self) -> None:

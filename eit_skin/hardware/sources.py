@@ -194,12 +194,21 @@ class LayerFrameFactory:
 
 
 class SerialSource:
-    """One board on a serial port, serving one layer.
+    """One board on a serial port, serving one layer, in the layer's board profile.
 
-    Frames are delivered from the link's reader thread to ``sink`` as soon as their last
-    byte is parsed (lowest latency); frames that do not belong to the layer (value count,
-    electrode count, drive pattern, or a current <= 0: :meth:`LayerFrameFactory.reject`) are
-    counted per reason and dropped, never published.
+    The layer's ``device`` section picks the reader (:func:`eit_skin.hardware.boards.
+    board_reader`: eit_skin's wire protocol, OpenEIT, a line-printing board, Sciospec); the
+    link writes the host commands the reader asks for (on every connect, again when the
+    board does not answer) and its farewell on :meth:`stop`. Frames are delivered from the
+    link's reader thread to ``sink`` as soon as their last byte is parsed (lowest latency);
+    a frame the reader refuses, or that does not belong to the layer (value count,
+    electrode count, drive pattern, or a current <= 0: :meth:`LayerFrameFactory.reject`), is
+    counted per reason and dropped, never published. Stamps: the board's clock mapped to
+    host time where the board sends one (wire protocol, Sciospec), else the host time the
+    frame's last byte was read.
+
+    Args:
+        baud: serial rate, bit/s; 0: the profile's (``device.baud``).
     """
 
     def __init__(
@@ -211,16 +220,33 @@ class SerialSource:
         clock: DeviceClock | None = None,
         backoff_max_s: float = 2.0,
     ) -> None:
+        from eit_skin.hardware.boards import board_reader
+
+        layer = factory.layer
         self.factory = factory
         self.sink = sink
         self.clock = clock or DeviceClock()
-        self.link = SerialLink(port, baud, backoff_initial_s=0.05, backoff_max_s=backoff_max_s)
+        self.reader = board_reader(
+            factory.protocol, layer.device, layer.name, layer.current_a, factory.reject
+        )
+        self.profile = layer.device.profile
+        self.link = SerialLink(
+            port,
+            baud or layer.device.baud,
+            parser=self.reader,
+            backoff_initial_s=0.05,
+            backoff_max_s=backoff_max_s,
+        )
         self.rate = RateMeter()
         self.published = 0
-        self.rejected = dict.fromkeys(REJECT_REASONS, 0)
-        self.last_rejection = ""
-        self._reported = (0, 0)  # (published, rejected) at the last status()
+        self._host_sequence = 0
+        self._reported = (0, 0)  # (published, refused) at the last status()
         self._lock = threading.Lock()
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Frames refused so far, per reason (the reader's reasons)."""
+        return dict(self.reader.stats.refused)
 
     def start(self) -> None:
         self.link.start(self._on_frames)
@@ -229,22 +255,29 @@ class SerialSource:
         self.link.stop()
 
     def _on_frames(self, received: list[ReceivedFrame]) -> None:
-        good = []
-        for item in received:
-            rejection = self.factory.reject(item.frame)
-            if rejection is None:
-                good.append(item)
-                continue
-            with self._lock:
-                self.rejected[rejection[0]] += 1
-                self.last_rejection = rejection[1]
-        stamps = self.clock.update_batch(
-            [item.frame.device_time_us for item in good], [item.host_time_ns for item in good]
+        timed = [item for item in received if item.frame.device_time_us is not None]
+        stamps = dict(
+            zip(
+                map(id, timed),
+                self.clock.update_batch(
+                    [item.frame.device_time_us for item in timed],
+                    [item.host_time_ns for item in timed],
+                ),
+                strict=True,
+            )
         )
-        for item, stamp in zip(good, stamps, strict=True):
+        for item in received:
             frame = item.frame
+            sequence = frame.sequence
+            if sequence is None:
+                sequence = self._host_sequence
+            self._host_sequence = sequence + 1
             record = self.factory.device_record(
-                stamp, frame.sequence, frame.voltages_v, frame.flags, frame.current_a
+                stamps.get(id(item), item.host_time_ns),
+                sequence,
+                frame.values,
+                frame.flags,
+                frame.current_a,
             )
             self.sink(record)
             with self._lock:
@@ -253,39 +286,54 @@ class SerialSource:
 
     def status(self) -> SourceStatus:
         link = self.link.status()
+        stats = link.parser
         with self._lock:
             rate = self.rate.rate_hz()
-            rejected = sum(self.rejected.values())
+            refused = sum(stats.refused.values())
             new_frames = self.published - self._reported[0]
-            new_rejections = rejected - self._reported[1]
-            self._reported = (self.published, rejected)
-            values = {
-                "source": "serial",
-                "port": link.port,
-                "state": link.state.value,
-                "frame_rate_hz": f"{rate:.1f}",
-                "frames_published": str(self.published),
-                "frames_rejected": str(rejected),
-                **{f"rejected_{reason}": str(n) for reason, n in self.rejected.items()},
-                "crc_errors": str(link.parser.crc_errors),
-                "truncated": str(link.parser.truncated),
-                "resyncs": str(link.parser.resyncs),
-                "discarded_bytes": str(link.parser.discarded_bytes),
-                "reconnects": str(link.reconnects),
-                "failed_attempts": str(link.failed_attempts),
-                "clock_drift_ppm": f"{self.clock.drift_ppm:.1f}",
-                "last_error": link.last_error,
-            }
-            rejection = self.last_rejection
+            new_refusals = refused - self._reported[1]
+            self._reported = (self.published, refused)
+            published = self.published
+        values = {
+            "source": "serial",
+            "profile": self.profile,
+            "port": link.port,
+            "baud": str(self.link.baud),
+            "state": link.state.value,
+            "frame_rate_hz": f"{rate:.1f}",
+            "frames_published": str(published),
+            "frames_rejected": str(refused),
+            **{f"rejected_{reason}": str(n) for reason, n in stats.refused.items()},
+            "discarded_bytes": str(stats.discarded_bytes),
+            "board_messages": str(stats.messages),
+            "board_restarts": str(stats.restarts),
+            "bytes_sent": str(link.bytes_sent),
+            "reconnects": str(link.reconnects),
+            "failed_attempts": str(link.failed_attempts),
+            "clock_drift_ppm": f"{self.clock.drift_ppm:.1f}",
+            "last_error": link.last_error,
+        }
+        wire = getattr(self.reader, "parser", None)
+        if wire is not None:  # the wire protocol's framing counters
+            values.update(
+                crc_errors=str(wire.stats.crc_errors),
+                truncated=str(wire.stats.truncated),
+                resyncs=str(wire.stats.resyncs),
+                discarded_bytes=str(wire.stats.discarded_bytes),
+            )
+        where = f"{link.port} ({self.profile})"
         if link.state is LinkState.DISCONNECTED:
             return SourceStatus(
-                2, f"device {link.port} not connected: {link.last_error or 'opening'}", values
+                2, f"device {where} not connected: {link.last_error or 'opening'}", values
             )
-        if new_rejections:
-            return SourceStatus(1, f"frames rejected: {rejection}", values)
+        silent = self.reader.unanswered(self.link.clock())
+        if silent:
+            return SourceStatus(2, f"device {where}: {silent}", values)
+        if new_refusals:
+            return SourceStatus(1, f"frames rejected: {self.reader.last_refusal}", values)
         if not new_frames:
-            return SourceStatus(1, f"connected to {link.port}, no frames since last report", values)
-        return SourceStatus(0, f"{rate:.1f} frames/s from {link.port}", values)
+            return SourceStatus(1, f"connected to {where}, no frames since last report", values)
+        return SourceStatus(0, f"{rate:.1f} frames/s from {where}", values)
 
 
 class SimulatedSource:

@@ -21,6 +21,13 @@ import numpy as np
 from eit_skin.inverse.methods import METHODS
 from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
+from eit_skin.patch.device import (
+    DEFAULT_PROFILE,
+    PROFILES,
+    DeviceSpec,
+    device_from_mapping,
+    device_problem,
+)
 from eit_skin.patch.electrodes import read_electrodes
 from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
@@ -57,6 +64,7 @@ LAYER_KEYS = (
     "protocol",
     "mesh",
     "solver",
+    "device",
 )
 """Keys of a layer (the first four are required)."""
 
@@ -122,6 +130,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
     protocol = _protocol(r, d.get("protocol", {}), r.join(path, "protocol"), len(electrodes))
     mesh = _mesh_spec(r, d.get("mesh", {}), r.join(path, "mesh"), outline, electrodes)
     solver = _solver_spec(r, d.get("solver", {}), r.join(path, "solver"))
+    device = _device(r, d.get("device", {}), path, protocol, len(electrodes), current)
     if solver.accuracy_target is not None:
         _refuse_chosen_keys(r, d, path)
     for array in (outline, *holes):
@@ -138,6 +147,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
         material=material,
         mesh=mesh,
         solver=solver,
+        device=device,
     )
     if check_budget:
         problem = budget_problem(layer)
@@ -216,6 +226,23 @@ def _protocol(r: Reader, data: Any, path: str, n_electrodes: int) -> ProtocolSpe
     except ValueError as exc:
         raise _protocol_error(r, path, str(exc)) from None
     return spec
+
+
+def _device(
+    r: Reader, data: Any, layer_path: str, spec: ProtocolSpec, n_electrodes: int, current: float
+) -> DeviceSpec:
+    """``device: {profile, <the profile's options>}`` (eit_skin.patch.device)."""
+    path = r.join(layer_path, "device")
+    d = r.any_mapping(data, path)
+    profile = r.string(d, "profile", path, default=DEFAULT_PROFILE, choices=tuple(PROFILES))
+    names = tuple(option.name for option in PROFILES[profile])
+    r.mapping(d, path, optional=("profile", *names), what=f"{profile} device")
+    device = device_from_mapping(d, path, r.error)
+    problem = device_problem(device, spec, build_protocol(spec, n_electrodes), current)
+    if problem is not None:
+        key, reason = problem
+        raise r.error(r.join(layer_path, key), reason)
+    return device
 
 
 def _protocol_error(r: Reader, path: str, message: str) -> PatchError:

@@ -29,6 +29,7 @@ import numpy as np
 from eit_skin.inverse.methods import METHODS
 from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
+from eit_skin.patch.device import DEFAULT_DEVICE, DeviceSpec
 from eit_skin.patch.material import Material
 from eit_skin.patch.placement import Placement
 from eit_skin.patch.protocol import ProtocolSpec
@@ -211,7 +212,12 @@ class Layer:
         material: sheet material.
         mesh: mesh sizing.
         solver: reconstruction settings.
+        device: the board the layer is read from (profile and options); not part of the
+            content hash (it changes no model).
     """
+
+    #: Fields that do not change the model: left out of the content hash.
+    HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("device",)
 
     name: str
     outline_kind: str
@@ -224,6 +230,7 @@ class Layer:
     material: Material
     mesh: MeshSpec
     solver: SolverSpec
+    device: DeviceSpec = DEFAULT_DEVICE
 
     @property
     def n_electrodes(self) -> int:

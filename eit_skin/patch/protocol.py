@@ -322,6 +322,9 @@ class Protocol:
             frames.
         magnitude: the device reports magnitudes (``values: magnitude`` or
             ``complex_part: magnitude``): each channel's sign is the homogeneous model's.
+        board_to_config: ``[n_el]`` int64: board electrode ``b`` is config electrode
+            ``board_to_config[b]`` (``first_electrode`` or ``electrode_order``; identity
+            when None is given).
     """
 
     name: str
@@ -333,6 +336,7 @@ class Protocol:
     frame_size: int = 0
     complex_part: str = "real"
     magnitude: bool = False
+    board_to_config: np.ndarray | None = None
     _selection: sp.csr_matrix | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -369,6 +373,12 @@ class Protocol:
         elif size != len(meas):
             raise ValueError(f"protocol {self.name!r}: frame_size {size} needs a frame_index")
         object.__setattr__(self, "frame_size", size)
+        order = np.arange(n) if self.board_to_config is None else np.array(self.board_to_config)
+        if sorted(order.tolist()) != list(range(n)):
+            raise ValueError(f"protocol {self.name!r}: board_to_config is not a permutation")
+        order = order.astype(np.int64)
+        order.setflags(write=False)
+        object.__setattr__(self, "board_to_config", order)
         inj.setflags(write=False)
         meas.setflags(write=False)
         object.__setattr__(self, "n_electrodes", n)
@@ -571,4 +581,5 @@ def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
         frame_size=len(inj) * n if frame_index is not None else 0,
         complex_part=spec.complex_part,
         magnitude=spec.values == "magnitude" or spec.complex_part == "magnitude",
+        board_to_config=board_to_config,
     )

@@ -39,7 +39,12 @@ DRIVER: ParameterTable = [
         "layer, so a patch of several layers needs it with port (refused otherwise)",
     ),
     ("port", "", "serial device of the skin board, e.g. /dev/eit_skin_arm; empty: simulator"),
-    ("baud", 921600, "serial baud rate (ignored by USB CDC-ACM boards)"),
+    (
+        "baud",
+        0,
+        "serial rate, bit/s; 0: the board profile's (the layer's device.baud); ignored by USB "
+        "CDC-ACM boards",
+    ),
     ("rate_hz", 50.0, "simulator frame rate, Hz"),
     ("frame_id", "", "override of the patch config's frame_id"),
     (
