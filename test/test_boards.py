@@ -12,8 +12,8 @@ import struct
 import numpy as np
 import pytest
 
-from eit_skin.hardware.boards import board_reader
 from eit_skin.hardware.sciospec import ACK, START, STOP, SYSTEM_TAG, message, setup_commands
+from eit_skin.hardware.sources import board_reader
 from eit_skin.patch.loading import patch_from_dict
 from eit_skin.patch.model import PatchError
 from eit_skin.patch.protocol import build_protocol

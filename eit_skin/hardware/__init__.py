@@ -2,7 +2,9 @@
 
 Modules: ``wire`` (binary framing and the resynchronising parser), ``serial_link``
 (reconnecting serial port), ``device_clock`` (board clock -> host time), ``fake_device`` (a
-board on a pseudo-terminal), ``sources`` (serial, simulated and replayed frame sources).
+board on a pseudo-terminal), ``sources`` (serial, simulated and replayed frame sources),
+``boards`` (board profiles' readers: eit_skin wire, OpenEIT, line-printing boards),
+``sciospec`` (Sciospec setup and data frames).
 """
 
 from __future__ import annotations
@@ -14,6 +16,10 @@ from eit_skin import lazy_exports
 #: Public name -> the module of this subpackage that defines it (imported on first use,
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
+    "BoardFrame": "boards",
+    "BoardReader": "boards",
+    "SciospecReader": "sciospec",
+    "board_reader": "sources",
     "DeviceClock": "device_clock",
     "DeviceFrame": "wire",
     "FakeDevice": "fake_device",
@@ -27,23 +33,34 @@ _EXPORTS: dict[str, str] = {
 }
 
 __all__ = [
+    "BoardFrame",
+    "BoardReader",
     "DeviceClock",
     "DeviceFrame",
     "FakeDevice",
     "FrameParser",
     "PatternId",
     "ReplaySource",
+    "SciospecReader",
     "SerialLink",
     "SerialSource",
     "SimulatedSource",
+    "board_reader",
     "encode_frame",
 ]
 
 if TYPE_CHECKING:
+    from eit_skin.hardware.boards import BoardFrame, BoardReader
     from eit_skin.hardware.device_clock import DeviceClock
     from eit_skin.hardware.fake_device import FakeDevice
+    from eit_skin.hardware.sciospec import SciospecReader
     from eit_skin.hardware.serial_link import SerialLink
-    from eit_skin.hardware.sources import ReplaySource, SerialSource, SimulatedSource
+    from eit_skin.hardware.sources import (
+        ReplaySource,
+        SerialSource,
+        SimulatedSource,
+        board_reader,
+    )
     from eit_skin.hardware.wire import DeviceFrame, FrameParser, PatternId, encode_frame
 
 

@@ -48,7 +48,7 @@ class BoardFrame:
     current_a: float | None = None
 
 
-def _flags_of(values: np.ndarray) -> np.ndarray:
+def invalid_flags(values: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(values), 0, FLAG_INVALID).astype(np.uint8)
 
 
@@ -320,7 +320,7 @@ class TextLineReader(BoardReader):
         if self.volts_per_unit != 1.0:
             values *= self.volts_per_unit
         self.acknowledged = True
-        return BoardFrame(values, _flags_of(values))
+        return BoardFrame(values, invalid_flags(values))
 
     def _body(self, text: str, offset: int, size: int) -> str | None:
         """The values part of a line, or None (counted) for a line that is no frame."""
@@ -400,31 +400,6 @@ class OpenEITReader(TextLineReader):
             self._seen(text.encode("latin-1")[:80] + b"|")
             return None
         return super()._body(text, offset, size)
-
-
-def board_reader(
-    protocol: Protocol,
-    device: DeviceSpec,
-    layer: str,
-    current_a: float,
-    check: Callable[[DeviceFrame], tuple[str, str] | None],
-) -> BoardReader:
-    """The reader of a layer's board profile (``cn0565`` has no byte stream: not here).
-
-    ``current_a`` is the layer's current (the Sciospec setup's amplitude); ``check`` the
-    layer's test of a wire-protocol frame (:class:`WireReader`).
-    """
-    if device.profile == "eit_skin":
-        return WireReader(protocol, device, layer, check)
-    if device.profile == "openeit":
-        return OpenEITReader(protocol, device, layer)
-    if device.profile == "lines":
-        return lines_reader(protocol, device, layer)
-    if device.profile == "sciospec":
-        from eit_skin.hardware.sciospec import SciospecReader
-
-        return SciospecReader(protocol, device, layer, current_a)
-    raise ValueError(f"board profile {device.profile!r} is not read from a serial port")
 
 
 class StartCommandLineReader(TextLineReader):

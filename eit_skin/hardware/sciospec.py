@@ -27,7 +27,7 @@ import struct
 
 import numpy as np
 
-from eit_skin.hardware.boards import BoardFrame, BoardReader, _flags_of
+from eit_skin.hardware.boards import BoardFrame, BoardReader, invalid_flags
 from eit_skin.patch.device import DeviceSpec
 from eit_skin.patch.protocol import Protocol
 
@@ -287,7 +287,7 @@ class SciospecReader(BoardReader):
         measured = self.protocol.measure(config)
         self._sequence += 1
         self._new_cycle()
-        return BoardFrame(measured, _flags_of(measured), ms * 1000, self._sequence - 1)
+        return BoardFrame(measured, invalid_flags(measured), ms * 1000, self._sequence - 1)
 
     def _drop_cycle(self, why: str) -> None:
         if self._stage or self._cycle_bytes:

@@ -17,10 +17,18 @@ from typing import Any
 import numpy as np
 
 from eit_skin.frames import FrameRecord, is_frames_topic
+from eit_skin.hardware.boards import (
+    BoardReader,
+    OpenEITReader,
+    WireReader,
+    lines_reader,
+)
 from eit_skin.hardware.device_clock import DeviceClock
+from eit_skin.hardware.sciospec import SciospecReader
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
 from eit_skin.hardware.wire import DeviceFrame, PatternId
 from eit_skin.io.mcap import McapDamage, read_mcap_frames
+from eit_skin.patch.device import DeviceSpec
 from eit_skin.patch.model import Layer, Patch
 from eit_skin.patch.protocol import Protocol, build_protocol
 
@@ -193,6 +201,29 @@ class LayerFrameFactory:
         )
 
 
+def board_reader(
+    protocol: Protocol,
+    device: DeviceSpec,
+    layer: str,
+    current_a: float,
+    check: Callable[[DeviceFrame], tuple[str, str] | None],
+) -> BoardReader:
+    """The reader of a layer's board profile (``cn0565`` has no byte stream: not here).
+
+    ``current_a`` is the layer's current (the Sciospec setup's amplitude); ``check`` the
+    layer's test of a wire-protocol frame (:class:`WireReader`).
+    """
+    if device.profile == "eit_skin":
+        return WireReader(protocol, device, layer, check)
+    if device.profile == "openeit":
+        return OpenEITReader(protocol, device, layer)
+    if device.profile == "lines":
+        return lines_reader(protocol, device, layer)
+    if device.profile == "sciospec":
+        return SciospecReader(protocol, device, layer, current_a)
+    raise ValueError(f"board profile {device.profile!r} is not read from a serial port")
+
+
 class SerialSource:
     """One board on a serial port, serving one layer, in the layer's board profile.
 
@@ -220,8 +251,6 @@ class SerialSource:
         clock: DeviceClock | None = None,
         backoff_max_s: float = 2.0,
     ) -> None:
-        from eit_skin.hardware.boards import board_reader
-
         layer = factory.layer
         self.factory = factory
         self.sink = sink

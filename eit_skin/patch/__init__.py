@@ -5,7 +5,8 @@ Modules: ``model`` (the :class:`Patch` / :class:`Layer` dataclasses and their co
 one YAML reader and typed-field validator, shared with scenario files), ``outline``,
 ``electrodes``, ``holes`` (reading those sections), ``mesh_budget`` (refusing a mesh too big
 to build), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
-pressure/stretch), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
+pressure/stretch), ``device`` (the board a layer is read from: profile names and
+options), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
 (drive and measurement pattern: the one place that knows the measurement order).
 """
 
@@ -19,6 +20,7 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "ConfigError": "yaml_reader",
+    "DeviceSpec": "device",
     "Electrode": "model",
     "Layer": "model",
     "Material": "material",
@@ -38,6 +40,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "ConfigError",
+    "DeviceSpec",
     "Electrode",
     "Layer",
     "Material",
@@ -56,6 +59,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
+    from eit_skin.patch.device import DeviceSpec
     from eit_skin.patch.loading import load_patch, patch_from_dict
     from eit_skin.patch.material import Material
     from eit_skin.patch.mesh_budget import MeshCost, estimate_layer
