@@ -20,7 +20,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "Fit sheet conductance and contact impedance to a device's no-load frame.",
     ),
     "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
+    "capture": (
+        "capture",
+        "Record a board's frames to an offline frames file (npz), without ROS.",
+    ),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
+    "detect": (
+        "detect",
+        "Recognise the board on a serial port and the patch that fits its frames.",
+    ),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),

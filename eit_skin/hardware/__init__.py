@@ -4,7 +4,9 @@ Modules: ``wire`` (binary framing and the resynchronising parser), ``serial_link
 (reconnecting serial port), ``device_clock`` (board clock -> host time), ``fake_device`` (a
 board on a pseudo-terminal), ``sources`` (serial, simulated and replayed frame sources),
 ``boards`` (board profiles' readers: eit_skin wire, OpenEIT, line-printing boards),
-``sciospec`` (Sciospec setup and data frames).
+``sciospec`` (Sciospec setup and data frames), ``cn0565`` (the Analog Devices CN0565 through
+pyadi-iio), ``source_status`` (frame rate and status of any source), ``detect`` (which
+profile a port's bytes follow).
 """
 
 from __future__ import annotations

@@ -8,9 +8,7 @@ and keeps counters for diagnostics. The driver node only publishes what they ret
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,9 +21,11 @@ from eit_skin.hardware.boards import (
     WireReader,
     lines_reader,
 )
+from eit_skin.hardware.cn0565 import Cn0565Source
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.sciospec import SciospecReader
 from eit_skin.hardware.serial_link import LinkState, ReceivedFrame, SerialLink
+from eit_skin.hardware.source_status import RateMeter, SourceStatus
 from eit_skin.hardware.wire import DeviceFrame, PatternId
 from eit_skin.io.mcap import McapDamage, read_mcap_frames
 from eit_skin.patch.device import DeviceSpec
@@ -74,51 +74,6 @@ REJECT_REASONS = ("values", "electrodes", "pattern", "current")
 value count != the layer's device frame size (``M``, or ``n_inj x n`` for ``layout: full``),
 electrode count != the layer's, a drive pattern other than the
 layer's, current <= 0."""
-
-
-class RateMeter:
-    """Frames per second between two queries (O(1) per frame: a counter, monotonic clock).
-
-    ``rate_hz`` reports the rate since the previous query (the first query: since the
-    first frame), so with diagnostics every second it is the rate of the last second; a
-    query within ``min_window_s`` of the previous one repeats the last value.
-    """
-
-    def __init__(self, min_window_s: float = 0.5) -> None:
-        self.min_window_ns = int(min_window_s * 1e9)
-        self.count = 0
-        self._mark: tuple[int, int] | None = None  # (count, monotonic ns) of the last query
-        self._rate = 0.0
-
-    def tick(self) -> None:
-        if self._mark is None:
-            self._mark = (0, time.monotonic_ns())
-        self.count += 1
-
-    def rate_hz(self) -> float:
-        if self._mark is None:
-            return 0.0
-        count, then = self._mark
-        now = time.monotonic_ns()
-        if now - then >= self.min_window_ns:
-            self._rate = (self.count - count) / ((now - then) * 1e-9)
-            self._mark = (self.count, now)
-        return self._rate
-
-
-@dataclass
-class SourceStatus:
-    """What a source tells the diagnostics.
-
-    Attributes:
-        level: 0 OK, 1 WARN, 2 ERROR (``diagnostic_msgs/DiagnosticStatus`` levels).
-        message: one line for humans.
-        values: key/value pairs for the diagnostics array.
-    """
-
-    level: int
-    message: str
-    values: dict[str, str] = field(default_factory=dict)
 
 
 class LayerFrameFactory:
@@ -363,6 +318,23 @@ class SerialSource:
         if not new_frames:
             return SourceStatus(1, f"connected to {where}, no frames since last report", values)
         return SourceStatus(0, f"{rate:.1f} frames/s from {where}", values)
+
+
+def board_source(
+    factory: LayerFrameFactory, port: str, baud: int, sink: FrameSink
+) -> SerialSource | Cn0565Source:
+    """The source of a layer's board on ``port``, by the layer's board profile.
+
+    A serial byte stream (:class:`SerialSource`), or a CN0565 asked for every frame through
+    pyadi-iio (:class:`~eit_skin.hardware.cn0565.Cn0565Source`).
+    """
+    if factory.layer.device.profile == "cn0565":
+        return Cn0565Source(factory, port, sink)
+    return SerialSource(factory, port, baud, sink)
+
+
+BOARD_SOURCES = (SerialSource, Cn0565Source)
+"""The sources that read a board (they have ``stop``), as opposed to the simulator and replay."""
 
 
 class SimulatedSource:

@@ -34,11 +34,12 @@ from sensor_msgs.msg import JointState
 
 from eit_skin.frames import FrameRecord
 from eit_skin.hardware.sources import (
+    BOARD_SOURCES,
     LayerFrameFactory,
     ReplaySource,
-    SerialSource,
     SimulatedSource,
     SourceStatus,
+    board_source,
 )
 from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
@@ -97,7 +98,7 @@ class DriverNode(Node):
             self.create_timer(0.001, lambda: self._when_subscribed(self.source.tick))
         elif port:
             (layer,) = layers
-            self.source = SerialSource(
+            self.source = board_source(
                 self.factories[layer.name], port, int(p["baud"]), self.publish
             )
             self.source.start()
@@ -206,7 +207,7 @@ class DriverNode(Node):
 
     def _publish_diagnostics(self) -> None:
         status: SourceStatus = self.source.status()
-        if self.waits_for and not isinstance(self.source, SerialSource):
+        if self.waits_for and not isinstance(self.source, BOARD_SOURCES):
             # holding the script until a subscriber listens is normal, not a fault
             topics = ", ".join(
                 self.resolve_topic_name(p.topic) for p in self.frame_publishers.values()
@@ -236,7 +237,7 @@ class DriverNode(Node):
 
     def close_resources(self) -> None:
         """Stop the serial reader thread and close the recording (idempotent)."""
-        if isinstance(self.source, SerialSource):
+        if isinstance(self.source, BOARD_SOURCES):
             self.source.stop()
         if self.recorder is not None:
             self.recorder.close()

@@ -38,7 +38,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from eit_skin.calibration.online import OnlineLocaliser
-from eit_skin.hardware.sources import RateMeter, pattern_name
+from eit_skin.hardware.source_status import RateMeter
+from eit_skin.hardware.sources import pattern_name
 from eit_skin.io.cdr import EitFrameFields, Float32ImageCdr, read_eit_frame
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Layer
