@@ -345,3 +345,11 @@ def test_sciospec_refused_or_unanswered_setup_names_the_command(sciospec):
     assert quiet.commands(2.5) == STOP  # no answer in ack_timeout_s: the setup again
     line = quiet.unanswered(2.6)
     assert "stop" in line and "b4 01 00 b4" in line and "magnitudes" in line
+
+
+def test_the_schema_doc_has_the_current_options_table(repo):
+    from eit_skin.patch.device import options_table
+
+    assert options_table() in (repo / "docs/patch-schema.md").read_text(), (
+        "docs/patch-schema.md: regenerate the device options table (options_table())"
+    )

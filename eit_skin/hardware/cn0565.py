@@ -76,7 +76,7 @@ class Cn0565Source:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
-        self._board: Any = open_board(factory.layer, port)  # refuse to start without pyadi-iio
+        self.board: Any = open_board(factory.layer, port)  # refuse to start without pyadi-iio
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="Cn0565Source", daemon=True)
@@ -91,14 +91,14 @@ class Cn0565Source:
     def _loop(self) -> None:
         while not self._stop.is_set():
             try:
-                if self._board is None:
-                    self._board = open_board(self.factory.layer, self.port)
-                raw = np.asarray(self._board.all_voltages, dtype=np.float64)
+                if self.board is None:
+                    self.board = open_board(self.factory.layer, self.port)
+                raw = np.asarray(self.board.all_voltages, dtype=np.float64)
             except Exception as error:  # a lost board surfaces as many error types
                 with self._lock:
                     self.last_error = f"{type(error).__name__}: {error}"
-                    self.reconnects += self._board is not None
-                self._board = None
+                    self.reconnects += self.board is not None
+                self.board = None
                 self._stop.wait(self.retry_s)
                 continue
             self.publish(raw, time.time_ns())
@@ -131,7 +131,7 @@ class Cn0565Source:
                 "reconnects": str(self.reconnects),
                 "last_error": self.last_error,
             }
-            connected = self._board is not None
+            connected = self.board is not None
         if not connected and self.last_error:
             return SourceStatus(2, f"CN0565 on {self.port}: {self.last_error}", values)
         return SourceStatus(0, f"{values['frame_rate_hz']} frames/s from CN0565", values)

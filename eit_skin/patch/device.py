@@ -274,3 +274,16 @@ def device_problem(
                 "pair measurements in increasing order, V(s+) - V(s-), driven electrodes left out"
             )
     return None
+
+
+def options_table() -> str:
+    """The profiles' options as the markdown table of docs/patch-schema.md (a test compares)."""
+    rows = ["| profile | key | type | default | unit | meaning |", "|---|---|---|---|---|---|"]
+    for profile, options in PROFILES.items():
+        for option in options:
+            kind = " \\| ".join(map(str, option.choices)) if option.choices else option.kind
+            rows.append(
+                f"| `{profile}` | `{option.name}` | {kind} | `{option.default!r}` | "
+                f"{option.unit} | {option.description} |"
+            )
+    return "\n".join(rows)
