@@ -220,6 +220,7 @@ _LABEL = re.compile(r"^\s*[A-Za-z_][\w .-]*:")
 class TextLineReader(BoardReader):
     """One frame per text line: ``[label:] v1 <sep> v2 <sep> ... vN [<sep>]`` + CR, LF or CRLF.
 
+    Separators are any mix of the given characters and whitespace (runs count as one).
     The first line after a (re)connect may be the tail of a line the board was writing: if it
     is not a good frame it is counted as ``partial_line``, not as an error of the board.
     A value that is not finite (``nan``, ``inf``) keeps its frame, flagged FLAG_INVALID on
@@ -245,7 +246,7 @@ class TextLineReader(BoardReader):
         self.prefix = prefix
         self.volts_per_unit = float(volts_per_unit)
         self.separators = separators
-        self._split = re.compile("[" + re.escape(separators) + "]+")
+        self._to_spaces = str.maketrans(dict.fromkeys(separators, " "))
         self.max_line = 64 * self.expected + 256
         self._buf = bytearray()
         self._offset = 0  # stream offset of self._buf[0]
@@ -301,22 +302,27 @@ class TextLineReader(BoardReader):
         body = self._body(text, offset, size)
         if body is None:
             return None
-        tokens = self._split.split(body.strip(self.separators + " "))
-        if len(tokens) != self.expected:
-            return self._bad(
-                "values",
-                f"byte {offset}: {len(tokens)} values, layer {self.layer!r} expects "
-                f"{self.expected}",
-                line,
-                size,
-            )
+        text = body.translate(self._to_spaces)
         try:
-            values = np.array(tokens, dtype=np.float64)
+            values = np.fromstring(text, sep=" ")  # C parsing; numpy >= 2.4 raises on a word
         except ValueError:
-            word = next(t for t in tokens if not _is_number(t))
-            return self._bad(
-                "not_a_number", f"byte {offset}: {word[:20]!r} is not a number", line, size
-            )
+            values = None
+        if values is None or len(values) != self.expected:
+            tokens = text.split()
+            if len(tokens) != self.expected:
+                return self._bad(
+                    "values",
+                    f"byte {offset}: {len(tokens)} values, layer {self.layer!r} expects "
+                    f"{self.expected}",
+                    line,
+                    size,
+                )
+            word = next((t for t in tokens if not _is_number(t)), None)
+            if word is not None:
+                return self._bad(
+                    "not_a_number", f"byte {offset}: {word[:20]!r} is not a number", line, size
+                )
+            values = np.array(list(map(float, tokens)))  # numbers numpy's parser declines
         if self.volts_per_unit != 1.0:
             values *= self.volts_per_unit
         self.acknowledged = True

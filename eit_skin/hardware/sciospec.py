@@ -44,6 +44,7 @@ STOP = bytes((0xB4, 0x01, 0x00, 0xB4))
 _GAINS = {1: 0, 10: 1, 100: 2, 1000: 3}
 _ADC_RANGES = {1: 1, 5: 2, 10: 3}
 _DATA = np.dtype(">f4")
+_STAGE = DATA_LENGTH + 3  # bytes of one data frame
 
 
 def message(tag: int, payload: bytes) -> bytes:
@@ -182,6 +183,11 @@ class SciospecReader(BoardReader):
         frames: list[BoardFrame] = []
         pos, n = 0, len(buf)
         while n - pos >= 2:
+            run = self._data_run(pos, n)
+            if run:  # consecutive data frames: decoded together
+                frames += self._stages(np.frombuffer(buf, np.uint8, run * _STAGE, pos))
+                pos += run * _STAGE
+                continue
             tag = buf[pos]
             length = buf[pos + 1]
             end = pos + 2 + length
@@ -191,18 +197,40 @@ class SciospecReader(BoardReader):
                 continue
             if end >= n:
                 break  # the rest has not arrived yet
-            payload = bytes(buf[pos + 2 : end])
             self._in_sync = True
-            if tag == DATA_TAG and length == DATA_LENGTH:
-                frame = self._stage_frame(payload, length + 3)
-                if frame is not None:
-                    frames.append(frame)
-            else:
-                self._message(tag, payload)
-                self.stats.discarded_bytes += length + 3
+            self._message(tag, bytes(buf[pos + 2 : end]))
+            self.stats.discarded_bytes += length + 3
             pos = end + 1
         del buf[:pos]
         self.stats.frames += len(frames)
+        return frames
+
+    def _data_run(self, pos: int, n: int) -> int:
+        """How many complete, well-framed data frames follow one another from ``pos``."""
+        count = (n - pos) // _STAGE
+        if not count or self._buf[pos] != DATA_TAG or self._buf[pos + 1] != DATA_LENGTH:
+            return 0
+        rows = np.frombuffer(self._buf, np.uint8, count * _STAGE, pos).reshape(count, _STAGE)
+        good = (rows[:, 0] == DATA_TAG) & (rows[:, 1] == DATA_LENGTH) & (rows[:, -1] == DATA_TAG)
+        run = int(np.argmin(good)) if not good.all() else count
+        if run:
+            self._in_sync = True
+        return run
+
+    def _stages(self, raw: np.ndarray) -> list[BoardFrame]:
+        """Data frames ``raw`` [K * 140] bytes -> the drive cycles they complete."""
+        rows = raw.reshape(-1, _STAGE)
+        head = rows[:, 2:11].astype(np.int64)
+        ms = (head[:, 5] << 24) | (head[:, 6] << 16) | (head[:, 7] << 8) | head[:, 8]
+        values = rows[:, 11:139].copy().view(_DATA).astype(np.float64)
+        potentials = values[:, 0::2] + 1j * values[:, 1::2]  # [K, 16]
+        frames = []
+        for k in range(len(rows)):
+            frame = self._stage_frame(
+                int(head[k, 0]), int(head[k, 1]), int(head[k, 2]), int(ms[k]), potentials[k]
+            )
+            if frame is not None:
+                frames.append(frame)
         return frames
 
     def _lose_sync(self, byte: bytes) -> None:
@@ -237,9 +265,11 @@ class SciospecReader(BoardReader):
             self.nacked = f"{name} ({raw.hex(' ')}): {what}"
             self.last_refusal = f"setup command {self.nacked}"
 
-    def _stage_frame(self, payload: bytes, size: int) -> BoardFrame | None:
-        group, es_out, es_in = payload[0], payload[1], payload[2]
-        ms = int.from_bytes(payload[5:9], "big")
+    def _stage_frame(
+        self, group: int, es_out: int, es_in: int, ms: int, values: np.ndarray
+    ) -> BoardFrame | None:
+        """One excitation stage (its 16 complex potentials); the frame it completes, if any."""
+        size = _STAGE
         if not self.acknowledged:
             self._refuse("before_start", "data frame before the setup was acknowledged", size)
             return None
@@ -269,11 +299,8 @@ class SciospecReader(BoardReader):
             self._waiting_for_first = True
             return None
         self._waiting_for_first = False
-        values = np.frombuffer(payload, _DATA, 2 * CHANNELS_PER_GROUP, 9).astype(np.float64)
         column = (group - self._groups[0]) * CHANNELS_PER_GROUP
-        self._potentials[stage, column : column + CHANNELS_PER_GROUP] = (
-            values[0::2] + 1j * values[1::2]
-        )
+        self._potentials[stage, column : column + CHANNELS_PER_GROUP] = values
         self._cycle_bytes += size
         self._missing.discard(group)
         if self._missing:
