@@ -2,7 +2,9 @@
 
 Modules: ``wire`` (binary framing and the resynchronising parser), ``serial_link``
 (reconnecting serial port), ``device_clock`` (board clock -> host time), ``fake_device`` (a
-board on a pseudo-terminal), ``sources`` (serial, simulated and replayed frame sources).
+board on a pseudo-terminal), ``board_emulators`` (OpenEIT, line-printing and Sciospec boards
+emulated byte for byte on a pseudo-terminal), ``sources`` (serial, simulated and replayed
+frame sources).
 """
 
 from __future__ import annotations

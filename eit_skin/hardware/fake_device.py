@@ -66,6 +66,7 @@ class PtyBoard:
         self._slave_path = ""
         self._link: Path | None = None
         self._pending = bytearray()
+        self._cut: int | None = None
         self._t0_ns = time.monotonic_ns()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -141,6 +142,8 @@ class PtyBoard:
                 self.frames_dropped += 1
                 self._flush()
                 return False
+            if self._cut is not None:
+                data, self._cut = data[: self._cut], None
             self._pending += data
             self.frames_sent += 1
             self._flush()
@@ -177,11 +180,22 @@ class PtyBoard:
         return b"".join(chunks)
 
     def on_host_bytes(self, data: bytes) -> None:
-        """React to bytes from the host (called by :meth:`run` between frames); default: ignore."""
+        """Bytes from the host (maybe none), handed over by :meth:`run` between frames.
+
+        Called at least every 50 ms while running (timeouts go here); default: ignore them.
+        """
 
     def emit_frame(self, index: int, device_time_us: int) -> None:
         """Write frame ``index`` (``device_time_us``: its scheduled time on the board clock)."""
         raise NotImplementedError
+
+    def board_time_us(self) -> int:
+        """Now on the clock :meth:`run` stamps frames with, microseconds."""
+        return (time.monotonic_ns() - self._t0_ns) // 1000
+
+    def cut_next_frame(self, n_bytes: int) -> None:
+        """Write only the first ``n_bytes`` of the next frame (a frame cut short)."""
+        self._cut = int(n_bytes)
 
     def run(self, count: int | None = None, stop: threading.Event | None = None) -> int:
         """Emit frames 0, 1, ... at ``rate_hz`` until ``count`` or ``stop``; return the count.
@@ -193,9 +207,7 @@ class PtyBoard:
         next_ns = time.monotonic_ns()
         index = 0
         while (count is None or index < count) and not stop.is_set():
-            host = self.read_host()
-            if host:
-                self.on_host_bytes(host)
+            self.on_host_bytes(self.read_host())
             now = time.monotonic_ns()
             if not self.streaming:
                 next_ns = now  # the schedule starts when streaming does
