@@ -264,6 +264,20 @@ def test_lines_board_refuses_what_it_cannot_honour():
         LinesEmulator(lambda i: np.zeros(208), compact, separator="|")
 
 
+def test_garbage_and_a_frame_cut_short_reach_the_host_as_written():
+    protocol = build_protocol(ProtocolSpec(), 16)
+    frames = np.random.default_rng(3).normal(0, 0.5, (2, 208))
+    with LinesEmulator(lambda i: frames[i], protocol, rate_hz=400.0) as board:
+        host = Host(board.slave_path)
+        board.write_raw(b"\x00\xffgarbage")
+        board.cut_next_frame(7)
+        board.start(count=2)
+        line = board.frame_line(1)
+        data = host.read_until(lambda d: d.endswith(line), "the second line")
+        host.close()
+    assert data == b"\x00\xffgarbage" + board.frame_line(0)[:7] + line
+
+
 # ---------------------------------------------------------------------------------- Sciospec
 
 
@@ -442,6 +456,19 @@ def test_cli_refuses_bad_arguments_in_one_line(args, message, capsys):
     assert main(["fake-device", *args]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"eit-skin fake-device: {message}") and err.count("\n") == 1
+
+
+def test_cli_lines_board_runs_a_counted_replay(capsys):
+    from eit_skin.cli.main import main
+
+    real_dir = os.path.join(ROOT, "data", "real")
+    args = ["fake-device", "--device", "lines", "--separator", "semicolon", "--label", "v",
+            "--patch", os.path.join(real_dir, "sciospec_adjacent.yaml"), "--count", "2",
+            "--frames", os.path.join(real_dir, "sciospec_adjacent.npz"), "--linger", "0",
+            "--rate", "100"]  # fmt: skip
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "lines, 208 values x 1, separator ';'" in out and "sent 2 frames" in out
 
 
 def test_cli_openeit_replays_a_recording(tmp_path, hydrogel):

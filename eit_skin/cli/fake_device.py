@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"eit-skin fake-device: {error}", file=sys.stderr)
         return 2
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     path = device.open()
     try:
         if args.link:
@@ -159,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"sent {sent} frames ({device.frames_dropped} dropped, nobody reading)", flush=True)
     finally:
         device.unplug()
+        signal.signal(signal.SIGTERM, previous)
     return 0
 
 
