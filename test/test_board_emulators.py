@@ -127,6 +127,7 @@ def test_openeit_boots_with_its_banner_and_streams_16_electrode_magnitude_lines(
         assert values.shape == (192,)
         expected = np.floor(np.abs(frames[index]) * 16 + 0.5) / 16  # nearest 1/16
         np.testing.assert_array_equal(values, expected)
+        np.testing.assert_array_equal(values, board.expected_measurements(index))
 
 
 def test_openeit_fixed_point_text_rounds_saturates_and_pads(hydrogel):
@@ -251,6 +252,9 @@ def test_lines_board_prints_every_value_then_the_separator(separator, label, end
         expected = frames[index] if drop else full
         assert values.shape == expected.shape
         assert np.abs(values - expected).max() <= 0.5e-4 + 1e-12
+        decoded = np.zeros(256)
+        decoded[np.sort(protocol.frame_index) if drop else np.arange(256)] = values
+        np.testing.assert_array_equal(protocol.select(decoded), board.expected_measurements(index))
         if not drop:  # the pairs touching a drive electrode print 0.0000
             unused = np.setdiff1d(np.arange(256), protocol.frame_index)
             assert not values[unused].any()
@@ -382,6 +386,7 @@ def test_sciospec_streams_potentials_per_injection_and_group_until_stop(sciospec
         real_part = values[:, 0, :, 0]  # [injection, channel]
         np.testing.assert_array_equal(real_part, potentials[t].astype(np.float32))
         host_differences = protocol.measure(real_part.astype(np.float64))
+        np.testing.assert_array_equal(host_differences, board.expected_measurements(t))
         assert np.abs(host_differences - frames[t]).max() <= 4 * 2**-24 * np.abs(real_part).max()
     times = table[:, 4].astype(np.int64)
     assert np.all(np.diff(times) >= 0)  # ms since power-up, never backwards in one run

@@ -56,6 +56,16 @@ OPENEIT_FIXED32_MAX = 0x7FFFFFFF
 """Saturated 28.4 fixed-point magnitude (``calculate_magnitude``)."""
 
 
+def openeit_fixed32(magnitudes: np.ndarray) -> np.ndarray:
+    """28.4 fixed-point magnitudes (int64 ``[N]``, 16ths) of board-unit values ``[N]``.
+
+    Nearest 1/16 (ties up), saturated at 0x7FFFFFFF, NaN as 0 (an open circuit).
+    """
+    v = np.abs(np.asarray(magnitudes, dtype=np.float64))
+    v = np.where(np.isnan(v), 0.0, v)
+    return np.clip(np.floor(v * 16.0 + 0.5), 0, OPENEIT_FIXED32_MAX).astype(np.int64)
+
+
 def openeit_frame_line(magnitudes: np.ndarray) -> bytes:
     """One OpenEIT frame line from magnitudes in board units ``[N]``.
 
@@ -63,9 +73,7 @@ def openeit_frame_line(magnitudes: np.ndarray) -> bytes:
     1/16, saturated at 0x7FFFFFFF / 16, NaN as 0 like an open circuit) as ``%8d.%04d``
     (fraction = 16ths x 625) followed by ``,``; then ``CR LF``.
     """
-    v = np.abs(np.asarray(magnitudes, dtype=np.float64))
-    v = np.where(np.isnan(v), 0.0, v)
-    full = np.clip(np.floor(v * 16.0 + 0.5), 0, OPENEIT_FIXED32_MAX).astype(np.int64)
+    full = openeit_fixed32(magnitudes)
     ipart = np.char.rjust((full >> 4).astype(str), 8)
     fpart = np.char.zfill(((full & 0x0F) * 625).astype(str), 4)
     text = "".join(np.char.add(np.char.add(ipart, "."), np.char.add(fpart, ",")).tolist())
@@ -130,14 +138,23 @@ class OpenEITEmulator(PtyBoard):
         """
         self._restart_cut = -1 if cut_at is None else int(cut_at)
 
+    def board_numbers(self, index: int) -> np.ndarray:
+        """Frame ``index`` of the current mode in board units ``[N]``, before printing."""
+        n_values = OPENEIT_VALUES_PER_FRAME[self.n_electrodes]
+        if self.protocol.frame_size != n_values:
+            return np.zeros(n_values)
+        return self.protocol.device_frame(self.frame_source(index)) * self.scale
+
     def frame_line(self, index: int) -> bytes:
         """Frame ``index`` of the current mode as the board prints it."""
-        n_values = OPENEIT_VALUES_PER_FRAME[self.n_electrodes]
-        if self.protocol.frame_size == n_values:
-            values = self.protocol.device_frame(self.frame_source(index)) * self.scale
-        else:
-            values = np.zeros(n_values)
-        return openeit_frame_line(values)
+        return openeit_frame_line(self.board_numbers(index))
+
+    def expected_measurements(self, index: int) -> np.ndarray:
+        """``[M]`` what a correct host decodes from frame ``index``, board units.
+
+        Protocol order, magnitudes; the current mode must be the protocol's.
+        """
+        return self.protocol.select(openeit_fixed32(self.board_numbers(index)) / 16.0)
 
     def _look_at_input(self) -> None:
         """The top of the firmware's main loop: command check, mode switch, flush."""
@@ -268,12 +285,28 @@ class LinesEmulator(PtyBoard):
         self.digits = int(digits)
         self._kept = None if protocol.frame_index is None else np.sort(protocol.frame_index)
 
-    def frame_line(self, index: int) -> bytes:
-        """Frame ``index`` as the board prints it."""
+    def printed_numbers(self, index: int) -> np.ndarray:
+        """The numbers of frame ``index``'s line as text ``[N]`` (str array)."""
         values = self.protocol.device_frame(self.frame_source(index))
         if self.drop_zeros:
             values = values[self._kept]
-        text = arduino_print_float(values * self.scale, self.digits)
+        return arduino_print_float(values * self.scale, self.digits)
+
+    def expected_measurements(self, index: int) -> np.ndarray:
+        """``[M]`` what a correct host decodes from frame ``index``, protocol order.
+
+        ``ovf`` decodes as NaN.
+        """
+        printed = np.char.replace(self.printed_numbers(index), "ovf", "nan").astype(np.float64)
+        if not self.drop_zeros:
+            return self.protocol.select(printed)
+        full = np.zeros(self.protocol.frame_size)
+        full[self._kept] = printed
+        return self.protocol.select(full)
+
+    def frame_line(self, index: int) -> bytes:
+        """Frame ``index`` as the board prints it."""
+        text = self.printed_numbers(index)
         body = "".join(np.char.add(text, self.separator).tolist())
         prefix = f"{self.label}: " if self.label else ""
         return (prefix + body + self.line_ending).encode("ascii")
@@ -570,6 +603,16 @@ class SciospecEmulator(PtyBoard):
         n = self.protocol.n_electrodes
         out[known, :n] = sign[known, None] * u[k[known]][:, self.channel_electrodes]
         return out
+
+    def expected_measurements(self, index: int) -> np.ndarray:
+        """``[M]`` volts a correct host forms from frame ``index``, protocol order.
+
+        The differences of the float32 potentials sent, for a host that configured the
+        protocol's injections.
+        """
+        d = np.asarray(self.frame_source(index), dtype=np.float64)
+        u = (self._inverse @ d).reshape(self.protocol.n_injections, -1)
+        return self.protocol.measure(u.astype(np.float32).astype(np.float64))
 
     def data_frames(self, index: int, time_ms: float, period_ms: float) -> bytes:
         """Every data frame of frame ``index`` (injections in the configured order)."""
