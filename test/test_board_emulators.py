@@ -417,6 +417,24 @@ def test_sciospec_burst_count_ends_the_stream_and_restart_resets_the_clock(scios
     assert times[-1] < times[(np.diff(times) < 0).argmax()]
 
 
+def test_sciospec_electrodes_on_the_second_channel_group(sciospec):
+    """16 electrodes on channels 17-32 of an EIT32: group 1 reads 0 V, group 2 carries them;
+    an injection the protocol only has reversed is sent negated, one it lacks as 0 V."""
+    protocol, frames = sciospec
+    board = SciospecEmulator(lambda i: frames[i], protocol, first_channel=17)
+    assert board.injections[:2] == [(17, 18), (18, 19)]
+    got = data_frames(board.data_frames(0, 0.0, 10.0))
+    values = np.array([f[7:-1] for f in got]).reshape(16, 2, 16, 2)[..., 0]
+    expected = potentials_from_differences(protocol, frames[0]).astype(np.float32)
+    assert not values[:, 0].any()
+    np.testing.assert_array_equal(values[:, 1], expected)
+    board.injections[:] = [(18, 17), (1, 2)]
+    got = data_frames(board.data_frames(0, 0.0, 10.0))
+    values = np.array([f[7:-1] for f in got]).reshape(2, 2, 16, 2)[..., 0]
+    np.testing.assert_array_equal(values[0, 1], -expected[0])
+    assert not values[1].any() and board.unknown_injections == 1
+
+
 def test_potentials_from_differences_give_back_the_recording(sciospec):
     protocol, frames = sciospec
     potentials = potentials_from_differences(protocol, frames)

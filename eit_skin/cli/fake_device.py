@@ -23,6 +23,7 @@ DEVICE_OPTIONS = {
     "line_ending": ("lines",),
     "drop_zeros": ("lines",),
     "channels": ("sciospec",),
+    "first_channel": ("sciospec",),
 }
 
 
@@ -98,6 +99,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="sciospec: device channels, 16/32/48/64 (default 32, 64 above 32 electrodes)",
     )
     parser.add_argument(
+        "--first-channel",
+        type=int,
+        default=None,
+        help="sciospec: the channel (1-based) the layer's board electrode 0 is wired to "
+        "(default 1)",
+    )
+    parser.add_argument(
         "--linger",
         type=float,
         default=1.0,
@@ -119,6 +127,7 @@ def argument_error(args: argparse.Namespace) -> str | None:
             args.channels is None or args.channels in (16, 32, 48, 64),
             "--channels must be 16, 32, 48 or 64",
         ),
+        (args.first_channel is None or args.first_channel >= 1, "--first-channel must be >= 1"),
     )
     for ok, message in checks:
         if not ok:
@@ -234,7 +243,12 @@ def _board(args: argparse.Namespace):
             for b in range(layer.n_electrodes)
         ]
         device = board_emulators.SciospecEmulator(
-            measurements, protocol, args.rate, channels=args.channels, channel_electrodes=wiring
+            measurements,
+            protocol,
+            args.rate,
+            channels=args.channels,
+            channel_electrodes=wiring,
+            first_channel=args.first_channel or 1,
         )
         what = f"Sciospec, {device.channels} channels, waiting for start"
     return device, f"{label}; {what}"

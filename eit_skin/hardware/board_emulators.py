@@ -427,7 +427,9 @@ class SciospecEmulator(PtyBoard):
         rate_hz: frames per second until the host sets a frame rate (``B0 05 03``).
         channels: the device's channel count (16, 32, 48 or 64; default 32, or 64 above 32
             electrodes); channels without an electrode read 0 V.
-        channel_electrodes: config electrode wired to channel 1, 2, ... (default 0, 1, ...).
+        channel_electrodes: config electrode of board electrode 0, 1, ... (default 0, 1, ...).
+        first_channel: the channel (1-based) board electrode 0 is wired to; board electrode
+            ``b`` is on channel ``first_channel + b``.
         command_timeout_s: how long an incomplete command may wait for its bytes.
     """
 
@@ -439,6 +441,7 @@ class SciospecEmulator(PtyBoard):
         *,
         channels: int | None = None,
         channel_electrodes: Sequence[int] | None = None,
+        first_channel: int = 1,
         command_timeout_s: float = 0.5,
         max_pending_bytes: int = 1 << 22,
     ) -> None:
@@ -449,9 +452,10 @@ class SciospecEmulator(PtyBoard):
                 f"protocol {protocol.name}: a Sciospec device drives one pair at a time"
             )
         channels = channels if channels is not None else (32 if n <= 32 else 64)
-        if channels not in (16, 32, 48, 64) or channels < n:
+        if channels not in (16, 32, 48, 64) or not 1 <= first_channel <= channels - n + 1:
             raise ValueError(
-                f"channels: {channels} is not 16, 32, 48 or 64 with room for {n} electrodes"
+                f"channels: {channels} is not 16, 32, 48 or 64 with room for {n} electrodes "
+                f"from channel {first_channel}"
             )
         wiring = np.arange(n) if channel_electrodes is None else np.asarray(channel_electrodes)
         if sorted(wiring.tolist()) != list(range(n)):
@@ -463,12 +467,14 @@ class SciospecEmulator(PtyBoard):
         self.protocol = protocol
         self.channels = channels
         self.channel_electrodes = wiring.astype(np.int64)
+        self.first_channel = int(first_channel)
         self.command_timeout_s = float(command_timeout_s)
         self.default_rate_hz = self.rate_hz
         channel_of = np.empty(n, dtype=np.int64)
         channel_of[self.channel_electrodes] = np.arange(n)
         self.factory_injections = [
-            (int(channel_of[a]) + 1, int(channel_of[b]) + 1) for a, b in protocol.injections
+            (int(channel_of[a]) + first_channel, int(channel_of[b]) + first_channel)
+            for a, b in protocol.injections
         ]
         self.injections: list[tuple[int, int]] = list(self.factory_injections)
         self.outputs = dict.fromkeys(SCIOSPEC_OUTPUTS.values(), True)
@@ -574,8 +580,8 @@ class SciospecEmulator(PtyBoard):
         key = tuple(self.injections)
         if self._map_key != key:
             n = self.protocol.n_electrodes
-            pairs = np.array(key, dtype=np.int64).reshape(-1, 2) - 1  # 0-based channels
-            wired = (pairs < n).all(axis=1)
+            pairs = np.array(key, dtype=np.int64).reshape(-1, 2) - self.first_channel
+            wired = ((pairs >= 0) & (pairs < n)).all(axis=1)  # pairs: board electrodes
             ends = self.channel_electrodes[np.where(wired[:, None], pairs, 0)]
             table = np.full((n, n), -1, dtype=np.int64)
             table[self.protocol.injections[:, 0], self.protocol.injections[:, 1]] = np.arange(
@@ -601,7 +607,8 @@ class SciospecEmulator(PtyBoard):
         known = k >= 0
         self.unknown_injections += int((~known).sum())
         n = self.protocol.n_electrodes
-        out[known, :n] = sign[known, None] * u[k[known]][:, self.channel_electrodes]
+        first = self.first_channel - 1
+        out[known, first : first + n] = sign[known, None] * u[k[known]][:, self.channel_electrodes]
         return out
 
     def expected_measurements(self, index: int) -> np.ndarray:
