@@ -12,6 +12,9 @@ DEVICES = ("wire", "openeit", "lines", "sciospec")
 #: ``--separator`` names -> what the board prints after every value
 SEPARATORS = {"comma-space": ", ", "comma": ",", "semicolon": ";", "space": " ", "tab": "\t"}
 
+#: serial rate of the real board's link, bit/s (8N1): the frame rate it can carry
+LINK_BAUD = {"openeit": 115_200, "sciospec": 921_600}
+
 #: option -> the devices it applies to (given for another device: refused)
 DEVICE_OPTIONS = {
     "encoding": ("wire",),
@@ -159,6 +162,19 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"fake device on {path}", flush=True)
         print(f"source: {label}; {args.rate:g} Hz", flush=True)
+        if args.device in LINK_BAUD:
+            frame_bytes = len(
+                device.frame_line(0)
+                if args.device == "openeit"
+                else device.data_frames(0, 0.0, 1000.0 / args.rate)
+            )
+            most = LINK_BAUD[args.device] / 10 / frame_bytes  # 8N1: 10 bits a byte
+            if args.rate > most:
+                print(
+                    f"note: {frame_bytes} bytes a frame: the real board's "
+                    f"{LINK_BAUD[args.device]} baud link carries at most {most:.3g} frames/s",
+                    flush=True,
+                )
         try:
             sent = device.run(count=args.count or None, stop=stop)
             if args.count and not stop.is_set():
