@@ -1,4 +1,6 @@
-"""Skin boards: wire protocol, serial link, device clock, emulated board, frame sources.
+"""Skin boards: wire protocol, serial link, device clock, emulated boards, frame sources.
+
+``board_emulators``: OpenEIT, line-printing and Sciospec boards, byte for byte on a pty.
 
 Modules: ``wire`` (binary framing and the resynchronising parser), ``serial_link``
 (reconnecting serial port), ``device_clock`` (board clock -> host time), ``fake_device`` (a

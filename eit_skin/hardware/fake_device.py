@@ -1,5 +1,9 @@
 """An emulated skin board: speaks the wire protocol on a pseudo-terminal.
 
+``PtyBoard`` is the pty half every emulated board shares (plug, unplug, symlink, write
+queue, host bytes, a paced sending thread); ``FakeDevice`` speaks eit_skin's wire protocol
+on it, the boards of ``board_emulators`` speak theirs.
+
 ``FakeDevice(frame_source, rate_hz)`` opens a pty, optionally puts a symlink (like the udev
 ``/dev/eit_skin_*`` link) at a path of choice, and writes one encoded frame per period.
 ``frame_source(i)`` returns frame i's voltages, volts [M]; any callable works (a looped npz
@@ -37,40 +41,23 @@ def npz_frame_source(path: str | Path) -> tuple[FrameSource, int]:
     return (lambda i: frames[i % frames.shape[0]]), int(frames.shape[1])
 
 
-class FakeDevice:
-    """A pty that emits wire frames at ``rate_hz``.
+class PtyBoard:
+    """A board on a pseudo-terminal: plug, unplug, a symlink, a write queue, host bytes.
+
+    The shared half of every emulated board. A subclass says what one frame is
+    (:meth:`emit_frame`), whether it is streaming (:attr:`streaming`) and what it does with
+    the bytes the host writes (:meth:`on_host_bytes`); :meth:`run` paces the frames at
+    ``rate_hz`` and hands host bytes over between frames.
 
     Args:
-        frame_source: frame index -> voltages, volts [M] (M fixed).
         rate_hz: frames per second.
-        n_electrodes, pattern_id, pattern_param, current_a: header fields of every frame.
-        value_encoding: FLOAT32_VOLTS, or INT32_COUNTS with ``volts_per_count``.
         max_pending_bytes: bytes queued while nobody reads before frames are dropped.
     """
 
-    def __init__(
-        self,
-        frame_source: FrameSource,
-        rate_hz: float = 50.0,
-        *,
-        n_electrodes: int = 16,
-        pattern_id: PatternId = PatternId.ADJACENT,
-        pattern_param: int = 0,
-        current_a: float = 1e-3,
-        value_encoding: ValueEncoding = ValueEncoding.FLOAT32_VOLTS,
-        volts_per_count: float = DEFAULT_VOLTS_PER_COUNT,
-        max_pending_bytes: int = 1 << 20,
-    ) -> None:
+    def __init__(self, rate_hz: float, *, max_pending_bytes: int = 1 << 20) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-        self.frame_source = frame_source
         self.rate_hz = float(rate_hz)
-        self.n_electrodes = n_electrodes
-        self.pattern_id = PatternId(pattern_id)
-        self.pattern_param = pattern_param
-        self.current_a = current_a
-        self.value_encoding = ValueEncoding(value_encoding)
-        self.volts_per_count = float(np.float32(volts_per_count))
         self.max_pending_bytes = max_pending_bytes
         self.frames_sent = 0
         self.frames_dropped = 0
@@ -79,6 +66,7 @@ class FakeDevice:
         self._slave_path = ""
         self._link: Path | None = None
         self._pending = bytearray()
+        self._cut: int | None = None
         self._t0_ns = time.monotonic_ns()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -96,6 +84,11 @@ class FakeDevice:
         """Path a serial reader opens (``/dev/pts/N``), '' while unplugged."""
         return self._slave_path
 
+    @property
+    def streaming(self) -> bool:
+        """True while :meth:`run` should emit frames (a board waiting for a start: False)."""
+        return True
+
     def open(self) -> str:
         """Plug in: create a raw pty and return its slave path."""
         with self._lock:
@@ -109,7 +102,11 @@ class FakeDevice:
             self._pending.clear()
         if self._link is not None:
             self.link(self._link)
+        self.on_power_up()
         return self._slave_path
+
+    def on_power_up(self) -> None:
+        """Called by :meth:`open` once the pty exists (a boot banner goes here)."""
 
     def link(self, path: str | Path) -> None:
         """Point a symlink at ``path`` to the slave (replacing an existing symlink only)."""
@@ -136,30 +133,8 @@ class FakeDevice:
             self._slave_path = ""
             self._pending.clear()
 
-    def frame(self, index: int, device_time_us: int | None = None) -> DeviceFrame:
-        """Frame ``index`` exactly as a parser will decode it (values rounded to the wire)."""
-        volts = np.asarray(self.frame_source(index), dtype=np.float64)
-        if self.value_encoding is ValueEncoding.FLOAT32_VOLTS:
-            volts = volts.astype(np.float32).astype(np.float64)
-        else:
-            volts = np.rint(volts / self.volts_per_count) * self.volts_per_count
-        if device_time_us is None:
-            device_time_us = (time.monotonic_ns() - self._t0_ns) // 1000
-        return DeviceFrame(
-            sequence=index % 2**32,
-            device_time_us=device_time_us,
-            n_electrodes=self.n_electrodes,
-            pattern_id=self.pattern_id,
-            pattern_param=self.pattern_param,
-            current_a=self.current_a,
-            voltages_v=volts,
-            flags=np.where(np.isfinite(volts), 0, 2).astype(np.uint8),
-            value_encoding=self.value_encoding,
-            volts_per_count=self.volts_per_count,
-        )
-
-    def send(self, frame: DeviceFrame) -> bool:
-        """Queue and write one frame; False if unplugged or dropped (nobody reading)."""
+    def write_frame(self, data: bytes) -> bool:
+        """Queue and write one frame's bytes; False if unplugged or dropped (nobody reading)."""
         with self._lock:
             if self._master is None:
                 return False
@@ -167,8 +142,19 @@ class FakeDevice:
                 self.frames_dropped += 1
                 self._flush()
                 return False
-            self._pending += encode_frame(frame)
+            if self._cut is not None:
+                data, self._cut = data[: self._cut], None
+            self._pending += data
             self.frames_sent += 1
+            self._flush()
+            return True
+
+    def write_raw(self, data: bytes) -> bool:
+        """Queue and write bytes that are not a frame (banners, acknowledgements, garbage)."""
+        with self._lock:
+            if self._master is None:
+                return False
+            self._pending += data
             self._flush()
             return True
 
@@ -180,24 +166,74 @@ class FakeDevice:
         except BlockingIOError:
             pass
 
+    def read_host(self) -> bytes:
+        """Bytes the host has written since the last call (b'' when none or unplugged)."""
+        with self._lock:
+            if self._master is None:
+                return b""
+            chunks = []
+            try:
+                while chunk := os.read(self._master, 65536):
+                    chunks.append(chunk)
+            except (BlockingIOError, OSError):  # nothing more / the host side is closed
+                pass
+        return b"".join(chunks)
+
+    def on_host_bytes(self, data: bytes) -> None:
+        """Bytes from the host (maybe none), handed over by :meth:`run` between frames.
+
+        Called at least every 50 ms while running (timeouts go here); default: ignore them.
+        """
+
+    def emit_frame(self, index: int, device_time_us: int) -> None:
+        """Write frame ``index`` (``device_time_us``: its scheduled time on the board clock)."""
+        raise NotImplementedError
+
+    def board_time_us(self) -> int:
+        """Now on the clock :meth:`run` stamps frames with, microseconds."""
+        return (time.monotonic_ns() - self._t0_ns) // 1000
+
+    def cut_next_frame(self, n_bytes: int) -> None:
+        """Write only the first ``n_bytes`` of the next frame (a frame cut short)."""
+        self._cut = int(n_bytes)
+
     def run(self, count: int | None = None, stop: threading.Event | None = None) -> int:
-        """Send frames 0, 1, ... paced at ``rate_hz`` until ``count`` or ``stop``; return count."""
+        """Emit frames 0, 1, ... at ``rate_hz`` until ``count`` or ``stop``; return the count.
+
+        Frames go out only while :attr:`streaming`; host bytes reach :meth:`on_host_bytes`
+        between frames.
+        """
         stop = stop or self._stop
-        period_ns = round(1e9 / self.rate_hz)
         next_ns = time.monotonic_ns()
         index = 0
         while (count is None or index < count) and not stop.is_set():
-            # stamped with the scheduled acquisition time, like a timer-driven firmware
-            self.send(self.frame(index, device_time_us=(next_ns - self._t0_ns) // 1000))
-            index += 1
-            next_ns += period_ns
+            self.on_host_bytes(self.read_host())
             now = time.monotonic_ns()
-            if next_ns < now - 1_000_000_000:  # more than 1 s behind: drop the backlog
-                next_ns = now
-            if stop.wait(max(0, next_ns - now) / 1e9):
-                break
+            if not self.streaming:
+                next_ns = now  # the schedule starts when streaming does
+            elif now >= next_ns:
+                # stamped with the scheduled acquisition time, like a timer-driven firmware
+                self.emit_frame(index, (next_ns - self._t0_ns) // 1000)
+                index += 1
+                next_ns += round(1e9 / self.rate_hz)
+                now = time.monotonic_ns()
+                if next_ns < now - 1_000_000_000:  # more than 1 s behind: drop the backlog
+                    next_ns = now
+            self._wait(stop, max(0, next_ns - now) / 1e9 if self.streaming else 0.05)
         self._drain(stop)
         return index
+
+    def _wait(self, stop: threading.Event, timeout_s: float) -> None:
+        """Sleep up to ``timeout_s``; wake early when the host writes or ``stop`` is set."""
+        with self._lock:
+            master = self._master
+        if master is None:
+            stop.wait(timeout_s)
+            return
+        try:
+            select.select([master], [], [], min(timeout_s, 0.05))
+        except (OSError, ValueError):  # unplugged meanwhile
+            stop.wait(min(timeout_s, 0.05))
 
     def _drain(self, stop: threading.Event) -> None:
         """Write what is still queued as the reader makes room, until ``stop`` or unplug.
@@ -259,9 +295,73 @@ class FakeDevice:
         finally:
             self.unplug()
 
-    def __enter__(self) -> FakeDevice:
+    def __enter__(self):
         self.open()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class FakeDevice(PtyBoard):
+    """A pty that emits wire frames at ``rate_hz``.
+
+    Args:
+        frame_source: frame index -> voltages, volts [M] (M fixed).
+        rate_hz: frames per second.
+        n_electrodes, pattern_id, pattern_param, current_a: header fields of every frame.
+        value_encoding: FLOAT32_VOLTS, or INT32_COUNTS with ``volts_per_count``.
+        max_pending_bytes: bytes queued while nobody reads before frames are dropped.
+    """
+
+    def __init__(
+        self,
+        frame_source: FrameSource,
+        rate_hz: float = 50.0,
+        *,
+        n_electrodes: int = 16,
+        pattern_id: PatternId = PatternId.ADJACENT,
+        pattern_param: int = 0,
+        current_a: float = 1e-3,
+        value_encoding: ValueEncoding = ValueEncoding.FLOAT32_VOLTS,
+        volts_per_count: float = DEFAULT_VOLTS_PER_COUNT,
+        max_pending_bytes: int = 1 << 20,
+    ) -> None:
+        super().__init__(rate_hz, max_pending_bytes=max_pending_bytes)
+        self.frame_source = frame_source
+        self.n_electrodes = n_electrodes
+        self.pattern_id = PatternId(pattern_id)
+        self.pattern_param = pattern_param
+        self.current_a = current_a
+        self.value_encoding = ValueEncoding(value_encoding)
+        self.volts_per_count = float(np.float32(volts_per_count))
+
+    def frame(self, index: int, device_time_us: int | None = None) -> DeviceFrame:
+        """Frame ``index`` exactly as a parser will decode it (values rounded to the wire)."""
+        volts = np.asarray(self.frame_source(index), dtype=np.float64)
+        if self.value_encoding is ValueEncoding.FLOAT32_VOLTS:
+            volts = volts.astype(np.float32).astype(np.float64)
+        else:
+            volts = np.rint(volts / self.volts_per_count) * self.volts_per_count
+        if device_time_us is None:
+            device_time_us = (time.monotonic_ns() - self._t0_ns) // 1000
+        return DeviceFrame(
+            sequence=index % 2**32,
+            device_time_us=device_time_us,
+            n_electrodes=self.n_electrodes,
+            pattern_id=self.pattern_id,
+            pattern_param=self.pattern_param,
+            current_a=self.current_a,
+            voltages_v=volts,
+            flags=np.where(np.isfinite(volts), 0, 2).astype(np.uint8),
+            value_encoding=self.value_encoding,
+            volts_per_count=self.volts_per_count,
+        )
+
+    def send(self, frame: DeviceFrame) -> bool:
+        """Queue and write one frame; False if unplugged or dropped (nobody reading)."""
+        return self.write_frame(encode_frame(frame))
+
+    def emit_frame(self, index: int, device_time_us: int) -> None:
+        """Send wire frame ``index`` stamped ``device_time_us``."""
+        self.send(self.frame(index, device_time_us=device_time_us))
