@@ -147,15 +147,19 @@ class BoardReader:
         """
         if self.acknowledged or self._sent_at is None or self.attempts < 2:
             return ""  # answered, or the first ack_timeout_s has not passed
-        seen = repr(self._recent[-80:]) if self._recent else "nothing"
+        seen = repr(self._recent) if self._recent else "nothing"
         refusal = f"; last refused: {self.last_refusal}" if self.last_refusal else ""
         return (
             f"profile {self.profile}: no answer ({self.EXPECTING}) after {self.attempts} "
             f"tries of {self.ack_timeout_s:g} s; saw {seen}{refusal}"
         )
 
-    def _seen(self, data: bytes) -> None:
-        self._recent = (self._recent + data)[-160:]
+    def _seen(self, data: bytes, start: bool = True) -> None:
+        """Keep the first 80 bytes of the latest input that formed no frame (diagnostics).
+
+        ``start``: a new run of such input begins with ``data``.
+        """
+        self._recent = (data if start else self._recent + data)[:80]
 
     def _refuse(self, reason: str, message: str, n_bytes: int) -> None:
         self.stats.refused[reason] += 1
@@ -344,7 +348,7 @@ class TextLineReader(BoardReader):
         return text[label.end() :] if label else text
 
     def _bad(self, reason: str, message: str, line: bytes, size: int) -> None:
-        self._seen(line[:80] + b"|")
+        self._seen(line[:80])
         if self._fresh:
             reason, message = "partial_line", f"{message} (first line after connecting)"
         self._refuse(reason, message, size)
@@ -403,7 +407,7 @@ class OpenEITReader(TextLineReader):
         if text.startswith("mode "):
             self.stats.messages += 1
             self.stats.discarded_bytes += size
-            self._seen(text.encode("latin-1")[:80] + b"|")
+            self._seen(text.encode("latin-1")[:80])
             return None
         return super()._body(text, offset, size)
 

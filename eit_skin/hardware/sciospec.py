@@ -170,7 +170,7 @@ class SciospecReader(BoardReader):
             return f"profile sciospec: the board refused {self.nacked}"
         if self.attempts < 2:
             return ""
-        seen = repr(self._recent[-80:]) if self._recent else "nothing"
+        seen = repr(self._recent) if self._recent else "nothing"
         return (
             f"profile sciospec: no acknowledgement of {name} ({raw.hex(' ')}) within "
             f"{self.ack_timeout_s:g} s, {self.attempts} tries; saw {seen}"
@@ -234,7 +234,7 @@ class SciospecReader(BoardReader):
         return frames
 
     def _lose_sync(self, byte: bytes) -> None:
-        self._seen(bytes(byte))
+        self._seen(bytes(byte), start=self._in_sync)
         self.stats.discarded_bytes += 1
         if self._in_sync:
             self._in_sync = False

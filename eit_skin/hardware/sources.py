@@ -191,7 +191,8 @@ class SerialSource:
     electrode count, drive pattern, or a current <= 0: :meth:`LayerFrameFactory.reject`), is
     counted per reason and dropped, never published. Stamps: the board's clock mapped to
     host time where the board sends one (wire protocol, Sciospec), else the host time the
-    frame's last byte was read.
+    frame's last byte was read; always increasing (a frame read in the same chunk as the
+    one before is stamped 1 us after it).
 
     Args:
         baud: serial rate, bit/s; 0: the profile's (``device.baud``).
@@ -224,6 +225,7 @@ class SerialSource:
         self.rate = RateMeter()
         self.published = 0
         self._host_sequence = 0
+        self._last_stamp = 0
         self._reported = (0, 0)  # (published, refused) at the last status()
         self._lock = threading.Lock()
 
@@ -256,8 +258,12 @@ class SerialSource:
             if sequence is None:
                 sequence = self._host_sequence
             self._host_sequence = sequence + 1
+            # frames read in one chunk share its host time: each later one 1 us after the
+            # one before, so stamps stay unique and increasing
+            stamp = max(stamps.get(id(item), item.host_time_ns), self._last_stamp + 1000)
+            self._last_stamp = stamp
             record = self.factory.device_record(
-                stamps.get(id(item), item.host_time_ns),
+                stamp,
                 sequence,
                 frame.values,
                 frame.flags,
