@@ -6,7 +6,9 @@ one YAML reader and typed-field validator, shared with scenario files), ``outlin
 ``electrodes``, ``holes`` (reading those sections), ``mesh_budget`` (refusing a mesh too big
 to build), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
 pressure/stretch), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
-(drive and measurement pattern: the one place that knows the measurement order).
+(drive and measurement pattern: the one place that knows the measurement order),
+``cad_import`` (DXF / SVG drawings -> outline, holes, electrode marks -> patch data),
+``yaml_writer`` (writing patch files, keeping the comments of an edited one).
 """
 
 from __future__ import annotations

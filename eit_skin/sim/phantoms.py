@@ -75,3 +75,16 @@ def simulate_discs(
         reference,
         np.array(integrals),
     )
+
+
+#: Target centres of the reconstruction benchmark on a disc of radius R: ten radii
+#: 0..0.9 R, three angles (rad) at each (bench/bench_reconstruction.py, bench/REPORT.md).
+DISC_RADII_R = tuple(float(r) for r in np.linspace(0.0, 0.9, 10))
+DISC_ANGLES_RAD = (0.2, 1.3, 2.9)
+
+
+def disc_centres(radius_m: float) -> np.ndarray:
+    """``[30, 2]`` the benchmark's target centres on a disc of ``radius_m`` centred at 0, m."""
+    r = np.repeat(DISC_RADII_R, len(DISC_ANGLES_RAD)) * radius_m
+    a = np.tile(DISC_ANGLES_RAD, len(DISC_RADII_R))
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
