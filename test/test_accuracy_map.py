@@ -96,10 +96,8 @@ def test_electrodes_crowded_into_one_half_leave_the_other_half_worse():
 
 def test_predict_command_line_json_and_png(tmp_path, capsys):
     out_json, out_png = tmp_path / "face.json", tmp_path / "face.png"
-    code = main(
-        ["patch", "face", "--predict", "--quality", "preview", "--json", str(out_json)]
-        + ["--png", str(out_png)]
-    )
+    args = ["face", "--predict", "--quality", "preview", "--json", str(out_json)]
+    code = main(["patch", *args, "--png", str(out_png)])
     printed = capsys.readouterr().out
     assert code == 0
     line = next(x for x in printed.splitlines() if "predicted pressure:" in x)

@@ -176,6 +176,33 @@ def test_svg_in_inches_with_cubic_curves(tmp_path):
     assert patch_from_dict(data).layers[0].n_electrodes == 16
 
 
+SVG_GROUPS = """<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="60mm"
+  viewBox="-30 -30 60 60">
+  <g id="cut" transform="rotate(90)">
+    <rect x="-20" y="-10" width="40" height="20" rx="5"/>
+    <polygon points="-3,-3 3,-3 0,4"/>
+  </g>
+  <g id="electrodes" transform="translate(0, 10)"><path d="M 0 0 l 1 1"/></g>
+  <circle id="drill" cx="0" cy="0" r="1" transform="translate(0, 200)"/>
+</svg>
+"""
+
+
+def test_svg_group_transforms_rounded_rect_polygon_and_layer(tmp_path):
+    (tmp_path / "g.svg").write_text(SVG_GROUPS)
+    drawing = read_drawing(tmp_path / "g.svg", layer="cut")  # the stray circle is not on it
+    # the 40 x 20 mm rounded rectangle turned by 90 degrees: 20 wide, 40 high
+    assert np.ptp(drawing.outline, axis=0) == pytest.approx([0.02, 0.04], abs=1e-9)
+    exact = (40 * 20 - (4 - math.pi) * 5**2 - 6 * 7 / 2) * 1e-6
+    assert area_m2(drawing) == pytest.approx(exact, abs=2 * math.pi * 0.005 * TOL)
+    assert drawing.electrode_marks == pytest.approx(np.array([[0.0, -0.01]]))
+    with pytest.raises(CadError, match="2 outer contours"):
+        read_drawing(tmp_path / "g.svg")
+    (tmp_path / "t.svg").write_text(SVG_GROUPS.replace("rotate(90)", "perspective(3)"))
+    with pytest.raises(CadError, match=r"<g transform='perspective\(3\)'>: cannot read"):
+        read_drawing(tmp_path / "t.svg")
+
+
 def test_unitless_svg_needs_units(tmp_path):
     (tmp_path / "u.svg").write_text(
         '<svg xmlns="http://www.w3.org/2000/svg"><rect width="50" height="20"/></svg>'

@@ -190,6 +190,10 @@ MODULE_KEYS = {
     "triangle": "python3-triangle-pip",
     "mcap": "mcap-ros2-support",
     "mcap_ros2": "mcap-ros2-support",
+    "ezdxf": "python3-ezdxf",
+    "svg": "python3-svg.path",
+    "ruamel": "python3-ruamel.yaml",
+    "aiohttp": "python3-aiohttp",
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
 }

@@ -1,8 +1,10 @@
 """CAD drawings -> patch files: the sheet's outline, holes and electrode marks from DXF or SVG.
 
 :func:`read_drawing` reads the closed contours of a drawing (DXF through ``ezdxf``: lines,
-polylines, arcs, circles, ellipses, splines; SVG through ``svgelements``: every shape and
-path) and flattens curves so that no chord strays more than ``tolerance_m`` from the curve.
+polylines, arcs, circles, ellipses, splines; SVG through ``svg.path`` and the standard XML
+parser: paths, rectangles, circles, ellipses, polygons, polylines, lines, with their groups'
+transforms) and flattens curves so that no chord strays more than ``tolerance_m`` from the
+curve.
 Open pieces (lines, arcs, open polylines or paths) are chained end to end into loops when
 their ends meet within :data:`JOIN_TOLERANCE` of the drawing's size. The one loop that
 contains the others is the sheet's outline, the loops inside it are holes. Entities on the
@@ -15,13 +17,14 @@ electrodes at the marks, or ``count`` of them spread evenly by arc length from t
 first point), with the non-geometric sections taken from a template patch or from
 :data:`PLACEHOLDERS` (typical values, marked in the file as ones to measure).
 
-Units: the drawing's own (DXF ``$INSUNITS``; SVG ``width``/``height`` in mm, cm, in, pt,
-pc, px or m), or ``units`` when the drawing states none; a flag that contradicts the file is
-refused. Every problem raises :class:`CadError` naming the file and the entity.
+Units: the drawing's own (DXF ``$INSUNITS``; SVG: the root's ``width`` in mm, cm, in or m
+with its ``viewBox``), or ``units`` when the drawing states none; a flag that contradicts the
+file is refused. Every problem raises :class:`CadError` naming the file and the entity.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -294,8 +297,12 @@ def _dxf_mark(source: str, entity: Any, name: str) -> np.ndarray:
 
 # --- SVG ------------------------------------------------------------------------------
 
-#: Metres per SVG length unit of the root's ``width``/``height``.
-_SVG_UNITS = {"mm": "mm", "cm": "cm", "in": "in", "m": "m"}
+#: SVG namespace (elements are looked up with and without it).
+_SVG_NS = "{http://www.w3.org/2000/svg}"
+#: Root ``width`` units that state a physical size.
+_SVG_UNITS = ("mm", "cm", "in", "m")
+#: Shape elements read as contours (or marks).
+_SVG_SHAPES = ("path", "rect", "circle", "ellipse", "polygon", "polyline", "line")
 
 
 def _svg(
@@ -303,89 +310,182 @@ def _svg(
 ) -> tuple[list[Contour], np.ndarray, str]:
     """Pieces in metres, electrode marks and the unit of an SVG file.
 
-    A root ``width`` in physical units scales the user units (svgelements applies the
-    ``viewBox``, so coordinates come in CSS pixels of 1/96 in); without one the user unit is
-    ``units``. SVG's y axis points down: y is flipped so the sheet is seen as drawn.
+    A root ``width`` in mm, cm, in or m and the ``viewBox`` scale the user units; without one
+    a user unit is ``units``. Group and element ``transform``s are applied. The sheet keeps the
+    user coordinates' origin (the ``viewBox`` only scales); SVG's y axis points down, so y is
+    flipped and the sheet is seen as drawn.
     """
     import re
     import xml.etree.ElementTree as ElementTree
-
-    import svgelements as svg
 
     try:
         root = ElementTree.parse(source).getroot()
     except (OSError, ElementTree.ParseError) as exc:
         raise CadError(source, "(file)", f"not a readable SVG file: {exc}") from exc
-    width = root.get("width", "")
-    match = re.fullmatch(r"\s*[0-9.eE+-]+\s*([a-z%]*)\s*", width)
-    stated = _SVG_UNITS.get(match.group(1)) if match else None
+    match = re.fullmatch(r"\s*([0-9.eE+-]+)\s*([a-z%]*)\s*", root.get("width", ""))
+    stated = match.group(2) if match and match.group(2) in _SVG_UNITS else None
     unit = _unit(source, stated, units, "<svg width>")
-    document = svg.SVG.parse(source, reify=True, ppi=96.0)
-    # physical width: user units are CSS px after the viewBox; else one user unit = `unit`
-    if stated and match and float(document.width or 0) > 0:
-        number = float(re.sub(r"[a-z%\s]", "", width))
-        scale = number * UNITS_M[unit] / float(document.width)
-    else:
-        scale = UNITS_M[unit]
+    view = [float(v) for v in re.split(r"[\s,]+", root.get("viewBox", "").strip()) if v]
+    scale = UNITS_M[unit]
+    if stated and match:
+        width_m = float(match.group(1)) * UNITS_M[unit]
+        scale = width_m / (view[2] if len(view) == 4 and view[2] > 0 else float(match.group(1)))
+    flip = np.diag([scale, -scale, 1.0])  # user units -> metres, y up, same origin
     pieces: list[Contour] = []
     marks: list[np.ndarray] = []
-    tolerance = tolerance_m / scale
-    in_group = _svg_groups(document, svg)
-    for k, element in enumerate(document.elements()):
-        if not isinstance(element, svg.Shape):
-            continue
-        name = f"<{type(element).__name__.lower()} id={element.id or f'#{k}'}>"
-        groups = {element.id or "", *in_group.get(id(element), ())}
+    for k, (element, transform, groups) in enumerate(_svg_shapes(source, root, flip)):
+        tag = element.tag.removeprefix(_SVG_NS)
+        name = f"<{tag} id={element.get('id') or f'#{k}'}>"
         if ELECTRODE_LAYER in {g.lower() for g in groups}:
-            marks.append(_svg_mark(element, svg) * [scale, -scale])
+            marks.append(_apply(transform, _svg_mark(source, element, name))[0])
             continue
         if layer is not None and layer not in groups:
             continue
-        for sub in svg.Path(element).as_subpaths():
-            sub_path = svg.Path(sub)
-            points = _flatten_svg(sub_path, svg, tolerance)
+        gain = float(np.linalg.svd(transform[:2, :2], compute_uv=False).max()) or 1.0
+        for points in _svg_subpaths(source, element, name, tolerance_m / gain):
             if points.shape[0] >= 2:
-                closed = bool(sub_path and isinstance(sub_path[-1], svg.Close))
-                if closed and not np.allclose(points[0], points[-1]):
-                    points = np.vstack([points, points[:1]])
-                pieces.append(Contour(points * [scale, -scale], name))
+                pieces.append(Contour(_apply(transform, points), name))
     return pieces, np.array(marks, dtype=np.float64).reshape(-1, 2), unit
 
 
-def _svg_groups(document: Any, svg: Any) -> dict[int, list[str]]:
-    """``id(shape)`` -> the ids of the groups it sits in."""
-    out: dict[int, list[str]] = {}
-    for group in document.elements():
-        if isinstance(group, svg.Group) and group.id:
-            for child in group.select():
-                out.setdefault(id(child), []).append(group.id)
+def _svg_shapes(source: str, root: Any, transform: np.ndarray):
+    """``(element, user -> metre transform, ids of it and its groups)`` of every shape."""
+    stack = [(root, transform, ())]
+    while stack:
+        node, parent, groups = stack.pop(0)
+        for child in list(node):
+            tag = child.tag.removeprefix(_SVG_NS) if isinstance(child.tag, str) else ""
+            local = parent @ _svg_transform(source, child.get("transform", ""), tag)
+            ids = (*groups, child.get("id") or "")
+            if tag == "g":
+                stack.append((child, local, ids))
+            elif tag in _SVG_SHAPES:
+                yield child, local, ids
+
+
+def _svg_transform(source: str, text: str, tag: str) -> np.ndarray:
+    """``[3, 3]`` matrix of an SVG ``transform`` attribute."""
+    import re
+
+    out = np.eye(3)
+    for kind, args in re.findall(r"(\w+)\s*\(([^)]*)\)", text):
+        v = [float(a) for a in re.split(r"[\s,]+", args.strip()) if a]
+        m = np.eye(3)
+        if kind == "matrix" and len(v) == 6:
+            m[:2, :] = [[v[0], v[2], v[4]], [v[1], v[3], v[5]]]
+        elif kind == "translate" and v:
+            m[:2, 2] = [v[0], v[1] if len(v) > 1 else 0.0]
+        elif kind == "scale" and v:
+            m[0, 0], m[1, 1] = v[0], v[1] if len(v) > 1 else v[0]
+        elif kind == "rotate" and v:
+            a = math.radians(v[0])
+            c, s = math.cos(a), math.sin(a)
+            m[:2, :2] = [[c, -s], [s, c]]
+            if len(v) == 3:
+                m[:2, 2] = [v[1] - c * v[1] + s * v[2], v[2] - s * v[1] - c * v[2]]
+        elif kind in ("skewX", "skewY") and v:
+            m[0 if kind == "skewX" else 1, 1 if kind == "skewX" else 0] = math.tan(
+                math.radians(v[0])
+            )
+        else:
+            raise CadError(source, f"<{tag} transform={text!r}>", f"cannot read {kind}({args})")
+        out = out @ m
     return out
 
 
-def _svg_mark(element: Any, svg: Any) -> np.ndarray:
-    """An electrode mark's centre, user units: a circle's or ellipse's centre, a path's start."""
-    if isinstance(element, (svg.Circle, svg.Ellipse)):
-        return np.array([float(element.cx), float(element.cy)])
-    start = svg.Path(element).first_point
-    return np.array([float(start.x), float(start.y)])
+def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return np.asarray(points, np.float64).reshape(-1, 2) @ transform[:2, :2].T + transform[:2, 2]
 
 
-def _flatten_svg(path: Any, svg: Any, tolerance: float) -> np.ndarray:
-    """``[n, 2]`` vertices of a path: lines as they are, curves sampled within ``tolerance``."""
+def _svg_number(source: str, element: Any, name: str, key: str, default: float | None = None):
+    import re
+
+    value = element.get(key)
+    if value is None:
+        if default is None:
+            raise CadError(source, name, f"missing {key}")
+        return default
+    number = re.fullmatch(r"\s*([0-9.eE+-]+)(px)?\s*", value)
+    if not number:
+        raise CadError(source, name, f"{key}={value!r}: expected a number in user units")
+    return float(number.group(1))
+
+
+def _svg_path_text(source: str, element: Any, name: str) -> str:
+    """The ``d`` of an element as a path (rectangles with ``rx``/``ry`` get arcs)."""
+    tag = element.tag.removeprefix(_SVG_NS)
+    num = lambda key, default=None: _svg_number(source, element, name, key, default)  # noqa: E731
+    if tag == "path":
+        return element.get("d", "")
+    if tag == "rect":
+        x, y, w, h = num("x", 0.0), num("y", 0.0), num("width"), num("height")
+        rx = num("rx", num("ry", 0.0))
+        ry = num("ry", rx)
+        rx, ry = min(rx, w / 2), min(ry, h / 2)
+        if rx <= 0 or ry <= 0:
+            return f"M{x},{y} H{x + w} V{y + h} H{x} Z"
+        arc = f"A{rx},{ry} 0 0 1"
+        return (
+            f"M{x + rx},{y} H{x + w - rx} {arc} {x + w},{y + ry} V{y + h - ry} "
+            f"{arc} {x + w - rx},{y + h} H{x + rx} {arc} {x},{y + h - ry} V{y + ry} "
+            f"{arc} {x + rx},{y} Z"
+        )
+    if tag in ("circle", "ellipse"):
+        cx, cy = num("cx", 0.0), num("cy", 0.0)
+        rx = num("r") if tag == "circle" else num("rx")
+        ry = rx if tag == "circle" else num("ry")
+        arc = f"A{rx},{ry} 0 0 1"
+        return f"M{cx + rx},{cy} {arc} {cx - rx},{cy} {arc} {cx + rx},{cy} Z"
+    if tag == "line":
+        return f"M{num('x1', 0.0)},{num('y1', 0.0)} L{num('x2', 0.0)},{num('y2', 0.0)}"
+    points = element.get("points", "").strip()
+    return f"M{points}" + (" Z" if tag == "polygon" else "")
+
+
+def _svg_subpaths(source: str, element: Any, name: str, tolerance: float) -> list[np.ndarray]:
+    """``[n, 2]`` flattened vertices (user units) of each subpath.
+
+    Closed subpaths repeat their first point at the end.
+    """
+    from svg.path import Close, Line, Move, parse_path
+
+    try:
+        path = parse_path(_svg_path_text(source, element, name))
+    except (ValueError, IndexError) as exc:
+        raise CadError(source, name, f"cannot read the path: {exc}") from exc
     out: list[np.ndarray] = []
+    current: list[np.ndarray] = []
     for segment in path:
-        if isinstance(segment, svg.Move):
-            out.append(np.array([[segment.end.x, segment.end.y]]))
-        elif isinstance(segment, (svg.Line, svg.Close)):
-            if segment.end is not None and segment.start is not None:
-                out.append(np.array([[segment.end.x, segment.end.y]]))
-        elif segment.start is not None and segment.end is not None:
-            out.append(_sample_curve(segment, tolerance)[1:])
-    if not out:
-        return np.zeros((0, 2))
-    points = np.concatenate(out)
+        if isinstance(segment, Move):
+            if current:
+                out.append(np.concatenate(current))
+            current = [np.array([[segment.end.real, segment.end.imag]])]
+        elif isinstance(segment, (Line, Close)):
+            current.append(np.array([[segment.end.real, segment.end.imag]]))
+        else:
+            current.append(_sample_curve(segment, tolerance)[1:])
+    if current:
+        out.append(np.concatenate(current))
+    return [_deduplicated(p) for p in out]
+
+
+def _deduplicated(points: np.ndarray) -> np.ndarray:
+    """``points`` without consecutive repeats."""
     step = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return points[np.concatenate([[True], step > 1e-9 * max(float(np.ptp(points)), 1e-12)])]
+    tiny = 1e-9 * max(float(np.ptp(points)), 1e-12)
+    return points[np.concatenate([[True], step > tiny])]
+
+
+def _svg_mark(source: str, element: Any, name: str) -> np.ndarray:
+    """An electrode mark's centre, user units.
+
+    A circle's or ellipse's centre, else the first point of its outline.
+    """
+    tag = element.tag.removeprefix(_SVG_NS)
+    if tag in ("circle", "ellipse"):
+        cx = _svg_number(source, element, name, "cx", 0.0)
+        return np.array([cx, _svg_number(source, element, name, "cy", 0.0)])
+    return _svg_subpaths(source, element, name, 1.0)[0][0]
 
 
 def _sample_curve(segment: Any, tolerance: float) -> np.ndarray:
@@ -397,7 +497,8 @@ def _sample_curve(segment: Any, tolerance: float) -> np.ndarray:
     n = 8
     while True:
         t = np.linspace(0.0, 1.0, 2 * n + 1)
-        pts = np.asarray(segment.npoint(t), dtype=np.float64)
+        z = np.array([segment.point(float(u)) for u in t])
+        pts = np.column_stack([z.real, z.imag])
         chord_mid = 0.5 * (pts[0:-1:2] + pts[2::2])
         if np.max(np.linalg.norm(pts[1::2] - chord_mid, axis=1)) <= tolerance or n >= 4096:
             return pts[::2]
