@@ -7,5 +7,7 @@ pipeline), ``frames`` (MCAP <-> npz), ``fake_device`` (a board on a pseudo-termi
 ``calibrate_posture`` (references across a joint sweep), ``tune`` (choose the regularisation),
 ``run`` (the whole skin end to end), ``presses`` (record or simulate a labelled press
 session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact positions),
-``calibrate_device`` (fit sheet conductance and contact impedance to a no-load frame).
+``calibrate_device`` (fit sheet conductance and contact impedance to a no-load frame),
+``design`` (the skin designer in the browser; ``patch`` also imports drawings and predicts
+accuracy).
 """

@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
+    "design": ("design", "Design a skin in the browser: electrodes, mesh, predicted accuracy."),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),
