@@ -57,7 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cad.add_argument("--width", type=float, help="electrode width, m (default: template's)")
     cad.add_argument(
         "--template",
-        help="patch (file or shipped name) giving material, protocol, mesh, solver, placement",
+        help="patch (file or shipped name) whose first layer gives material, current, contact "
+        "impedance, electrode width, protocol, mesh and solver",
     )
     cad.add_argument("--name", help="patch name (default: the drawing's file name)")
 
@@ -200,7 +201,7 @@ def _import(args: argparse.Namespace) -> int:
             f"Imported by `eit-skin patch import` from {drawing_path.name} ({drawing.units}, "
             f"curves within {args.tolerance * 1e3:g} mm).\n"
             + (
-                "Material, contact impedance, current, protocol, mesh, solver: from "
+                "Material, contact impedance, width, current, protocol, mesh, solver: from "
                 f"{args.template}."
                 if template is not None
                 else "Material, contact impedance and current are typical values: measure yours "

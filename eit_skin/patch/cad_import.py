@@ -146,7 +146,8 @@ def patch_data(
         width_m: electrode width, m; default the template's, else a quarter of the spacing
             (at most 10 mm).
         template: parsed patch data whose first layer gives every non-geometric key
-            (material, current, contact impedance, protocol, mesh, solver, placement).
+            (material, current, contact impedance, electrode width, protocol, mesh, solver);
+            the 3-D placement and mount are the new sheet's own (default: a plane).
 
     Raises:
         CadError: neither marks nor a count, or both, or fewer than 4 electrodes.
@@ -168,8 +169,7 @@ def patch_data(
     n = count if count is not None else marks.shape[0]
     if n < 4:
         raise CadError(drawing.source, ELECTRODE_LAYER, f"{n} electrodes: at least 4 needed")
-    base = dict(template or {})
-    layer_t = dict((base.get("layers") or [{}])[0])
+    layer_t = dict(((template or {}).get("layers") or [{}])[0])
     el_t = dict(layer_t.get("electrodes") or {})
     perimeter = float(geometry.arc_positions(drawing.outline)[-1])
     if width_m is None:
@@ -195,12 +195,7 @@ def patch_data(
             layer[key] = layer_t[key]
         elif key in PLACEHOLDERS:
             layer[key] = PLACEHOLDERS[key]
-    data: dict[str, Any] = {"name": name, "frame_id": f"{name}_skin_link"}
-    for key in ("placement", "mount"):
-        if key in base:
-            data[key] = base[key]
-    data["layers"] = [layer]
-    return data
+    return {"name": name, "frame_id": f"{name}_skin_link", "layers": [layer]}
 
 
 def _mark_positions(drawing: Drawing, marks: np.ndarray) -> list[list[float]]:
