@@ -167,3 +167,37 @@ def test_drag_an_electrode_in_the_browser_then_save(server, browser, workdir, tm
     layer = load_patch(out).layers[0]
     assert predict_accuracy(layer, quality="preview", cache_dir=None).line() == after["summary"]
     assert "# Face patch modelled on the seed paper" in out.read_text()
+
+
+def test_design_command_prints_its_local_address_and_stops_on_ctrl_c(workdir):
+    import queue
+    import re
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    from test.patience import EVENT_S
+
+    command = ["-m", "eit_skin.cli.main", "design", str(workdir / "elbow.yaml"), "--no-browser"]
+    proc = subprocess.Popen(
+        [sys.executable, *command],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: lines.put(proc.stdout.readline()), daemon=True).start()
+    try:
+        line = lines.get(timeout=EVENT_S)
+        match = re.search(r"at (http://127\.0\.0\.1:(\d+)/) \(Ctrl-C stops\)", line)
+        assert match, line
+        assert int(match.group(2)) > 0
+        with urllib.request.urlopen(match.group(1), timeout=60) as page:
+            assert b"eit_skin designer" in page.read()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=EVENT_S) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -2,7 +2,7 @@
 
 Modules: ``session`` (one design being edited: patch data in, validated model, mesh and
 predicted-accuracy preview out, saved as a patch file with the user's comments kept),
-``server`` (the local web server of ``eit-skin design``: starlette on uvicorn, plain
+``server`` (the local web server of ``eit-skin design``: aiohttp, plain
 HTML/SVG/JS from ``static/``), ``figures`` (PNG maps of ``eit-skin patch --predict``).
 The core never imports this subpackage.
 """

@@ -68,7 +68,7 @@ class DesignSession:
         return patch_from_dict(copy.deepcopy(data), source=str(self.path or "<design>"))
 
     def update(self, data: dict[str, Any], layer_index: int = 0) -> dict[str, Any]:
-        """Validate ``data``, make it the design, and describe layer ``layer_index``.
+        """Validate and model ``data``; make it the design and describe layer ``layer_index``.
 
         The answer: outline, holes, electrodes, mesh, predicted-accuracy preview and how long
         the model took; ``{"ok": False, "error"}`` when the data does not validate.
@@ -78,7 +78,6 @@ class DesignSession:
             patch = self.validate(data)
         except (PatchError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
-        self.data = copy.deepcopy(data)
         index = min(max(int(layer_index), 0), len(patch.layers) - 1)
         layer = patch.layers[index]
         try:
@@ -88,6 +87,7 @@ class DesignSession:
         except ValueError as exc:
             return {"ok": False, "error": f"layers[{index}]: {exc}"}
         done = time.perf_counter()
+        self.data = copy.deepcopy(data)
         perimeter = layer.perimeter_m
         electrodes = [
             {
