@@ -201,3 +201,55 @@ def test_design_command_prints_its_local_address_and_stops_on_ctrl_c(workdir):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_add_remove_electrodes_and_holes_in_the_browser(server, browser, workdir):
+    call(server, "/api/load", {"path": str(workdir / "elbow.yaml")})
+    browser.goto(server.url)
+    version = browser.wait_for("window.designer && window.designer.version")
+    count = browser.evaluate("window.designer.model.electrodes.length")
+
+    def click(expression: str) -> int:
+        nonlocal version
+        browser.evaluate(expression)
+        version = browser.wait_for(
+            f"window.designer.version > {version} && window.designer.version"
+        )
+        assert browser.evaluate("document.getElementById('error').textContent") == ""
+        return version
+
+    click("document.getElementById('add-electrode').click()")
+    assert browser.evaluate("window.designer.model.electrodes.length") == count + 1
+    # select electrode 2 with a press and release in place, then remove it
+    centre = browser.evaluate(
+        "(() => { const b = document.querySelector('rect.electrode[data-index=\"2\"]')"
+        ".getBoundingClientRect(); return [b.x + b.width / 2, b.y + b.height / 2]; })()"
+    )
+    browser.mouse("mousePressed", *centre)
+    browser.mouse("mouseReleased", *centre)
+    assert browser.evaluate("window.designer.selected") == 2
+    click("document.getElementById('remove-electrode').click()")
+    assert browser.evaluate("window.designer.model.electrodes.length") == count
+    # a 4 mm hole where the sheet's middle is drawn
+    middle = browser.evaluate(
+        "(() => { const d = window.designer, v = d.view, r = document.getElementById('sheet')"
+        ".getBoundingClientRect(), o = d.model.outline; let x = 0, y = 0;"
+        " for (const p of o) { x += p[0]; y += p[1]; }"
+        " return [r.left + v.px(x / o.length), r.top + v.py(y / o.length)]; })()"
+    )
+    holes = browser.evaluate("window.designer.model.holes.length")
+    browser.evaluate("document.getElementById('hole-mode').checked = true")
+    browser.evaluate("document.getElementById('hole-diameter').value = 4")
+    browser.mouse("mousePressed", *middle)
+    browser.mouse("mouseReleased", *middle)
+    version = browser.wait_for(f"window.designer.version > {version} && window.designer.version")
+    assert browser.evaluate("window.designer.model.holes.length") == holes + 1
+    radius = browser.evaluate("window.designer.data.layers[0].holes.slice(-1)[0].radius")
+    assert radius == pytest.approx(0.002)
+    browser.evaluate("document.getElementById('hole-mode').checked = false")
+    triangles = browser.evaluate("window.designer.model.mesh.n_triangles")
+    click(
+        "(() => { const e = document.getElementById('max-edge'); e.value = 2.5;"
+        " e.dispatchEvent(new Event('change')); })()"
+    )
+    assert browser.evaluate("window.designer.model.mesh.n_triangles") > triangles
