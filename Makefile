@@ -81,8 +81,22 @@ demo: setup
 # worker claims its own DDS domain (test/conftest.py). Two workers use both cores of our
 # machines (one process left one half idle); TEST_WORKERS=1 gives one process.
 TEST_WORKERS ?= 2
-test: setup
+test: setup $(VENV)/.stamp-chromium
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
+
+# The designer's browser tests drive a real headless Chromium: the Debian package, installed
+# here (as root, where apt-get exists) when it is missing; elsewhere those tests skip and
+# say why. Once per venv (delete the stamp to try again).
+$(VENV)/.stamp-chromium: | $(BIN)/python
+	@if command -v chromium >/dev/null 2>&1; then :; \
+	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	  echo "[setup] installing chromium for the browser tests (apt-get, log in build/chromium.log)"; \
+	  mkdir -p $(BUILD); \
+	  { apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; } \
+	    > $(BUILD)/chromium.log 2>&1 \
+	    || echo "[setup] chromium could not be installed (build/chromium.log): browser tests skip"; \
+	else echo "[setup] no chromium and no apt-get as root: the browser tests skip"; fi
+	@touch $@
 
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

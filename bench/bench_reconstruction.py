@@ -64,6 +64,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager, with_method
 from eit_skin.resources import config_path
+from eit_skin.sim.phantoms import disc_centres, simulate_discs
 from eit_skin.sim.simulator import SkinSimulator
 
 R = 0.05
@@ -667,17 +668,10 @@ def main() -> None:
             gn_rows += gn_case(ForwardModel(disk_mesh(R, h_m=h), protocol, 1e-4), large, v0)
         replace_section(OUT / "REPORT.md", gn_section(gn_rows))
         return
-    rng = np.random.default_rng(0)
-    phantoms = []
-    for rf in np.linspace(0, 0.9, 10):
-        for a in (0.2, 1.3, 2.9):
-            c = np.array([rf * R * np.cos(a), rf * R * np.sin(a)])
-            sig = np.ones(fine.mesh.n_triangles)
-            sig[np.linalg.norm(fine.mesh.centroids - c, axis=1) < 0.05 * R] = 2.0
-            v = fine.voltages(sig)
-            v = v + rng.normal(0, 0.01 * np.sqrt(np.mean((v - v0) ** 2)), v.size)
-            phantoms.append((c, v))
-    frames = np.stack([v for _, v in phantoms])
+    centres = disc_centres(R)
+    sim = simulate_discs(fine, centres, 0.05 * R, 2.0, 0.01, np.random.default_rng(0))
+    frames = sim.frames
+    phantoms = list(zip(centres, frames, strict=True))
     print(f"data mesh {fine.mesh.n_triangles} triangles, {len(phantoms)} phantoms", flush=True)
     bandwidth = copy_bandwidth()
     print(f"copy bandwidth {bandwidth / 1e9:.1f} GB/s", flush=True)

@@ -83,8 +83,9 @@ def test_no_import_cycles_between_modules():
     )
 
 
-#: The adapters: the numerical core (every other subpackage) never imports them.
-ADAPTERS = ("eit_skin.ros", "eit_skin.cli")
+#: The adapters (ROS, command line, browser designer): the numerical core (every other
+#: subpackage) never imports them.
+ADAPTERS = ("eit_skin.ros", "eit_skin.cli", "eit_skin.design")
 
 
 def test_the_core_knows_nothing_of_ros_or_the_command_line():

@@ -8,5 +8,7 @@ pipeline), ``frames`` (MCAP <-> npz), ``fake_device`` (a board on a pseudo-termi
 ``run`` (the whole skin end to end), ``presses`` (record or simulate a labelled press
 session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact positions),
 ``calibrate_device`` (fit sheet conductance and contact impedance to a no-load frame),
-``capture`` (a board's frames to an npz, without ROS), ``detect`` (which board is on a port).
+``capture`` (a board's frames to an npz, without ROS), ``detect`` (which board is on a port),
+``design`` (the skin designer in the browser; ``patch`` also imports drawings and predicts
+accuracy).
 """

@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "Record a board's frames to an offline frames file (npz), without ROS.",
     ),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
+    "design": ("design", "Design a skin in the browser: electrodes, mesh, predicted accuracy."),
     "detect": (
         "detect",
         "Recognise the board on a serial port and the patch that fits its frames.",

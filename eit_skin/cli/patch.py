@@ -1,4 +1,8 @@
-"""``eit-skin patch PATH [--png OUT.png]``: validate a patch file, summarise it, draw it."""
+"""``eit-skin patch PATH [--png OUT.png] [--predict]``: check, summarise, draw, predict a patch.
+
+Also ``eit-skin patch import OUTLINE.(dxf|svg) --out PATCH.yaml``: a patch file from a CAD
+drawing (:mod:`eit_skin.patch.cad_import`).
+"""
 
 from __future__ import annotations
 
@@ -9,14 +13,54 @@ from pathlib import Path
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "path", help="patch YAML file, or the name of a shipped patch: arm, face, elbow"
+        "path",
+        help="patch YAML file, or the name of a shipped patch: arm, face, elbow; or 'import'",
+    )
+    parser.add_argument(
+        "drawing", nargs="?", help="with 'import': the outline drawing, OUTLINE.dxf or .svg"
     )
     parser.add_argument(
         "--png",
         type=Path,
         metavar="OUT.png",
-        help="draw sheet, holes, electrodes and mesh of every layer into this PNG file",
+        help="draw sheet, holes, electrodes and mesh of every layer into this PNG file "
+        "(with --predict: the predicted accuracy maps)",
     )
+    predict = parser.add_argument_group("predicted accuracy (--predict)")
+    predict.add_argument(
+        "--predict",
+        action="store_true",
+        help="maps of position error, resolution and amplitude response over the sheet "
+        "from simulated small targets (no inverse crime); one summary line per layer",
+    )
+    predict.add_argument(
+        "--noise-figure",
+        type=float,
+        help="regularisation noise figure instead of the layer's solver.noise_figure",
+    )
+    predict.add_argument("--json", type=Path, metavar="OUT.json", help="the figures as JSON")
+    predict.add_argument(
+        "--quality",
+        choices=("full", "preview"),
+        default="full",
+        help="full: ~120 targets on a data mesh half the imaging edge (default); preview: "
+        "~36 targets, as the browser designer",
+    )
+    cad = parser.add_argument_group("import a drawing ('import' OUTLINE)")
+    cad.add_argument("--electrodes", type=int, metavar="N", help="spread N electrodes evenly")
+    cad.add_argument("--layer", help="only contours on this DXF layer / SVG group id")
+    cad.add_argument("--units", help="unit of a drawing that states none: mm, cm, m, in, ...")
+    cad.add_argument("--out", type=Path, metavar="PATCH.yaml", help="patch file to write")
+    cad.add_argument(
+        "--tolerance", type=float, default=5e-5, help="curve flattening tolerance, m (5e-5)"
+    )
+    cad.add_argument("--width", type=float, help="electrode width, m (default: template's)")
+    cad.add_argument(
+        "--template",
+        help="patch (file or shipped name) whose first layer gives material, current, contact "
+        "impedance, electrode width, protocol, mesh and solver",
+    )
+    cad.add_argument("--name", help="patch name (default: the drawing's file name)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
     from eit_skin.patch.protocol import build_protocol
     from eit_skin.resources import config_path
 
+    if args.path == "import":
+        return _import(args)
+    if args.drawing is not None:
+        print(f"error: unexpected argument {args.drawing!r}", file=sys.stderr)
+        return 2
     try:
         patch = load_patch(config_path(args.path))
         meshes = [build_mesh(layer) for layer in patch.layers]
@@ -83,9 +132,95 @@ def run(args: argparse.Namespace) -> int:
             f"electrode edge {layer.mesh.electrode_edge_m * 1e3:g} mm)"
         )
         print(f"    solver: {layer.solver.method}, prior {layer.solver.prior}")
+    if args.predict:
+        return _predict(patch, args)
     if args.png is not None:
         _draw(patch, meshes, args.png)
         print(f"wrote {args.png}")
+    return 0
+
+
+def _predict(patch, args: argparse.Namespace) -> int:
+    """Print one summary line per layer; write the JSON and the maps' PNG if asked."""
+    import json
+
+    from eit_skin.pipeline.accuracy_map import predict_accuracy
+
+    maps = []
+    for layer in patch.layers:
+        try:
+            prediction = predict_accuracy(layer, args.noise_figure, args.quality)
+        except ValueError as exc:
+            print(f"error: {patch.source}: layer {layer.name}: {exc}", file=sys.stderr)
+            return 1
+        maps.append(prediction)
+        t = prediction.timings_s
+        print(
+            f"  predicted {prediction.line()} [{prediction.layer.solver.method}, noise figure "
+            f"{prediction.noise_figure:g}, {prediction.centres.shape[0]} targets, "
+            f"{t['total']:.1f} s]"
+        )
+    if args.json is not None:
+        data = {
+            "patch": patch.name,
+            "source": str(patch.source),
+            "content_hash": patch.content_hash,
+            "layers": [m.to_json() for m in maps],
+        }
+        args.json.write_text(json.dumps(data) + "\n", encoding="utf-8")
+        print(f"wrote {args.json}")
+    if args.png is not None:
+        from eit_skin.design.figures import draw_accuracy
+
+        draw_accuracy(patch, maps, args.png)
+        print(f"wrote {args.png}")
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    """``patch import OUTLINE --out PATCH.yaml``: drawing -> validated patch file."""
+    from eit_skin.patch.cad_import import CadError, describe, patch_data, read_drawing
+    from eit_skin.patch.loading import patch_from_dict
+    from eit_skin.patch.model import PatchError
+    from eit_skin.patch.yaml_reader import read_yaml, read_yaml_text
+    from eit_skin.patch.yaml_writer import new_text
+    from eit_skin.resources import config_path
+
+    if args.drawing is None or args.out is None:
+        print("error: patch import needs OUTLINE.(dxf|svg) and --out PATCH.yaml", file=sys.stderr)
+        return 2
+    drawing_path = Path(args.drawing)
+    try:
+        template = None
+        if args.template is not None:
+            template = read_yaml(config_path(args.template), PatchError)
+        drawing = read_drawing(drawing_path, args.units, args.layer, args.tolerance)
+        name = args.name or drawing_path.stem
+        data = patch_data(drawing, name, args.electrodes, args.width, template)
+        header = (
+            f"Imported by `eit-skin patch import` from {drawing_path.name} ({drawing.units}, "
+            f"curves within {args.tolerance * 1e3:g} mm).\n"
+            + (
+                "Material, contact impedance, width, current, protocol, mesh, solver: from "
+                f"{args.template}."
+                if template is not None
+                else "Material, contact impedance and current are typical values: measure yours "
+                "(docs/real-devices.md, eit-skin calibrate-device)."
+            )
+            + "\nUnits: metres, siemens, ohm*metre, amperes, pascals. Schema: docs/patch-schema.md."
+        )
+        text = new_text(data, header)
+        patch = patch_from_dict(read_yaml_text(text, str(args.out), PatchError), str(args.out))
+    except (CadError, PatchError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    args.out.write_text(text, encoding="utf-8")
+    print(describe(drawing))
+    layer = patch.layers[0]
+    print(
+        f"wrote {args.out}: patch {patch.name!r}, {layer.n_electrodes} electrodes, "
+        f"{len(layer.holes)} holes, content hash {patch.content_hash[:16]}"
+    )
     return 0
 
 

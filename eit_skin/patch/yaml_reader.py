@@ -97,6 +97,11 @@ def read_yaml(path: str | Path, error: type[ConfigError], list_key: str = "") ->
         raise error(source, "(file)", exc.strerror or str(exc)) from None
     except UnicodeDecodeError as exc:
         raise error(source, "(file)", f"not UTF-8 text: bad byte at offset {exc.start}") from None
+    return read_yaml_text(text, source, error, list_key)
+
+
+def read_yaml_text(text: str, source: str, error: type[ConfigError], list_key: str = "") -> Any:
+    """Parse YAML ``text`` as :func:`read_yaml` parses a file; errors name ``source``."""
     if not text.strip():  # YAML itself would choke on a tab here
         raise error(source, "(file)", "empty file")
     loader = Yaml12Loader(text)

@@ -5,7 +5,9 @@ layer's reconstruction method, cached on disk by content hash), ``model_choice``
 coarsest model meeting a layer's accuracy target), ``reference`` (no-load
 reference: capture, drift, posture), ``processor`` (the per-frame pipeline of one layer:
 reference, drift, flags, faults, units, images), ``frame_kernel`` (its common case compiled
-with numba, bit for bit the numpy step), ``colour_scale`` (false colour for rviz).
+with numba, bit for bit the numpy step), ``colour_scale`` (false colour for rviz),
+``accuracy_map`` (a design's predicted position error, resolution and amplitude response over
+the sheet, from simulated small targets: ``eit-skin patch --predict`` and the designer).
 """
 
 from __future__ import annotations

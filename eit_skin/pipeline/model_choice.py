@@ -62,6 +62,7 @@ from eit_skin.inverse.greit import target_centres
 from eit_skin.patch import geometry
 from eit_skin.patch.mesh_budget import estimate_cost
 from eit_skin.patch.model import AccuracyTarget, Layer, MeshSpec, PatchError
+from eit_skin.sim.phantoms import simulate_discs
 
 #: Bumped whenever the ladder, the phantom set or the rule changes (stale choices rebuild).
 SELECTOR_VERSION = "2"
@@ -307,18 +308,9 @@ def phantom_set(layer: Layer, simulate: Simulate, held_out: bool = False) -> Pha
         raise ValueError(f"layer {layer.name}: no room for a simulated target")
     centres = points[:HELD_OUT_PHANTOMS] if held_out else points
     sigma0 = layer.material.sheet_conductance_s
-    reference = model.voltages(sigma0)
-    areas = data_mesh.areas
-    frames, integrals = [], []
-    for c in centres:
-        covered = np.linalg.norm(data_mesh.centroids - c, axis=1) < target_r
-        sigma = np.where(covered, TARGET_CONTRAST * sigma0, sigma0)
-        v = model.voltages(sigma)
-        noise = NOISE * np.sqrt(np.mean((v - reference) ** 2))
-        frames.append(v + rng.normal(0.0, noise, v.size))
-        integrals.append((TARGET_CONTRAST - 1.0) * float(areas[covered].sum()))
+    sim = simulate_discs(model, centres, target_r, TARGET_CONTRAST, NOISE, rng, sigma0)
     return PhantomSet(
-        centres, np.stack(frames), reference, np.array(integrals), radius, data_mesh.n_triangles
+        centres, sim.frames, sim.reference, sim.change_integral, radius, data_mesh.n_triangles
     )
 
 

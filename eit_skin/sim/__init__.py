@@ -3,7 +3,8 @@
 Modules: ``stimuli`` (touch primitives), ``scenario`` (touch scripts: built-in, random, YAML),
 ``adc`` (the board's gain, 12-bit ADC and averaging), ``faults`` (hardware faults), ``drift``
 (background drift), ``recording`` (simulated frames and recordings), ``simulator``
-(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration).
+(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration),
+``phantoms`` (small disc targets simulated exactly: the phantom set of every accuracy figure).
 """
 
 from __future__ import annotations
