@@ -18,14 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from eit_skin.inverse.methods import METHODS
-from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
 from eit_skin.patch.electrodes import read_electrodes
 from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
+    METHODS,
+    PRIOR_KINDS,
     AccuracyTarget,
     Electrode,
     Layer,
