@@ -40,7 +40,9 @@ from eit_skin.resources import config_path
 from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import PostureTrack
-from eit_skin.touch.classifier import LABELS, ClassifierConfig, classify_stream
+from eit_skin.touch.classifier import classify_stream
+from eit_skin.touch.config import ClassifierConfig
+from eit_skin.touch.events import LABELS
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 

@@ -44,7 +44,8 @@ from eit_skin.sim.adc import AdcConfig
 from eit_skin.sim.drift import DriftModel
 from eit_skin.sim.scenario import HARD_SCENES, Scenario, hard_scenario, random_scenario
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import LABELS, TouchClassifier, classifier_layers
+from eit_skin.touch.classifier import TouchClassifier, classifier_layers
+from eit_skin.touch.events import LABELS
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import contact_geometry
 

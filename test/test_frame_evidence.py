@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import eit_skin.touch.classifier as classifier_module
+import eit_skin.touch.start_gates as start_gates_module
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.touch.classifier import ELECTRODE_FLICKER, ClassifierConfig, TouchClassifier
+from eit_skin.touch.classifier import TouchClassifier
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.frame_evidence import (
     FrameEvidence,
     TouchFilter,
@@ -23,6 +24,7 @@ from eit_skin.touch.frame_evidence import (
     shape_change_z,
 )
 from eit_skin.touch.shapes import fingertip_discs, raw_patterns
+from eit_skin.touch.start_gates import ELECTRODE_FLICKER
 from test.synthetic_touches import INSIDE, X, Y, envelope, sequence
 
 M = 208
@@ -344,7 +346,7 @@ def _noisy_electrode_events(monkeypatch=None) -> list:
     electrode before the pipeline names it). Images of noise only; the START filter built
     from arbitrary fingertip patterns (every one of them sees those channels)."""
     if monkeypatch is not None:  # the raw frames' electrode test off
-        monkeypatch.setattr(classifier_module, "ELECTRODE_FLICKER", np.inf)
+        monkeypatch.setattr(start_gates_module, "ELECTRODE_FLICKER", np.inf)
     t, images = sequence(lambda t: ([], 0.0), 3.0, seed=2)
     rng = np.random.default_rng(4)
     disc = rng.standard_normal((*images.shape[1:], M)).astype(np.float32)

@@ -14,15 +14,10 @@ from eit_skin.patch.model import PatchError
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import (
-    SHAPE_DTYPE,
-    ClassifierConfig,
-    ShapeHistory,
-    TouchClassifier,
-    classifier_layers,
-    classify_stream,
-)
+from eit_skin.touch.classifier import TouchClassifier, classifier_layers, classify_stream
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import PooledDetector, SegmentationConfig, noise_sample_frames
+from eit_skin.touch.events import SHAPE_DTYPE, ShapeHistory
 from eit_skin.touch.shapes import (
     blob_moments,
     contact_geometry,

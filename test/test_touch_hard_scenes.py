@@ -14,7 +14,8 @@ from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.classifier import TouchClassifier, classify_stream
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 from test.patch_copies import small_disc_patch

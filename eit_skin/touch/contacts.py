@@ -29,6 +29,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from eit_skin.touch.settings import check_settings, setting
+
 MAD_TO_SIGMA = 1.4826
 """Standard deviation of a normal distribution per median absolute deviation."""
 _EIGHT = np.ones((3, 3), dtype=bool)
@@ -129,31 +131,43 @@ def noise_sample_frames(images: np.ndarray, averaged: int = 1) -> float:
 class SegmentationConfig:
     """Thresholds of the hysteresis segmentation, as multiples of the noise ``sigma``.
 
-    Attributes:
-        k_high: a region needs a pixel above ``k_high * sigma`` (seed). With Gaussian noise a
-            pixel exceeds 6 sigma with probability 1e-9 per frame.
-        k_low: the region grows over pixels above ``k_low * sigma``.
-        split_fraction: fraction of a region's peak at which separate peaks are split apart.
-        artifact_fraction: a region whose peak is below this fraction of the frame's largest
-            value is a reconstruction artifact (sidelobe), not a contact.
-        min_pixels: regions with fewer pixels above the low threshold are ignored.
+    Each field is a :func:`~eit_skin.touch.settings.setting` (type, bounds, unit, meaning),
+    offered as a parameter of the ``eit_classifier`` node. With Gaussian noise a pixel
+    exceeds 6 sigma with probability 1e-9 per frame.
     """
 
-    k_high: float = 6.0
-    k_low: float = 3.0
-    split_fraction: float = 0.5
-    artifact_fraction: float = 0.2
-    min_pixels: int = 2
+    k_high: float = setting(
+        6.0, "contact seed threshold: a region needs a pixel above it", "noise sigmas", above=0
+    )
+    k_low: float = setting(
+        3.0,
+        "contact growth threshold (<= k_high): a region grows over pixels above it",
+        "noise sigmas",
+        above=0,
+    )
+    split_fraction: float = setting(
+        0.5,
+        "fraction of a region's peak at which separate peaks are split apart",
+        "",
+        above=0,
+        below=1,
+    )
+    artifact_fraction: float = setting(
+        0.2,
+        "a region whose peak is below this fraction of the frame's largest value is a "
+        "reconstruction artifact (sidelobe), not a contact",
+        "",
+        at_least=0,
+        below=1,
+    )
+    min_pixels: int = setting(
+        2, "regions with fewer pixels above k_low are ignored", "pixels", at_least=1
+    )
 
     def __post_init__(self) -> None:
-        if not 0 < self.k_low <= self.k_high:
+        check_settings(self)
+        if not self.k_low <= self.k_high:
             raise ValueError(f"need 0 < k_low <= k_high, got {self.k_low} and {self.k_high}")
-        if not 0 < self.split_fraction < 1:
-            raise ValueError(f"split_fraction must be in (0, 1), got {self.split_fraction}")
-        if not 0 <= self.artifact_fraction < 1:
-            raise ValueError(f"artifact_fraction must be in [0, 1), got {self.artifact_fraction}")
-        if self.min_pixels < 1:
-            raise ValueError(f"min_pixels must be >= 1, got {self.min_pixels}")
 
 
 @dataclass(frozen=True)
