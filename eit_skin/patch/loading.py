@@ -71,7 +71,16 @@ _PROTOCOL_KEYS = tuple(f.name for f in fields(ProtocolSpec))
 
 
 def load_patch(path: str | Path) -> Patch:
-    """Read and validate a patch YAML file."""
+    """Read and validate a patch YAML file.
+
+    Raises:
+        PatchError: the file is not a valid patch, naming the file and the key.
+
+    >>> from eit_skin.resources import config_path
+    >>> patch = load_patch(config_path("face"))  # a shipped patch; any YAML path works
+    >>> [(layer.name, layer.n_electrodes, layer.material.quantity) for layer in patch.layers]
+    [('pressure', 16, 'pressure')]
+    """
     return patch_from_dict(read_yaml(path, PatchError), source=str(path))
 
 
