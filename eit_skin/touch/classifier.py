@@ -12,12 +12,10 @@ records. Per frame, after ``calibration_s`` of no-touch frames:
 3. :class:`~eit_skin.touch.start_gates.StartGates`: a touch STARTs once a contact stayed in
    place (one track) for ``start_frames`` frames, or earlier on a pooled detection; never
    while the sheet flickers and the candidate is as rough as noise;
-4. event assembly (here): all contacts on the patch belong to the one touch going on; each
-   frame's blob shape (:func:`~eit_skin.touch.shapes.blob_moments`, in single-finger
-   spreads) joins its evidence; UPDATEs every ``update_period_s``; END after ``end_hold_s``
-   without contact (a touch the pooled detector started: ``end_hold_s`` of silent pooled
-   image, or ``confirm_s`` without any contact); labels by
-   :func:`~eit_skin.touch.events.decide`.
+4. :class:`~eit_skin.touch.assembly.EventAssembler`: all contacts on the patch belong to
+   the one touch going on; each frame's blob shape (:func:`~eit_skin.touch.shapes.blob_moments`,
+   in single-finger spreads) joins its evidence; UPDATEs every ``update_period_s``; END
+   after ``end_hold_s`` without contact; labels by :func:`~eit_skin.touch.events.decide`.
 
 The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
 the evidence so far and may revise it; END carries the final label. Settings:
@@ -47,20 +45,12 @@ import math
 import numpy as np
 
 from eit_skin.patch.model import Layer, Patch, PatchError
+from eit_skin.touch.assembly import EventAssembler
 from eit_skin.touch.background import Background, running_mean
 from eit_skin.touch.config import ClassifierConfig
-from eit_skin.touch.contacts import Contact, ContactTracker, PooledDetector
-from eit_skin.touch.events import (
-    SHAPE_DTYPE,
-    OngoingTouch,
-    ShapeHistory,
-    TouchEvent,
-    TouchFeatures,
-    decide,
-    shape_features,
-)
-from eit_skin.touch.frame_evidence import FrameEvidence, shape_change_z
-from eit_skin.touch.shapes import blob_moments
+from eit_skin.touch.contacts import Contact, PooledDetector
+from eit_skin.touch.events import TouchEvent, TouchFeatures
+from eit_skin.touch.frame_evidence import FrameEvidence
 from eit_skin.touch.start_gates import StartGates
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -138,28 +128,24 @@ class TouchClassifier:
         self.pixel_m = float(abs(self.x[1] - self.x[0]))
         self.pressure_noise_pa = pressure_noise_pa
         self.stretch_noise = stretch_noise
-        self._xx, self._yy = np.meshgrid(self.x, self.y)
+        shape = (self.y.size, self.x.size)  # [H, W]
         spread = self.config.contact_spread_m if contact_spread_m is None else contact_spread_m
-        spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), self._xx.shape)
+        spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), shape)
         if not (np.all(np.isfinite(spread)) and np.all(spread > 0)):
-            raise ValueError(
-                f"contact_spread_m: a finite, positive scalar or [H, W] = {self._xx.shape} map"
-            )
+            raise ValueError(f"contact_spread_m: a finite, positive scalar or [H, W] = {shape} map")
         self.contact_spread_m = spread
         self.electrodes_m = None if electrodes_m is None else np.asarray(electrodes_m, float)
         if self.electrodes_m is not None and (
             self.electrodes_m.ndim != 2 or self.electrodes_m.shape[1] != 2
         ):
             raise ValueError(f"electrodes_m: [E, 2] m, got shape {self.electrodes_m.shape}")
-        if disc_rel is not None and np.shape(disc_rel)[:2] != self._xx.shape:
-            raise ValueError(
-                f"disc_rel: [H, W, M] with [H, W] = {self._xx.shape}, got {np.shape(disc_rel)}"
-            )
-        self.tracker = ContactTracker(
-            self.config.gate_pixels * self.pixel_m, max_missed=self.config.track_missed_frames
-        )
+        if disc_rel is not None and np.shape(disc_rel)[:2] != shape:
+            raise ValueError(f"disc_rel: [H, W, M] with [H, W] = {shape}, got {np.shape(disc_rel)}")
         self.evidence = FrameEvidence(channel_electrodes)
         self.gates = StartGates(self.config, self.evidence, disc_rel, contact_rel)
+        self.events = EventAssembler(
+            self.config, self.gates, self.x, self.y, spread, self.electrodes_m
+        )
         #: baseline, noise and offset (None until the calibration frames are in)
         self.background: Background | None = None
         self._calibration: list[np.ndarray] = []
@@ -169,16 +155,7 @@ class TouchClassifier:
         self._t_prev: float | None = None
         self._recent: list[np.ndarray] = []  # the latest average_frames - 1 images
         self._times: list[float] = []
-        self._change: np.ndarray | None = None  # the latest frame's whitened raw change
-        # event assembly: the touch going on, and the candidate's evidence before a START
-        self._touch: OngoingTouch | None = None
-        self._next_id = 1
-        self._run = 0
-        self._run_shapes: list[np.ndarray] = []  # 0-d SHAPE_DTYPE records before a START
-        self._run_changes: list[np.ndarray | None] = []  # beside _run_shapes
-        self._strong = False  # a contact of the latest frame stands out of the noise estimate
         self.last_contacts: list[Contact] = []
-        self.last_features: TouchFeatures | None = None
         self.frames = 0
 
     @property
@@ -225,11 +202,7 @@ class TouchClassifier:
 
     def near_fault(self, point_m) -> bool:
         """Whether ``(x, y)`` m is within ``fault_radius`` finger spreads of a faulty electrode."""
-        if not self.faulty or self.electrodes_m is None:
-            return False
-        d = np.linalg.norm(self.electrodes_m[list(self.faulty)] - np.asarray(point_m), axis=1)
-        unit = float(np.median(self.contact_spread_m))
-        return bool(d.min() <= self.config.fault_radius * unit)
+        return self.events.near_fault(point_m)
 
     @property
     def calibrated(self) -> bool:
@@ -238,7 +211,12 @@ class TouchClassifier:
     @property
     def active(self) -> bool:
         """True while a touch is going on (between its START and END)."""
-        return self._touch is not None
+        return self.events.active
+
+    @property
+    def last_features(self) -> TouchFeatures | None:
+        """The features behind the latest event's label."""
+        return self.events.last_features
 
     # ------------------------------------------------------------------ calibration
     def _calibrate(
@@ -325,8 +303,8 @@ class TouchClassifier:
         bg = self.background
         dt = max(t_s - (self._t_prev if self._t_prev is not None else t_s), 0.0)
         self._t_prev = t_s
-        self._change = self.evidence.whiten(volts)
-        self.gates.push_change(self._change)
+        self.events.change = self.evidence.whiten(volts)
+        self.gates.push_change(self.events.change)
         self._recent = [*self._recent[-(self.config.average_frames - 1) :], pressure]
         if self.config.average_frames == 1:
             self._recent = [pressure]
@@ -339,8 +317,8 @@ class TouchClassifier:
         contacts, parts = bg.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
         mask = parts > 0
-        if self._touch is None:
-            self._strong = bool(contacts) and bg.stands_out(signal, mask)
+        if not self.events.active:
+            self.events.strong = bool(contacts) and bg.stands_out(signal, mask)
             noise = None if bg.noise_var is None else bg.noise_sigma
             candidate = mask if contacts else None
             self.gates.follow_roughness(pressure, bg.baseline, offset, noise, candidate)
@@ -351,28 +329,17 @@ class TouchClassifier:
             stretch_peak = float(np.nanmax(s)) if np.isfinite(s).any() else None
         shape = None
         if contacts:
-            shape = self._shape(t_s, signal, mask)
-        else:
-            self._run_shapes = []
-            self._run_changes = []
-            if self._touch is None:
-                bg.follow(dt, pressure, stretch)
-                self._follow_noise(dt, signal)
-                if volts is not None:
-                    self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
-        return self._advance(t_s, contacts, stretch_peak, shape, detected)
+            shape = self.events.shape(t_s, signal, mask)
+        elif not self.events.active:
+            bg.follow(dt, pressure, stretch)
+            self._follow_noise(dt, signal)
+            if volts is not None:
+                self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
+        return self.events.advance(t_s, contacts, stretch_peak, shape, detected)
 
-    def _shape(self, t_s: float, signal: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """This frame's blob shape: a 0-d :data:`SHAPE_DTYPE` record."""
-        peak, x, y, major, minor, _ = blob_moments(
-            signal, self._xx, self._yy, self.config.blob_fraction, mask
-        )
-        finger = np.nan
-        if np.isfinite(x) and np.isfinite(y):
-            j = int(np.clip(np.searchsorted(self.x, x), 0, self.x.size - 1))
-            i = int(np.clip(np.searchsorted(self.y, y), 0, self.y.size - 1))
-            finger = self.contact_spread_m[i, j]
-        return np.array((t_s, peak, x, y, major, minor, finger), dtype=SHAPE_DTYPE)
+    def finish(self, t_s: float | None = None) -> list[TouchEvent]:
+        """End a touch still going on at the end of a stream (END at its last contact)."""
+        return self.events.finish(t_s)
 
     def _follow_noise(self, dt: float, signal: np.ndarray) -> None:
         """Teach the noise maps a no-touch frame ``signal`` ``[H, W]`` (time ``noise_tau_s``)."""
@@ -383,185 +350,6 @@ class TouchClassifier:
             return
         if self.gates.follow_noise(alpha):
             self.background.follow_noise(alpha, signal)
-
-    def _advance(
-        self, t_s: float, contacts: list[Contact], stretch_peak, shape, detected=None
-    ) -> list[TouchEvent]:
-        cfg = self.config
-        touch = self._touch
-        if touch is None:
-            starts = [] if detected is None else [detected]
-            if contacts:
-                if self._run == 0:
-                    self.tracker.reset()
-                self._run += 1
-                self._run_shapes = [*self._run_shapes[-cfg.lookback_frames :], shape]
-                self._run_changes = [*self._run_changes[-cfg.lookback_frames :], self._change]
-                self._observe_contacts(None, t_s, contacts, stretch_peak)
-                # a contact must stay in place (one track) for start_frames frames: noise
-                # crossing the threshold at random places in consecutive frames is no touch
-                if self._strong:
-                    starts += [
-                        tr.first_seen_s
-                        for tr in self.tracker.tracks
-                        if tr.missed == 0 and tr.frames >= cfg.start_frames
-                    ]
-            else:
-                self._run = 0
-            if not starts or not self.gates.smooth_enough():
-                return []
-            t_first = min(starts)
-            touch = self._touch = OngoingTouch(self._next_id, t_first)
-            self._next_id += 1
-            self._run = 0
-            self.gates.touch_started()
-            before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
-            keep = before["t_s"] >= t_first - 1e-9
-            touch.shapes = ShapeHistory(before[keep])
-            touch.changes = [c for c, k in zip(self._run_changes[:-1], keep, strict=True) if k]
-            self._run_shapes = []
-            self._run_changes = []
-            if contacts:
-                self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
-            else:  # the pooled detector saw it first: no contact segmented yet
-                self.tracker.reset()
-                touch.t_last_s = t_s
-                touch.detect_centroid_m = self.gates.seeing().peak_m(self.x, self.y)
-            self._relabel(touch)
-            return [self._event(touch, "start", t_s)]
-        if not contacts:
-            touch.missing += 1
-            self.tracker.update(t_s, [])
-            pending = not touch.counts  # started by the pooled detector, no contact yet
-            if pending and self.detector is not None:
-                seeing = self.gates.seeing()
-                if seeing.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
-                    touch.t_last_s = t_s
-                    touch.missing = 0
-                    touch.detect_centroid_m = seeing.peak_m(self.x, self.y)
-                    return self._maybe_update(touch, t_s)
-                if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
-                    return self._end(touch, t_s)
-            # the pooled image still sees it (a weak touch's contacts come and go under
-            # heavy noise), for at most confirm_s after its last contact
-            if (
-                self.detector is not None
-                and self.detector.hit
-                and t_s - touch.t_contact_s < cfg.confirm_s - 1e-9
-            ):
-                touch.t_last_s = t_s
-                return []
-            if t_s - touch.t_last_s >= cfg.end_hold_s - 1e-9:
-                return self._end(touch, t_s)
-            return []
-        touch.missing = 0
-        self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
-        return self._maybe_update(touch, t_s)
-
-    def _maybe_update(self, touch: OngoingTouch, t_s: float) -> list[TouchEvent]:
-        if t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
-            self._relabel(touch)
-            touch.t_last_update_s = t_s
-            return [self._event(touch, "update", t_s)]
-        return []
-
-    def _end(self, touch: OngoingTouch, t_s: float) -> list[TouchEvent]:
-        """END; the pooled detector waits for a silent pooled image before it starts again."""
-        self._touch = None
-        self.gates.touch_ended()
-        self._relabel(touch)
-        return [self._event(touch, "end", t_s)]
-
-    def finish(self, t_s: float | None = None) -> list[TouchEvent]:
-        """End a touch still going on at the end of a stream (END at its last contact)."""
-        touch = self._touch
-        if touch is None:
-            return []
-        return self._end(touch, touch.t_last_s if t_s is None else t_s)
-
-    # ------------------------------------------------------------------ features
-    def _observe_contacts(
-        self, touch, t_s, contacts, stretch_peak, shape=None, track: bool = True
-    ) -> None:
-        if track:
-            self.tracker.update(t_s, contacts)
-        if touch is None:
-            return
-        touch.t_last_s = touch.t_contact_s = t_s
-        touch.last_contacts = contacts
-        touch.counts.append(len(contacts))
-        if shape is not None:
-            touch.shapes.append(shape)
-            touch.changes.append(self._change)
-        touch.max_pressure = max(touch.max_pressure, max(c.peak for c in contacts))
-        if stretch_peak is not None:
-            touch.max_stretch = max(touch.max_stretch or 0.0, stretch_peak)
-
-    def features(self, touch: OngoingTouch) -> TouchFeatures:
-        """Features of a touch on the evidence so far."""
-        f = shape_features(touch.shapes.rows, self.config)
-        ratio = None
-        if touch.max_stretch is not None and touch.max_pressure > 0:
-            ratio = touch.max_stretch / touch.max_pressure
-        count = max(touch.count(self.config.count_frames), 1)
-        shape_z = self._shape_z(touch) if self.config.pinch_shape_z > 0 else math.nan
-        return TouchFeatures(
-            count,
-            f["travel"],
-            f["closing"],
-            f["spread"],
-            f["elongation"],
-            ratio,
-            f["frames"],
-            f["trend"],
-            f["narrowing"],
-            f["major"],
-            shape_z,
-        )
-
-    def _shape_z(self, touch: OngoingTouch) -> float:
-        """``shape_z`` of a touch's frames with a raw frame (NaN without enough of them)."""
-        if not self.evidence.ready or not any(c is not None for c in touch.changes):
-            return math.nan
-        rows = touch.shapes.rows
-        m = self.evidence.reference.size
-        blank = np.full(m, np.nan)
-        x = np.stack([blank if c is None else c for c in touch.changes])
-        x[:, ~self.evidence.usable(self.faulty)] = np.nan
-        xy = np.column_stack([rows["x_m"], rows["y_m"]])
-        return shape_change_z(x, rows["t_s"], xy, self.evidence.drift_pattern())
-
-    def _relabel(self, touch: OngoingTouch) -> None:
-        features = self.features(touch)
-        self.last_features = features
-        touch.label, touch.confidence = decide(features, self.config)
-
-    def _event(self, touch: OngoingTouch, state: str, t_s: float) -> TouchEvent:
-        contacts = touch.last_contacts
-        if contacts:
-            centroid = np.mean([c.centroid_m for c in contacts], axis=0)
-        else:
-            centroid = np.asarray(touch.detect_centroid_m)
-        shapes = touch.shapes.rows
-        shapes = shapes[np.isfinite(shapes["x_m"]) & np.isfinite(shapes["y_m"])]
-        if shapes.size:  # the blob centroid of the latest frame pressed at full strength
-            strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()
-            latest = shapes[np.flatnonzero(strong)[-1]]
-            centroid = (latest["x_m"], latest["y_m"])
-        return TouchEvent(
-            touch_id=touch.id,
-            state=state,
-            label=touch.label,
-            confidence=float(touch.confidence)
-            * (self.config.fault_confidence if self.near_fault(centroid) else 1.0),
-            t_s=float(t_s),
-            t_start_s=float(touch.t_start_s),
-            t_end_s=float(touch.t_last_s if state == "end" else t_s),
-            centroid_m=(float(centroid[0]), float(centroid[1])),
-            area_m2=float(sum(c.area_m2 for c in contacts)),
-            peak_pa=float(max((c.peak for c in contacts), default=0.0)),
-            n_contacts=len(contacts),
-        )
 
 
 def classify_stream(
