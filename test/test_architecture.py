@@ -167,13 +167,14 @@ def test_subpackages_only_look_down():
 def test_a_schema_that_imports_a_solver_is_a_violation():
     # the cycle the layering removed: patch.model named the methods from inverse.methods
     edges = {**subpackage_imports(), ("patch", "inverse"): ["eit_skin/patch/model.py:29"]}
-    edges[("touch", "sim")] = ["a"]
-    edges[("calibration", "touch")] = ["c"]  # with sim -> calibration: a cycle of three
     assert layer_violations(edges) == [
-        "patch (rank 1) imports inverse (rank 3): eit_skin/patch/model.py:29",
+        "patch (rank 1) imports inverse (rank 3): eit_skin/patch/model.py:29"
+    ]
+    # sideways imports of one rank may not close a cycle, however long
+    ring = {("touch", "sim"): ["a"], ("sim", "calibration"): ["b"], ("calibration", "touch"): ["c"]}
+    assert layer_violations(ring) == [
         "calibration imports touch (c), which imports calibration back",
-        "sim imports calibration (eit_skin/sim/press_session.py:17 "
-        "eit_skin.calibration.session), which imports sim back",
+        "sim imports calibration (b), which imports sim back",
         "touch imports sim (a), which imports touch back",
     ]
 

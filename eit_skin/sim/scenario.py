@@ -25,13 +25,13 @@ import numpy as np
 from eit_skin.patch import geometry
 from eit_skin.patch.model import Patch
 from eit_skin.patch.yaml_reader import ConfigError, Reader, describe, read_yaml
-from eit_skin.sim.stimuli import TOUCH_TYPES, Grab, Pinch, PostureTrack, Push, Rub, Stimulus
+from eit_skin.sim.stimuli import Grab, Pinch, PostureTrack, Push, Rub, Stimulus
+from eit_skin.touch.events import LABELS
 
 BUILTIN_SCENARIOS = ("demo", "push", "rub", "pinch", "grab", "idle", "elbow_bend", "random")
 """Names accepted by :func:`builtin_scenario` (``random`` uses the seed)."""
 EDGE_MARGIN_M = 0.004
 """Minimum distance of every contact disc from the sheet's outline, m."""
-LABELS = tuple(TOUCH_TYPES)
 
 
 class ScenarioError(ConfigError):
