@@ -37,7 +37,8 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario
+from eit_skin.sim.random_scenes import random_scenario
+from eit_skin.sim.scenario import Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import PostureTrack
 from eit_skin.touch.classifier import classify_stream

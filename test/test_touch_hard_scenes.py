@@ -11,7 +11,8 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.resources import config_path
 from eit_skin.sim.drift import NO_DRIFT
-from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenario
+from eit_skin.sim.random_scenes import HARD_SCENES, hard_scenario
+from eit_skin.sim.scenario import Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
 from eit_skin.touch.classifier import TouchClassifier, classify_stream
