@@ -335,7 +335,7 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
     calibration = subprocess.Popen(
         [
             str(find_executable("eit-skin")),
-            "calibrate-posture",
+            "record-postures",
             "--patch",
             "elbow",
             "--joint",

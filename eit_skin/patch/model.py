@@ -217,7 +217,7 @@ class Layer:
         electrodes: electrodes in counter-clockwise order.
         contact_impedance_ohm_m: 2-D complete-electrode-model contact impedance, ohm*m: one
             for all electrodes, or a tuple of one per electrode (e.g. from
-            ``eit-skin calibrate-device``).
+            ``eit-skin fit-device``).
         current_a: injected current amplitude, A.
         protocol: drive/measurement protocol.
         material: sheet material.

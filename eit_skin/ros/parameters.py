@@ -103,7 +103,7 @@ RECONSTRUCTION: ParameterTable = [
         "a change above contact_k x noise counts as contact (freezes drift)",
     ),
     ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
-    ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
+    ("posture_references", "", "npz from `eit-skin record-postures`; empty: no posture"),
     (
         "posture_wait_s",
         0.5,

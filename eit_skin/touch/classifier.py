@@ -219,9 +219,14 @@ class TouchClassifier:
         return self.events.last_features
 
     # ------------------------------------------------------------------ calibration
-    def _calibrate(
+    def _learn_background(
         self, t_s: float, pressure: np.ndarray, stretch: np.ndarray | None, volts=None
     ) -> None:
+        """Keep a no-touch frame; after ``calibration_s`` of them, learn from them.
+
+        The background (baseline, noise map) and the START gates' noise are learnt ("calibrate"
+        is the press localiser's word).
+        """
         if self._t0 is None:
             self._t0 = t_s
         self._calibration.append(pressure)
@@ -256,7 +261,7 @@ class TouchClassifier:
         if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():
             finger_m = float(np.median(self.contact_spread_m[inside]))
             volts = np.stack(self._calibration_volts) if self._calibration_volts else None
-            self.gates.calibrate(
+            self.gates.learn(
                 inside,
                 self.config.detect_kernel * finger_m / self.pixel_m,
                 averaged - bg.baseline,
@@ -295,7 +300,7 @@ class TouchClassifier:
             stretch = np.where(np.isfinite(stretch), stretch, np.nan)
         self.frames += 1
         if self.background is None:
-            self._calibrate(t_s, pressure, stretch, volts)
+            self._learn_background(t_s, pressure, stretch, volts)
             self._t_prev = t_s
             self.gates.push_image(pressure)
             self.last_contacts = []

@@ -78,7 +78,7 @@ class StartGates:
         self.flicker = 0.0
         self.faulty: tuple[int, ...] = ()
 
-    def calibrate(
+    def learn(
         self,
         inside: np.ndarray,
         kernel_px: float,

@@ -1,4 +1,4 @@
-"""``eit-skin calibrate-device``: fit the layer's model to a device's no-load frame.
+"""``eit-skin fit-device``: fit the layer's model to a device's no-load frame.
 
 Reads the no-load frame (``reference``, in the device's conventions as the patch's
 ``protocol`` names them: layout, complex part, magnitudes) of a frames file and fits the
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
             print("not written (add --write to store it in the patch file)")
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin calibrate-device: error: {message}", file=sys.stderr)
+        print(f"eit-skin fit-device: error: {message}", file=sys.stderr)
         return 1
     return 0
 
