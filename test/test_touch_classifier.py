@@ -44,7 +44,7 @@ ONSET_S, RELEASE_S = 1.0, 2.2
 
 def run(script, duration_s=3.0, seed=0):
     t, images = sequence(script, duration_s, seed=seed)
-    return classify_stream(t, images, X, Y)
+    return classify_stream(TouchClassifier(X, Y), t, images)
 
 
 def one_touch(events):
@@ -76,7 +76,7 @@ def test_images_sharing_a_stamp_are_classified_without_error() -> None:
     t, images = sequence(
         lambda t: ([(0.01, -0.005)], 5000.0 * envelope(t, ONSET_S, RELEASE_S)), 3.0
     )
-    events = classify_stream(np.repeat(t, 2), np.repeat(images, 2, axis=0), X, Y)
+    events = classify_stream(TouchClassifier(X, Y), np.repeat(t, 2), np.repeat(images, 2, axis=0))
     _, _, end = one_touch(events)
     assert end.label == "push"
 
@@ -126,7 +126,7 @@ def test_no_touch_with_slow_drift_gives_no_event() -> None:
     # a uniform offset drifting by 8 sigma over 30 s: the baseline follows it
     t, images = sequence(lambda t: ([], 0.0), 30.0, seed=4)
     images = images + (8 * SIGMA_PA * t / 30.0)[:, None, None].astype(np.float32)
-    assert classify_stream(t, images, X, Y) == []
+    assert classify_stream(TouchClassifier(X, Y), t, images) == []
 
 
 def test_calibration_frames_never_produce_events_and_noise_is_estimated() -> None:
@@ -176,10 +176,10 @@ def test_every_tuning_constant_is_a_validated_config_field() -> None:
         return [(0.0, -half), (0.0, half)], 4000.0 * envelope(t, ONSET_S, RELEASE_S)
 
     t, images = sequence(pinch, 3.0)
-    narrow = classify_stream(t, images, X, Y, config=ClassifierConfig(pinch_trend=1e9))
+    narrow = classify_stream(TouchClassifier(X, Y, ClassifierConfig(pinch_trend=1e9)), t, images)
     assert narrow[-1].label == "pinch"
     config = ClassifierConfig(closing_window=200, pinch_trend=1e9)
-    wide = classify_stream(t, images, X, Y, config=config)
+    wide = classify_stream(TouchClassifier(X, Y, config), t, images)
     assert wide[-1].label != "pinch"
 
 
@@ -263,7 +263,9 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
+    events = classify_stream(
+        TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread), rec.t, images
+    )
     return [e for e in events if e.state == "end"], rec.truth, spread, imager
 
 
@@ -475,10 +477,9 @@ def test_weak_slow_touch_starts_within_150_ms_only_with_the_pooled_detector() ->
     # the pooled image (kernel 2.5 x 5 mm, white noise down ~26x, blob kept ~14 %) at ~20 %
     t, images = sequence(ramp_touch(60.0), 4.0, seed=12)
     spread = 0.005
-    early = classify_stream(t, images, X, Y, contact_spread_m=spread)
-    late = classify_stream(
-        t, images, X, Y, config=ClassifierConfig(detect_kernel=0), contact_spread_m=spread
-    )
+    early = classify_stream(TouchClassifier(X, Y, contact_spread_m=spread), t, images)
+    config = ClassifierConfig(detect_kernel=0)
+    late = classify_stream(TouchClassifier(X, Y, config, contact_spread_m=spread), t, images)
     start, _, end = one_touch(early)
     assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.15
     assert start.n_contacts == 0  # before any pixel crosses k_high
@@ -492,7 +493,7 @@ def test_touch_too_weak_to_segment_ends_after_confirm_s_and_does_not_restart() -
     # k_high = 9 sigmas = 64 Pa (it would take 4.8 sigmas of noise on top of the touch)
     t, images = sequence(ramp_touch(30.0, hold_s=1.5), 4.5, seed=13)
     config = ClassifierConfig(confirm_s=0.4, segmentation=SegmentationConfig(k_high=9.0))
-    events = classify_stream(t, images, X, Y, config=config)
+    events = classify_stream(TouchClassifier(X, Y, config), t, images)
     start, _, end = one_touch(events)
     assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.2
     assert end.t_s - start.t_start_s == pytest.approx(0.4, abs=0.021)

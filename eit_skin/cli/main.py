@@ -17,10 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("calibrate", "Fit a press localiser from labelled presses; k-fold figures."),
     "classify": ("classify", "Detect and label touches in an offline frames file; JSON lines."),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
-    "fit-device": (
-        "fit_device",
-        "Fit sheet conductance and contact impedance to a device's no-load frame.",
-    ),
+    "fit-device": ("fit_device", "Fit sheet conductance, contact impedance to a no-load frame."),
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),
     "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),

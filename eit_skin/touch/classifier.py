@@ -358,33 +358,21 @@ class TouchClassifier:
 
 
 def classify_stream(
+    classifier: TouchClassifier,
     t_s: np.ndarray,
     pressure: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
     stretch: np.ndarray | None = None,
-    config: ClassifierConfig | None = None,
-    contact_spread_m: float | np.ndarray | None = None,
     volts: np.ndarray | None = None,
-    channel_electrodes: np.ndarray | None = None,
-    disc_rel: np.ndarray | None = None,
-    contact_rel: np.ndarray | None = None,
 ) -> list[TouchEvent]:
-    """Every event of a whole recording: ``pressure`` ``[T, H, W]`` Pa, ``stretch`` likewise.
+    """Every event of a whole recording, a touch still going on at its end included.
 
-    ``contact_spread_m``: one fingertip's spread; ``volts``: ``[T, M]`` the pressure layer's
-    raw frames, V, ``channel_electrodes`` their ``[M, E]`` electrode map, ``disc_rel`` and
-    ``contact_rel`` the patterns of their START filter (see :class:`TouchClassifier`).
+    Args:
+        classifier: a fresh classifier of the recording's pixel grid.
+        t_s: ``[T]`` frame times, s.
+        pressure: ``[T, H, W]`` pressure images, Pa.
+        stretch: ``[T, H, W]`` stretch images (strain), or None.
+        volts: ``[T, M]`` the pressure layer's raw frames, V, or None.
     """
-    classifier = TouchClassifier(
-        x,
-        y,
-        config,
-        contact_spread_m=contact_spread_m,
-        channel_electrodes=channel_electrodes,
-        disc_rel=disc_rel,
-        contact_rel=contact_rel,
-    )
     events: list[TouchEvent] = []
     for k in range(len(t_s)):
         events += classifier.step(

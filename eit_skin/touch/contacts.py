@@ -137,31 +137,23 @@ class SegmentationConfig:
     """
 
     k_high: float = setting(
-        6.0, "contact seed threshold: a region needs a pixel above it", "noise sigmas", above=0
+        6.0, "noise sigmas", "> 0", "contact seed threshold: a region needs a pixel above it"
     )
     k_low: float = setting(
-        3.0,
-        "contact growth threshold (<= k_high): a region grows over pixels above it",
-        "noise sigmas",
-        above=0,
+        3.0, "noise sigmas", "> 0", "contact growth threshold: regions grow over pixels above it"
     )
     split_fraction: float = setting(
-        0.5,
-        "fraction of a region's peak at which separate peaks are split apart",
-        "",
-        above=0,
-        below=1,
+        0.5, "", "(0, 1)", "fraction of a region's peak at which separate peaks are split apart"
     )
     artifact_fraction: float = setting(
         0.2,
+        "",
+        "[0, 1)",
         "a region whose peak is below this fraction of the frame's largest value is a "
         "reconstruction artifact (sidelobe), not a contact",
-        "",
-        at_least=0,
-        below=1,
     )
     min_pixels: int = setting(
-        2, "regions with fewer pixels above k_low are ignored", "pixels", at_least=1
+        2, "pixels", ">= 1", "regions with fewer pixels above k_low are ignored"
     )
 
     def __post_init__(self) -> None:

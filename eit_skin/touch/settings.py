@@ -1,6 +1,7 @@
 """Settings declared once: type, default, bounds, unit and description of a config field.
 
-A frozen config dataclass declares each field with :func:`setting`; from that one
+A frozen config dataclass declares each field with :func:`setting` (default, unit, bounds as
+the docs show them, description); from that one
 declaration come its range check (:func:`check_settings`, called by ``__post_init__``), the
 node parameters of ``eit_classifier`` and their table in docs/nodes.md
 (:func:`declared_settings`, :meth:`Setting.parameter_text`), and a config from parameter
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -78,28 +80,45 @@ class Setting:
         return "; ".join(part for part in (self.description, self.unit, self.bounds_text()) if part)
 
 
-def setting(
-    default: Any,
-    description: str,
-    unit: str = "",
-    *,
-    above: float | None = None,
-    at_least: float | None = None,
-    below: float | None = None,
-    at_most: float | None = None,
-    node: bool = True,
-) -> Any:
-    """A dataclass field declaring a :class:`Setting` (at most one lower, one upper bound)."""
-    if (above is not None and at_least is not None) or (below is not None and at_most is not None):
-        raise TypeError("one lower and one upper bound at most")
+_BOUND = r"(-?[0-9.]+(?:e-?[0-9]+)?)"
+_ONE_SIDED = re.compile(rf"^(>=|>|<=|<) {_BOUND}$")
+_INTERVAL = re.compile(rf"^([\[(]){_BOUND}, {_BOUND}([\])])$")
+
+
+def setting(default: Any, unit: str, bounds: str, description: str, *, node: bool = True) -> Any:
+    """A dataclass field declaring a :class:`Setting`.
+
+    Args:
+        default: default value (its type is the setting's).
+        unit: unit of measure, or "".
+        bounds: the allowed range as the docs show it: ``"> 0"``, ``">= 1"``, ``"(0, 1]"``.
+        description: what it is and why, one or two sentences.
+        node: False when the node cannot honour it (no node parameter).
+
+    Raises:
+        ValueError: ``bounds`` is not one of those forms.
+    """
+    low = high = None
+    low_open = high_open = False
+    if match := _ONE_SIDED.match(bounds):
+        op, value = match.group(1), float(match.group(2))
+        if op.startswith(">"):
+            low, low_open = value, op == ">"
+        else:
+            high, high_open = value, op == "<"
+    elif match := _INTERVAL.match(bounds):
+        low, high = float(match.group(2)), float(match.group(3))
+        low_open, high_open = match.group(1) == "(", match.group(4) == ")"
+    else:
+        raise ValueError(f"bounds {bounds!r}: expected '> x', '>= x', '< x', '<= x' or '(a, b]'")
     meta = {
         "default": default,
         "description": description,
         "unit": unit,
-        "low": above if above is not None else at_least,
-        "high": below if below is not None else at_most,
-        "low_open": above is not None,
-        "high_open": below is not None,
+        "low": low,
+        "high": high,
+        "low_open": low_open,
+        "high_open": high_open,
         "node": node,
     }
     return dataclasses.field(default=default, metadata={_KEY: meta})
