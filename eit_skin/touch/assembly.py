@@ -122,51 +122,73 @@ class EventAssembler:
         Before, set :attr:`change` (this frame's whitened raw change or None) and
         :attr:`strong` (a contact stands out of the noise estimate).
         """
-        cfg = self.config
-        touch = self._touch
         if not contacts:  # a candidate's shapes are of consecutive frames with contacts
             self._run_shapes = []
             self._run_changes = []
-        if touch is None:
-            starts = [] if detected is None else [detected]
-            if contacts:
-                if self._run == 0:
-                    self.tracker.reset()
-                self._run += 1
-                self._run_shapes = [*self._run_shapes[-cfg.lookback_frames :], shape]
-                self._run_changes = [*self._run_changes[-cfg.lookback_frames :], self.change]
-                self._observe_contacts(None, t_s, contacts, stretch_peak)
-                # a contact must stay in place (one track) for start_frames frames: noise
-                # crossing the threshold at random places in consecutive frames is no touch
-                if self.strong:
-                    starts += [
-                        tr.first_seen_s
-                        for tr in self.tracker.tracks
-                        if tr.missed == 0 and tr.frames >= cfg.start_frames
-                    ]
-            else:
-                self._run = 0
-            if not starts or not self.gates.smooth_enough():
-                return []
-            t_first = min(starts)
-            touch = self._touch = OngoingTouch(self._next_id, t_first)
-            self._next_id += 1
-            self._run = 0
-            self.gates.touch_started()
-            before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
-            keep = before["t_s"] >= t_first - 1e-9
-            touch.shapes = ShapeHistory(before[keep])
-            touch.changes = [c for c, k in zip(self._run_changes[:-1], keep, strict=True) if k]
-            self._run_shapes = []
-            self._run_changes = []
-            if contacts:
-                self._observe_contacts(touch, t_s, contacts, stretch_peak, shape, track=False)
-            else:  # the pooled detector saw it first: no contact segmented yet
+        if self._touch is None:
+            return self._maybe_start(t_s, contacts, stretch_peak, shape, detected)
+        return self._follow(self._touch, t_s, contacts, stretch_peak, shape)
+
+    def _maybe_start(
+        self,
+        t_s: float,
+        contacts: list[Contact],
+        stretch_peak: float | None,
+        shape: np.ndarray | None,
+        detected: float | None,
+    ) -> list[TouchEvent]:
+        """START, dated to its first evidence, or nothing (no touch going on)."""
+        cfg = self.config
+        starts = [] if detected is None else [detected]
+        if contacts:
+            if self._run == 0:
                 self.tracker.reset()
-                touch.t_last_s = t_s
-                touch.detect_centroid_m = self.gates.seeing().peak_m(self.x, self.y)
-            self._relabel(touch)
-            return [self._event(touch, "start", t_s)]
+            self._run += 1
+            self._run_shapes = [*self._run_shapes[-cfg.lookback_frames :], shape]
+            self._run_changes = [*self._run_changes[-cfg.lookback_frames :], self.change]
+            self.tracker.update(t_s, contacts)
+            # a contact must stay in place (one track) for start_frames frames: noise
+            # crossing the threshold at random places in consecutive frames is no touch
+            if self.strong:
+                starts += [
+                    tr.first_seen_s
+                    for tr in self.tracker.tracks
+                    if tr.missed == 0 and tr.frames >= cfg.start_frames
+                ]
+        else:
+            self._run = 0
+        if not starts or not self.gates.smooth_enough():
+            return []
+        t_first = min(starts)
+        touch = self._touch = OngoingTouch(self._next_id, t_first)
+        self._next_id += 1
+        self._run = 0
+        self.gates.touch_started()
+        before = np.array(self._run_shapes[:-1], dtype=SHAPE_DTYPE)
+        keep = before["t_s"] >= t_first - 1e-9
+        touch.shapes = ShapeHistory(before[keep])
+        touch.changes = [c for c, k in zip(self._run_changes[:-1], keep, strict=True) if k]
+        self._run_shapes = []
+        self._run_changes = []
+        if contacts:
+            self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
+        else:  # the pooled detector saw it first: no contact segmented yet
+            self.tracker.reset()
+            touch.t_last_s = t_s
+            touch.detect_centroid_m = self.gates.seeing().peak_m(self.x, self.y)
+        self._relabel(touch)
+        return [self._event(touch, "start", t_s)]
+
+    def _follow(
+        self,
+        touch: OngoingTouch,
+        t_s: float,
+        contacts: list[Contact],
+        stretch_peak: float | None,
+        shape: np.ndarray | None,
+    ) -> list[TouchEvent]:
+        """UPDATE, END or nothing for the touch going on."""
+        cfg = self.config
         if not contacts:
             touch.missing += 1
             self.tracker.update(t_s, [])
@@ -193,6 +215,7 @@ class EventAssembler:
                 return self._end(touch, t_s)
             return []
         touch.missing = 0
+        self.tracker.update(t_s, contacts)
         self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
         return self._maybe_update(touch, t_s)
 
@@ -219,12 +242,14 @@ class EventAssembler:
 
     # ------------------------------------------------------------------ features
     def _observe_contacts(
-        self, touch, t_s, contacts, stretch_peak, shape=None, track: bool = True
+        self,
+        touch: OngoingTouch,
+        t_s: float,
+        contacts: list[Contact],
+        stretch_peak: float | None,
+        shape: np.ndarray | None,
     ) -> None:
-        if track:
-            self.tracker.update(t_s, contacts)
-        if touch is None:
-            return
+        """A frame with contacts joins the touch's evidence (the tracker has seen it)."""
         touch.t_last_s = touch.t_contact_s = t_s
         touch.last_contacts = contacts
         touch.counts.append(len(contacts))
