@@ -9,7 +9,7 @@ import pytest
 from eit_skin.ros.parameters import CLASSIFIER, NODE_PARAMETERS
 from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import SegmentationConfig
-from eit_skin.touch.settings import Setting, declared_settings, settings_from
+from eit_skin.touch.settings import Setting, declared_settings, setting, settings_from
 
 SETTINGS = declared_settings(ClassifierConfig)
 
@@ -65,6 +65,9 @@ def test_range_texts_read_like_intervals() -> None:
     assert by_name["end_hold_s"].parameter_text() == "time without contact before END; s; >= 0"
     with pytest.raises(ValueError, match=r"pinch_closing must be in \(0, 1\), got 1.5"):
         ClassifierConfig(pinch_closing=1.5)
+    assert setting(1.0, "s", "<= 2.5e-3", "a time").metadata  # one-sided upper, exponent
+    with pytest.raises(ValueError, match=r"bounds '0\.\.1'"):
+        setting(0.5, "", "0..1", "a fraction written the wrong way")
 
 
 def test_the_node_offers_every_setting_it_can_honour_as_declared() -> None:
