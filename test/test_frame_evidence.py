@@ -69,7 +69,7 @@ class Sheet:
 
     def calibrated(self, frames: int = 400) -> FrameEvidence:
         evidence = FrameEvidence()
-        evidence.calibrate(self.volts(np.zeros((frames, M))))
+        evidence.learn_noise(self.volts(np.zeros((frames, M))))
         return evidence
 
 
@@ -119,7 +119,7 @@ def test_calibration_learns_each_channels_noise_not_its_drift() -> None:
     frames = sheet.volts(ramp)
     frames[:, 7] = np.nan  # a channel that never came
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     ok = np.arange(M) != 7
     np.testing.assert_allclose(evidence.sigma[ok], sheet.sigma[ok], rtol=0.3)
     assert np.median(np.abs(evidence.sigma[ok] / sheet.sigma[ok] - 1)) < 0.06
@@ -134,7 +134,7 @@ def test_a_faulty_electrodes_channels_are_left_out() -> None:
     table = channel_electrodes(protocol)
     assert table.shape == (protocol.n_measurements, protocol.n_electrodes)
     evidence = FrameEvidence(table)
-    evidence.calibrate(np.random.default_rng(0).normal(1.0, 1e-3, (10, protocol.n_measurements)))
+    evidence.learn_noise(np.random.default_rng(0).normal(1.0, 1e-3, (10, protocol.n_measurements)))
     np.testing.assert_array_equal(evidence.usable((5,)), ~protocol.touching([5]))
     # adjacent drive: electrode 5 drives 2 of 16 injections and is measured in the rest
     assert np.count_nonzero(~evidence.usable((5,))) == 2 * 13 + 14 * 2 - 2
@@ -191,7 +191,7 @@ def test_a_still_touch_on_a_real_devices_noise_is_no_shape_change() -> None:
     if imager.signs is not None:  # a magnitude device: the frames carry the model's signs
         jacobian = jacobian * imager.signs[:, None]
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     radius = float(np.linalg.norm(layer.outline, axis=1).max())
     places = np.random.default_rng(5).uniform(-0.6 * radius, 0.6 * radius, size=(40, 2))
     patterns = fingertip_discs(places, imager.mesh, 0.1 * radius) @ jacobian.T  # [40, M] V
@@ -285,7 +285,7 @@ def _sciospec_filter(contacts: bool):
     imager = LayerImager.build(layer, cache_dir=None)
     disc, contact = raw_patterns(layer, imager, 0.1 * float(np.abs(layer.outline).max()))
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     inside = np.asarray(imager.grid.inside, dtype=bool)
     start = TouchFilter(disc, inside, contact if contacts else None)
     return start, evidence, frames, disc, contact, inside

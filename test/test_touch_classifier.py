@@ -401,7 +401,7 @@ def test_pooling_a_white_noise_image_divides_its_noise_as_the_kernel_says() -> N
     # a sheet-wide offset (drift the baseline has not followed yet) is removed
     assert np.abs(detector.pool(blob + 50.0) - detector.pool(blob)).max() < 1e-9
     # the noise map from 400 frames: that noise, inflated by 1 + sqrt(2 / 400)
-    detector.calibrate(frames)
+    detector.learn_noise(frames)
     expected = SIGMA_PA / (2 * np.sqrt(np.pi) * s) * (1 + np.sqrt(2 / 400))
     assert np.median(detector.noise[24:40, 24:40]) == pytest.approx(expected, rel=0.1)
 
@@ -442,9 +442,9 @@ def test_the_noise_counts_frames_per_independent_sample_from_their_correlation_i
     # the pooled detector counts its calibration's independent samples the same way
     inside = np.ones((32, 32), dtype=bool)
     detector = PooledDetector(inside, kernel_px=3.0, k=5.0, frames_per_sample=2)
-    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(rho, (400, 32, 32), seed=23), 2))
+    detector.learn_noise(running_mean(SIGMA_PA * ar1_frames(rho, (400, 32, 32), seed=23), 2))
     assert detector.sample_frames > 4.0  # not the 2 of the running mean alone
-    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(0.0, (400, 32, 32), seed=24), 2))
+    detector.learn_noise(running_mean(SIGMA_PA * ar1_frames(0.0, (400, 32, 32), seed=24), 2))
     assert detector.sample_frames == 2.0
 
 
@@ -453,7 +453,7 @@ def test_a_rising_press_counts_the_frame_before_its_crossing_when_the_two_averag
     inside = np.ones((64, 64), dtype=bool)
     k = 5.0
     detector = PooledDetector(inside, kernel_px=4.0, k=k)
-    detector.calibrate(SIGMA_PA * np.random.default_rng(14).standard_normal((200, 64, 64)))
+    detector.learn_noise(SIGMA_PA * np.random.default_rng(14).standard_normal((200, 64, 64)))
     i = np.arange(64) - 32.0
     blob = np.exp(-(i[:, None] ** 2 + i[None, :] ** 2) / (2 * 3.0**2))
     per_unit = detector.pool(blob)[32, 32] / detector.noise[32, 32]
@@ -535,5 +535,5 @@ def test_a_real_devices_noise_wanders_in_time_and_counts_fewer_samples() -> None
     averaged = running_mean(images, 2)
     inside = np.asarray(imager.grid.inside, dtype=bool)
     detector = PooledDetector(inside, kernel_px=4.0, k=5.5, frames_per_sample=2)
-    detector.calibrate(averaged - np.median(averaged, axis=0))
+    detector.learn_noise(averaged - np.median(averaged, axis=0))
     assert detector.sample_frames > 2.5  # more than the 2 a white device would count

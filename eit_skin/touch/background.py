@@ -1,9 +1,9 @@
 """Baseline and noise following: what the pressure image looks like while nothing touches.
 
-The first ``calibration_s`` of frames give a per-pixel baseline and noise map
-(:meth:`Background.calibrated`); afterwards no-touch frames keep teaching both (time constants
-``baseline_tau_s``, ``noise_tau_s``), and every image loses its sheet-wide offset (the
-median away from the latest contacts) before segmentation. Why each rule: docs/classifier.md.
+The first ``calibration_s`` of frames give a per-pixel baseline and noise map (a
+:class:`Background` is built from them); afterwards no-touch frames keep teaching both (time
+constants ``baseline_tau_s``, ``noise_tau_s``), and every image loses its sheet-wide offset
+(the median away from the latest contacts) before segmentation. Why each rule: docs/classifier.md.
 """
 
 from __future__ import annotations

@@ -183,12 +183,9 @@ class TouchClassifier:
         """The electrodes the imaging now leaves out (``LayerProcessor.faulty_electrodes``).
 
         Events whose centroid lies within ``fault_radius`` single-finger spreads of a faulty
-        electrode carry ``fault_confidence`` times their confidence. Nothing else changes:
-        calibrating again on a change (and ending the touch going on) was tried and made
-        things worse on the tuning scenes: the pipeline's fault check also flags, for a
-        second, an electrode next to which a touch presses, and a calibration taken during
-        a touch learns the touch into the baseline (a stuck touch); the sheet-wide offset
-        removal already absorbs most of the image's offset change.
+        electrode carry ``fault_confidence`` times their confidence, and the START gates leave
+        its raw channels out; nothing else changes (why: docs/classifier.md, "Faulty
+        electrodes").
 
         Raises:
             ValueError: an index out of range, or faulty electrodes without ``electrodes_m``.
@@ -255,7 +252,7 @@ class TouchClassifier:
         )
         self.pressure_noise_pa, self.stretch_noise = bg.pressure_noise_pa, bg.stretch_noise
         if len(self._calibration_volts) >= 3:
-            self.evidence.calibrate(np.stack(self._calibration_volts))
+            self.evidence.learn_noise(np.stack(self._calibration_volts))
         averaged = running_mean(stack, n_avg)
         inside = np.isfinite(stack).any(axis=0)
         if self.config.detect_kernel > 0 and len(averaged) >= 3 and inside.any():

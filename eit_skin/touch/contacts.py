@@ -471,7 +471,7 @@ class PooledDetector:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(self.inside, total / self._weight, np.nan)
 
-    def calibrate(self, images: np.ndarray) -> None:
+    def learn_noise(self, images: np.ndarray) -> None:
         """Noise map of the pooled image from >= 3 no-touch (baseline-free) frames ``[T, H, W]``.
 
         Each pixel's robust estimate (:func:`estimate_noise_map`, floored at half the global
@@ -481,10 +481,10 @@ class PooledDetector:
         samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500); ``n`` counts the
         frames over :func:`noise_sample_frames` of the pooled maps.
         """
-        self.calibrate_pooled(self.pool(images))
+        self.learn_pooled_noise(self.pool(images))
 
-    def calibrate_pooled(self, pooled: np.ndarray) -> None:
-        """:meth:`calibrate` from already pooled no-touch maps ``[T, H, W]``.
+    def learn_pooled_noise(self, pooled: np.ndarray) -> None:
+        """:meth:`learn_noise` from already pooled no-touch maps ``[T, H, W]``.
 
         E.g. the raw frames' :class:`~eit_skin.touch.frame_evidence.TouchFilter` statistic.
         """
@@ -508,7 +508,7 @@ class PooledDetector:
     def update_pooled(self, pooled: np.ndarray) -> int:
         """:meth:`update` from an already pooled map ``[H, W]``; the longest run of ``z > k``.
 
-        The map is of the kind given to :meth:`calibrate_pooled`.
+        The map is of the kind given to :meth:`learn_pooled_noise`.
         """
         return self._step(np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan))
 
@@ -554,7 +554,7 @@ class PooledDetector:
 
         Running mean of its square while fewer than ``2 / alpha`` frames were seen, then an
         exponential average (weight ``alpha`` per frame); the sample count behind the estimate
-        (for the inflation of :meth:`calibrate`) is capped at ``2 / alpha``.
+        (for the inflation of :meth:`learn_noise`) is capped at ``2 / alpha``.
         """
         if self._noise_var is None or not alpha > 0:
             return

@@ -98,14 +98,14 @@ class StartGates:
         """
         cfg = self.config
         self.detector = PooledDetector(inside, kernel_px, cfg.k_detect, n_avg, cfg.learn_fraction)
-        self.detector.calibrate(signals)
+        self.detector.learn_noise(signals)
         if self._disc_rel is not None and volts is not None:
             self.touch_filter = TouchFilter(self._disc_rel, inside, self._contact_rel)
             self.start_detector = PooledDetector(
                 inside, kernel_px, cfg.k_detect, n_avg, cfg.learn_fraction
             )
             changes = running_mean(self.evidence.whiten(volts), n_avg)
-            self.start_detector.calibrate_pooled(self._filtered(changes))
+            self.start_detector.learn_pooled_noise(self._filtered(changes))
 
     def push_image(self, pressure: np.ndarray) -> None:
         """Keep the latest raw pressure image ``[H, W]`` (for flicker and roughness)."""
