@@ -203,6 +203,7 @@ class TouchClassifier:
 
     @property
     def calibrated(self) -> bool:
+        """Whether the first ``calibration_s`` of no-touch frames are in (background learnt)."""
         return self.background is not None
 
     @property
