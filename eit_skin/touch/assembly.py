@@ -129,15 +129,8 @@ class EventAssembler:
             return self._maybe_start(t_s, contacts, stretch_peak, shape, detected)
         return self._follow(self._touch, t_s, contacts, stretch_peak, shape)
 
-    def _maybe_start(
-        self,
-        t_s: float,
-        contacts: list[Contact],
-        stretch_peak: float | None,
-        shape: np.ndarray | None,
-        detected: float | None,
-    ) -> list[TouchEvent]:
-        """START, dated to its first evidence, or nothing (no touch going on)."""
+    def _maybe_start(self, t_s, contacts, stretch_peak, shape, detected) -> list[TouchEvent]:
+        """START, dated to its first evidence, or nothing (arguments as :meth:`advance`)."""
         cfg = self.config
         starts = [] if detected is None else [detected]
         if contacts:
@@ -179,15 +172,8 @@ class EventAssembler:
         self._relabel(touch)
         return [self._event(touch, "start", t_s)]
 
-    def _follow(
-        self,
-        touch: OngoingTouch,
-        t_s: float,
-        contacts: list[Contact],
-        stretch_peak: float | None,
-        shape: np.ndarray | None,
-    ) -> list[TouchEvent]:
-        """UPDATE, END or nothing for the touch going on."""
+    def _follow(self, touch: OngoingTouch, t_s, contacts, stretch_peak, shape) -> list[TouchEvent]:
+        """UPDATE, END or nothing for ``touch``, going on (arguments as :meth:`advance`)."""
         cfg = self.config
         if not contacts:
             touch.missing += 1
