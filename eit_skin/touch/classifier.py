@@ -20,22 +20,6 @@ records. Per frame, after ``calibration_s`` of no-touch frames:
 The label of START is provisional (evidence of the first frames); UPDATEs carry the label on
 the evidence so far and may revise it; END carries the final label. Settings:
 :class:`~eit_skin.touch.config.ClassifierConfig`; method and history: docs/classifier.md.
-
-Example (a 3 cm square sheet, one 1.5 s press of 400 Pa after 0.5 s of noise):
-
->>> import numpy as np
->>> x = y = np.linspace(-0.015, 0.015, 31)
->>> xx, yy = np.meshgrid(x, y)
->>> rng = np.random.default_rng(0)
->>> clf = TouchClassifier(x, y)
->>> events = []
->>> for k in range(150):
-...     t = k / 50
-...     press = 400.0 * np.exp(-(xx**2 + yy**2) / 0.004**2) if 1.0 <= t < 2.5 else 0.0
-...     events += clf.step(t, press + rng.normal(0.0, 5.0, xx.shape))
->>> events += clf.finish()
->>> [(e.state, e.label) for e in events if e.state != "update"]
-[('start', 'push'), ('end', 'push')]
 """
 
 from __future__ import annotations
@@ -107,6 +91,22 @@ class TouchClassifier:
         contact_rel: ``[M, E]`` relative change of every raw channel per change of each
             electrode's contact impedance (:func:`~eit_skin.pipeline.builder.contact_patterns`),
             projected out of that filter; ``None``: only the drift is.
+
+    Example (a 3 cm square sheet, one 1.5 s press of 400 Pa after 0.5 s of noise):
+
+    >>> import numpy as np
+    >>> x = y = np.linspace(-0.015, 0.015, 31)
+    >>> xx, yy = np.meshgrid(x, y)
+    >>> rng = np.random.default_rng(0)
+    >>> clf = TouchClassifier(x, y)
+    >>> events = []
+    >>> for k in range(150):
+    ...     t = k / 50
+    ...     press = 400.0 * np.exp(-(xx**2 + yy**2) / 0.004**2) if 1.0 <= t < 2.5 else 0.0
+    ...     events += clf.step(t, press + rng.normal(0.0, 5.0, xx.shape))
+    >>> events += clf.finish()
+    >>> [(e.state, e.label) for e in events if e.state != "update"]
+    [('start', 'push'), ('end', 'push')]
     """
 
     def __init__(
