@@ -37,10 +37,13 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.sim.scenario import Scenario, SheetFrame, random_scenario
+from eit_skin.sim.random_scenes import random_scenario
+from eit_skin.sim.scenario import Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import PostureTrack
-from eit_skin.touch.classifier import LABELS, ClassifierConfig, classify_stream
+from eit_skin.touch.classifier import TouchClassifier, classify_stream
+from eit_skin.touch.config import ClassifierConfig
+from eit_skin.touch.events import LABELS
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 
@@ -159,19 +162,17 @@ def evaluate(
     ``patterns``: ``(disc_rel, contact_rel)`` of their START filter (``raw_patterns``)."""
     rows, extra = [], 0
     for run in runs:
-        events = classify_stream(
-            run.t,
-            run.pressure,
+        classifier = TouchClassifier(
             run.x,
             run.y,
-            run.stretch,
             config,
             contact_spread_m=spread,
-            volts=None if channels is None else run.volts,
             channel_electrodes=channels,
             disc_rel=None if channels is None else patterns[0],
             contact_rel=None if channels is None else patterns[1],
         )
+        volts = None if channels is None else run.volts
+        events = classify_stream(classifier, run.t, run.pressure, run.stretch, volts)
         r, false = score(events, run.truth)
         rows += r
         extra += len(false)
@@ -231,16 +232,18 @@ def main() -> None:
         idle_events = [
             e
             for e in classify_stream(
+                TouchClassifier(
+                    idle.x,
+                    idle.y,
+                    contact_spread_m=spread,
+                    channel_electrodes=channels,
+                    disc_rel=patterns[0],
+                    contact_rel=patterns[1],
+                ),
                 idle.t,
                 idle.pressure,
-                idle.x,
-                idle.y,
                 idle.stretch,
-                contact_spread_m=spread,
-                volts=idle.volts,
-                channel_electrodes=channels,
-                disc_rel=patterns[0],
-                contact_rel=patterns[1],
+                idle.volts,
             )
             if e.state == "end"
         ]

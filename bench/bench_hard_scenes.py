@@ -1,7 +1,7 @@
 """Touch classifier on HARD simulated scenes: light, short, close, back-to-back, drifting, faulty.
 
 For every shipped patch and every category, one scene per seed: the touch categories of
-:func:`~eit_skin.sim.scenario.hard_scenario` (light central pushes, pushes at an electrode,
+:func:`~eit_skin.sim.random_scenes.hard_scenario` (light central pushes, pushes at an electrode,
 slow / fast / short rubs, close pinches in the middle and at the edge, uneven and palm grabs,
 back-to-back touches 0.1-0.2 s apart), ``drift_noise`` (random touches, 5x the usual sigma0
 drift, 3x the ADC noise), and two no-touch scenes: ``temperature`` (fast sigma0 drift with a
@@ -42,9 +42,11 @@ from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase
 from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig
 from eit_skin.sim.drift import DriftModel
-from eit_skin.sim.scenario import HARD_SCENES, Scenario, hard_scenario, random_scenario
+from eit_skin.sim.random_scenes import HARD_SCENES, hard_scenario, random_scenario
+from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import LABELS, TouchClassifier, classifier_layers
+from eit_skin.touch.classifier import TouchClassifier, classifier_layers
+from eit_skin.touch.events import LABELS
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import contact_geometry
 

@@ -49,7 +49,8 @@ from eit_skin.resources import config_path
 from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
+from eit_skin.touch.classifier import classifier_layers
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.shapes import single_contact_spread
 
 SEED = scenes.SEEDS["report"][0]

@@ -23,7 +23,7 @@ one core); writes ``bench/real_data.md`` and one figure per set in ``bench/real_
 * Scores: ``bench/real_data_scoring.py`` (the same module the regression test uses): blob of
   the expected sign at half of each image's extreme, position error against the documented
   targets, track direction consistency and circle residual where only a track is known.
-* Device calibration (``eit-skin calibrate-device``, :func:`eit_skin.fem.device_fit.fit_device`):
+* Device calibration (``eit-skin fit-device``, :func:`eit_skin.fem.device_fit.fit_device`):
   sheet conductance and contact impedance fitted to each set's reference on the patch's
   forward mesh (gain 1: the set's units), the fit residual and bad contacts reported, and
   eit_skin's chain rebuilt on the calibrated model and scored by the same rules.
@@ -491,7 +491,7 @@ def calibration_section(results: dict) -> list[str]:
         "",
         "## Device calibration",
         "",
-        "`eit-skin calibrate-device` on each set's reference (`fit_device`, patch forward "
+        "`eit-skin fit-device` on each set's reference (`fit_device`, patch forward "
         "mesh, gain 1 so the conductance is in the set's units per volt): the contact "
         "impedance is one common value (no set measures on current-carrying electrodes); "
         "z sigma / width >> 1: contact-dominated electrodes (uniform current under them), "

@@ -50,6 +50,7 @@ import numpy as np
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
+from eit_skin.fem.phantoms import disc_centres, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.gauss_newton import (
     GaussNewtonReconstructor,
@@ -64,7 +65,6 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager, with_method
 from eit_skin.resources import config_path
-from eit_skin.sim.phantoms import disc_centres, simulate_discs
 from eit_skin.sim.simulator import SkinSimulator
 
 R = 0.05

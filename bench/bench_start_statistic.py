@@ -64,7 +64,8 @@ from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.touch.classifier import ClassifierConfig, classifier_layers
+from eit_skin.touch.classifier import classifier_layers
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import PooledDetector
 from eit_skin.touch.frame_evidence import TouchFilter
 from eit_skin.touch.shapes import FINGER_RADIUS_M, raw_patterns, single_contact_spread

@@ -1,14 +1,14 @@
 """A tiny learned alternative to the touch rules: softmax regression on the rules' features.
 
 Used by ``bench/bench_hard_scenes.py`` to compare, on held-out (report) seeds, the rules of
-:func:`~eit_skin.touch.classifier.decide` with a model trained on the tuning seeds' scenes.
+:func:`~eit_skin.touch.events.decide` with a model trained on the tuning seeds' scenes.
 Both label the same segmented touches (the classifier's END events matched to the truth),
 so only the decision differs. numpy only; the model is a ``[F + 1, 4]`` weight matrix.
 
 Inputs per touch (:data:`FEATURES`, all scale-free): ``spread``, ``major``, ``travel``,
 ``closing``, ``trend`` (signed, clipped to +-20), ``narrowing`` and ``shape_z`` (as
 ``arcsinh(z)``: it spans 0 to thousands; 0 where it is NaN) of
-:class:`~eit_skin.touch.classifier.TouchFeatures`, standardised with the training set's
+:class:`~eit_skin.touch.events.TouchFeatures`, standardised with the training set's
 mean and standard deviation. Balanced classes (each touch weighted by 1 / its class count),
 L2 penalty ``L2``, full-batch gradient descent.
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eit_skin.touch.classifier import LABELS
+from eit_skin.touch.events import LABELS
 
 FEATURES = ("spread", "major", "travel", "closing", "trend", "narrowing", "shape_z")
 L2 = 1e-2

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eit_skin.touch.classifier import LABELS
+from eit_skin.touch.events import LABELS
 
 
 def match(events, truth: list[dict]) -> list:

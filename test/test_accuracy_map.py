@@ -17,12 +17,12 @@ import pytest
 from eit_skin.cli.main import main
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
+from eit_skin.fem.phantoms import disc_centres, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.patch.loading import patch_from_dict
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.accuracy_map import TARGET_CONTRAST, TARGET_RADIUS_R, predict_accuracy
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.sim.phantoms import disc_centres, simulate_discs
 
 R = 0.05
 

@@ -99,6 +99,88 @@ def test_the_core_knows_nothing_of_ros_or_the_command_line():
     assert not offenders, "\n".join(offenders)
 
 
+#: Rank of every subpackage (docs/architecture.md, "Layers"): a subpackage imports only
+#: subpackages of a lower rank, or of its own rank without a cycle between them. The modules
+#: directly in eit_skin/ (``frames``, ``resources``) are rank 0.
+LAYERS = {
+    "patch": 1,  # the schema: outlines, electrodes, protocol, the solver names
+    "io": 1,  # recording formats, beside the core
+    "fem": 2,
+    "hardware": 2,  # boards and byte formats: the patch's protocol and board profiles
+    "inverse": 3,
+    "pipeline": 4,
+    "touch": 5,
+    "sim": 5,
+    "calibration": 5,
+    "ros": 6,
+    "cli": 6,
+    "design": 6,  # the browser designer: an adapter like cli
+}
+
+
+def subpackage(module: str) -> str:
+    """The subpackage of a module name ("" for the modules directly in eit_skin/)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in LAYERS) else ""
+
+
+def subpackage_imports() -> dict[tuple[str, str], list[str]]:
+    """``(importer, imported)`` subpackage -> the imports behind that edge (``path:line``)."""
+    edges: dict[tuple[str, str], list[str]] = {}
+    for name, path in MODULES.items():
+        for target, _, line in eit_imports(path):
+            a, b = subpackage(name), subpackage(target)
+            if a != b:
+                edges.setdefault((a, b), []).append(f"{path.relative_to(ROOT)}:{line} {target}")
+    return edges
+
+
+def layer_violations(edges: dict[tuple[str, str], list[str]]) -> list[str]:
+    """Imports that look up (to a higher rank), and cycles between subpackages of one rank."""
+    rank = {"": 0, **LAYERS}
+    found = [
+        f"{a} (rank {rank[a]}) imports {b} (rank {rank[b]}): {where[0]}"
+        for (a, b), where in sorted(edges.items())
+        if rank[b] > rank[a]
+    ]
+    sideways = {(a, b) for a, b in edges if rank[a] == rank[b]}
+
+    def reaches(start: str, goal: str, seen: set[str]) -> bool:
+        return any(
+            b == goal or (b not in seen and reaches(b, goal, seen | {b}))
+            for a, b in sideways
+            if a == start
+        )
+
+    found += [
+        f"{a} imports {b} ({edges[a, b][0]}), which imports {a} back"
+        for a, b in sorted(sideways)
+        if reaches(b, a, {b})
+    ]
+    return found
+
+
+def test_subpackages_only_look_down():
+    assert set(LAYERS) == {p.parent.name for p in PACKAGE.glob("*/__init__.py")}
+    violations = layer_violations(subpackage_imports())
+    assert not violations, "\n".join(violations)
+
+
+def test_a_schema_that_imports_a_solver_is_a_violation():
+    # the cycle the layering removed: patch.model named the methods from inverse.methods
+    edges = {**subpackage_imports(), ("patch", "inverse"): ["eit_skin/patch/model.py:29"]}
+    assert layer_violations(edges) == [
+        "patch (rank 1) imports inverse (rank 3): eit_skin/patch/model.py:29"
+    ]
+    # sideways imports of one rank may not close a cycle, however long
+    ring = {("touch", "sim"): ["a"], ("sim", "calibration"): ["b"], ("calibration", "touch"): ["c"]}
+    assert layer_violations(ring) == [
+        "calibration imports touch (c), which imports calibration back",
+        "sim imports calibration (b), which imports sim back",
+        "touch imports sim (a), which imports touch back",
+    ]
+
+
 def python_files() -> list[Path]:
     return [*PACKAGE.rglob("*.py"), *(ROOT / "test").glob("*.py"), *(ROOT / "bench").glob("*.py")]
 

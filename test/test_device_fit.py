@@ -126,7 +126,7 @@ layers:
 """
 
 
-def test_calibrate_device_command_writes_the_fit_and_the_matrix_follows(tmp_path, capsys):
+def test_fit_device_command_writes_the_fit_and_the_matrix_follows(tmp_path, capsys):
     from eit_skin.cli.main import main
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.patch.loading import load_patch
@@ -142,7 +142,7 @@ def test_calibrate_device_command_writes_the_fit_and_the_matrix_follows(tmp_path
     full = protocol.device_frame(data.voltages(0.3))  # the board's 256 numbers
     assert full.shape == (256,)
     np.savez(tmp_path / "noload.npz", reference=full, frames=full[None])
-    args = ["calibrate-device", "--patch", str(path), "--frames", str(tmp_path / "noload.npz")]
+    args = ["fit-device", "--patch", str(path), "--frames", str(tmp_path / "noload.npz")]
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "bad contact (> 3 x median z or channel residual): 3" in out
@@ -164,8 +164,26 @@ def test_calibrate_device_command_writes_the_fit_and_the_matrix_follows(tmp_path
     # a bad frame: one line naming the file and key, nothing written
     np.savez(tmp_path / "bad.npz", reference=full[:200], frames=full[None, :200])
     before = path.read_text()
-    bad = ["calibrate-device", "--patch", str(path), "--frames", str(tmp_path / "bad.npz")]
+    bad = ["fit-device", "--patch", str(path), "--frames", str(tmp_path / "bad.npz")]
     assert main([*bad, "--write"]) == 1
     err = capsys.readouterr().err
     assert "bad.npz: 'reference'" in err and "expects 256" in err and err.count("\n") == 1
     assert path.read_text() == before
+    # the former name still runs the command, after one deprecation line
+    assert main(["calibrate-device", *bad[1:], "--write"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "eit-skin: 'calibrate-device' is deprecated, use 'fit-device'"
+    assert "bad.npz: 'reference'" in err[1] and len(err) == 2
+
+
+def test_former_command_names_are_the_new_commands(capsys):
+    from eit_skin.cli.main import COMMANDS, DEPRECATED, main
+
+    for old, new in DEPRECATED.items():
+        assert new in COMMANDS and old not in COMMANDS
+        with pytest.raises(SystemExit) as stop:
+            main([old, "--help"])
+        assert stop.value.code == 0
+        captured = capsys.readouterr()
+        assert captured.err == f"eit-skin: '{old}' is deprecated, use '{new}'\n"
+        assert captured.out.startswith(f"usage: eit-skin {new} ")

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import eit_skin.touch.classifier as classifier_module
+import eit_skin.touch.start_gates as start_gates_module
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.touch.classifier import ELECTRODE_FLICKER, ClassifierConfig, TouchClassifier
+from eit_skin.touch.classifier import TouchClassifier
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.frame_evidence import (
     FrameEvidence,
     TouchFilter,
@@ -23,6 +24,7 @@ from eit_skin.touch.frame_evidence import (
     shape_change_z,
 )
 from eit_skin.touch.shapes import fingertip_discs, raw_patterns
+from eit_skin.touch.start_gates import ELECTRODE_FLICKER
 from test.synthetic_touches import INSIDE, X, Y, envelope, sequence
 
 M = 208
@@ -67,7 +69,7 @@ class Sheet:
 
     def calibrated(self, frames: int = 400) -> FrameEvidence:
         evidence = FrameEvidence()
-        evidence.calibrate(self.volts(np.zeros((frames, M))))
+        evidence.learn_noise(self.volts(np.zeros((frames, M))))
         return evidence
 
 
@@ -117,7 +119,7 @@ def test_calibration_learns_each_channels_noise_not_its_drift() -> None:
     frames = sheet.volts(ramp)
     frames[:, 7] = np.nan  # a channel that never came
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     ok = np.arange(M) != 7
     np.testing.assert_allclose(evidence.sigma[ok], sheet.sigma[ok], rtol=0.3)
     assert np.median(np.abs(evidence.sigma[ok] / sheet.sigma[ok] - 1)) < 0.06
@@ -132,7 +134,7 @@ def test_a_faulty_electrodes_channels_are_left_out() -> None:
     table = channel_electrodes(protocol)
     assert table.shape == (protocol.n_measurements, protocol.n_electrodes)
     evidence = FrameEvidence(table)
-    evidence.calibrate(np.random.default_rng(0).normal(1.0, 1e-3, (10, protocol.n_measurements)))
+    evidence.learn_noise(np.random.default_rng(0).normal(1.0, 1e-3, (10, protocol.n_measurements)))
     np.testing.assert_array_equal(evidence.usable((5,)), ~protocol.touching([5]))
     # adjacent drive: electrode 5 drives 2 of 16 injections and is measured in the rest
     assert np.count_nonzero(~evidence.usable((5,))) == 2 * 13 + 14 * 2 - 2
@@ -189,7 +191,7 @@ def test_a_still_touch_on_a_real_devices_noise_is_no_shape_change() -> None:
     if imager.signs is not None:  # a magnitude device: the frames carry the model's signs
         jacobian = jacobian * imager.signs[:, None]
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     radius = float(np.linalg.norm(layer.outline, axis=1).max())
     places = np.random.default_rng(5).uniform(-0.6 * radius, 0.6 * radius, size=(40, 2))
     patterns = fingertip_discs(places, imager.mesh, 0.1 * radius) @ jacobian.T  # [40, M] V
@@ -283,7 +285,7 @@ def _sciospec_filter(contacts: bool):
     imager = LayerImager.build(layer, cache_dir=None)
     disc, contact = raw_patterns(layer, imager, 0.1 * float(np.abs(layer.outline).max()))
     evidence = FrameEvidence()
-    evidence.calibrate(frames)
+    evidence.learn_noise(frames)
     inside = np.asarray(imager.grid.inside, dtype=bool)
     start = TouchFilter(disc, inside, contact if contacts else None)
     return start, evidence, frames, disc, contact, inside
@@ -344,7 +346,7 @@ def _noisy_electrode_events(monkeypatch=None) -> list:
     electrode before the pipeline names it). Images of noise only; the START filter built
     from arbitrary fingertip patterns (every one of them sees those channels)."""
     if monkeypatch is not None:  # the raw frames' electrode test off
-        monkeypatch.setattr(classifier_module, "ELECTRODE_FLICKER", np.inf)
+        monkeypatch.setattr(start_gates_module, "ELECTRODE_FLICKER", np.inf)
     t, images = sequence(lambda t: ([], 0.0), 3.0, seed=2)
     rng = np.random.default_rng(4)
     disc = rng.standard_normal((*images.shape[1:], M)).astype(np.float32)

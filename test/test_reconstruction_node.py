@@ -24,7 +24,7 @@ from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.node_runner import REJECT_LOG_PERIOD_S
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
-from eit_skin.sim.scenario import resolve_scenario
+from eit_skin.sim.scripts import resolve_scenario
 from test.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -335,7 +335,7 @@ def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir)
     calibration = subprocess.Popen(
         [
             str(find_executable("eit-skin")),
-            "calibrate-posture",
+            "record-postures",
             "--patch",
             "elbow",
             "--joint",

@@ -9,15 +9,10 @@ import pytest
 
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
-from eit_skin.sim.scenario import (
-    BUILTIN_SCENARIOS,
-    EDGE_MARGIN_M,
-    ScenarioError,
-    SheetFrame,
-    builtin_scenario,
-    load_scenario,
-    random_scenario,
-)
+from eit_skin.sim.random_scenes import random_scenario
+from eit_skin.sim.scenario import EDGE_MARGIN_M, ScenarioError, SheetFrame
+from eit_skin.sim.scenario_yaml import load_scenario
+from eit_skin.sim.scripts import BUILTIN_SCENARIOS, builtin_scenario
 
 
 @pytest.fixture(scope="module", params=["arm", "face", "elbow"])

@@ -17,7 +17,7 @@ from eit_skin.resources import config_path
 from eit_skin.sim.adc import AdcConfig, AdcModel
 from eit_skin.sim.drift import NO_DRIFT, DriftModel
 from eit_skin.sim.faults import FAULT_KINDS, Fault, fault_help, parse_faults
-from eit_skin.sim.scenario import builtin_scenario
+from eit_skin.sim.scripts import builtin_scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
 

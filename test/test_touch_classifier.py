@@ -14,15 +14,10 @@ from eit_skin.patch.model import PatchError
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.classifier import (
-    SHAPE_DTYPE,
-    ClassifierConfig,
-    ShapeHistory,
-    TouchClassifier,
-    classifier_layers,
-    classify_stream,
-)
+from eit_skin.touch.classifier import TouchClassifier, classifier_layers, classify_stream
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import PooledDetector, SegmentationConfig, noise_sample_frames
+from eit_skin.touch.events import SHAPE_DTYPE, ShapeHistory
 from eit_skin.touch.shapes import (
     blob_moments,
     contact_geometry,
@@ -49,7 +44,7 @@ ONSET_S, RELEASE_S = 1.0, 2.2
 
 def run(script, duration_s=3.0, seed=0):
     t, images = sequence(script, duration_s, seed=seed)
-    return classify_stream(t, images, X, Y)
+    return classify_stream(TouchClassifier(X, Y), t, images)
 
 
 def one_touch(events):
@@ -81,7 +76,7 @@ def test_images_sharing_a_stamp_are_classified_without_error() -> None:
     t, images = sequence(
         lambda t: ([(0.01, -0.005)], 5000.0 * envelope(t, ONSET_S, RELEASE_S)), 3.0
     )
-    events = classify_stream(np.repeat(t, 2), np.repeat(images, 2, axis=0), X, Y)
+    events = classify_stream(TouchClassifier(X, Y), np.repeat(t, 2), np.repeat(images, 2, axis=0))
     _, _, end = one_touch(events)
     assert end.label == "push"
 
@@ -131,7 +126,7 @@ def test_no_touch_with_slow_drift_gives_no_event() -> None:
     # a uniform offset drifting by 8 sigma over 30 s: the baseline follows it
     t, images = sequence(lambda t: ([], 0.0), 30.0, seed=4)
     images = images + (8 * SIGMA_PA * t / 30.0)[:, None, None].astype(np.float32)
-    assert classify_stream(t, images, X, Y) == []
+    assert classify_stream(TouchClassifier(X, Y), t, images) == []
 
 
 def test_calibration_frames_never_produce_events_and_noise_is_estimated() -> None:
@@ -181,10 +176,10 @@ def test_every_tuning_constant_is_a_validated_config_field() -> None:
         return [(0.0, -half), (0.0, half)], 4000.0 * envelope(t, ONSET_S, RELEASE_S)
 
     t, images = sequence(pinch, 3.0)
-    narrow = classify_stream(t, images, X, Y, config=ClassifierConfig(pinch_trend=1e9))
+    narrow = classify_stream(TouchClassifier(X, Y, ClassifierConfig(pinch_trend=1e9)), t, images)
     assert narrow[-1].label == "pinch"
     config = ClassifierConfig(closing_window=200, pinch_trend=1e9)
-    wide = classify_stream(t, images, X, Y, config=config)
+    wide = classify_stream(TouchClassifier(X, Y, config), t, images)
     assert wide[-1].label != "pinch"
 
 
@@ -268,7 +263,9 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
     spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    events = classify_stream(rec.t, images, imager.grid.x, imager.grid.y, contact_spread_m=spread)
+    events = classify_stream(
+        TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread), rec.t, images
+    )
     return [e for e in events if e.state == "end"], rec.truth, spread, imager
 
 
@@ -404,7 +401,7 @@ def test_pooling_a_white_noise_image_divides_its_noise_as_the_kernel_says() -> N
     # a sheet-wide offset (drift the baseline has not followed yet) is removed
     assert np.abs(detector.pool(blob + 50.0) - detector.pool(blob)).max() < 1e-9
     # the noise map from 400 frames: that noise, inflated by 1 + sqrt(2 / 400)
-    detector.calibrate(frames)
+    detector.learn_noise(frames)
     expected = SIGMA_PA / (2 * np.sqrt(np.pi) * s) * (1 + np.sqrt(2 / 400))
     assert np.median(detector.noise[24:40, 24:40]) == pytest.approx(expected, rel=0.1)
 
@@ -445,9 +442,9 @@ def test_the_noise_counts_frames_per_independent_sample_from_their_correlation_i
     # the pooled detector counts its calibration's independent samples the same way
     inside = np.ones((32, 32), dtype=bool)
     detector = PooledDetector(inside, kernel_px=3.0, k=5.0, frames_per_sample=2)
-    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(rho, (400, 32, 32), seed=23), 2))
+    detector.learn_noise(running_mean(SIGMA_PA * ar1_frames(rho, (400, 32, 32), seed=23), 2))
     assert detector.sample_frames > 4.0  # not the 2 of the running mean alone
-    detector.calibrate(running_mean(SIGMA_PA * ar1_frames(0.0, (400, 32, 32), seed=24), 2))
+    detector.learn_noise(running_mean(SIGMA_PA * ar1_frames(0.0, (400, 32, 32), seed=24), 2))
     assert detector.sample_frames == 2.0
 
 
@@ -456,7 +453,7 @@ def test_a_rising_press_counts_the_frame_before_its_crossing_when_the_two_averag
     inside = np.ones((64, 64), dtype=bool)
     k = 5.0
     detector = PooledDetector(inside, kernel_px=4.0, k=k)
-    detector.calibrate(SIGMA_PA * np.random.default_rng(14).standard_normal((200, 64, 64)))
+    detector.learn_noise(SIGMA_PA * np.random.default_rng(14).standard_normal((200, 64, 64)))
     i = np.arange(64) - 32.0
     blob = np.exp(-(i[:, None] ** 2 + i[None, :] ** 2) / (2 * 3.0**2))
     per_unit = detector.pool(blob)[32, 32] / detector.noise[32, 32]
@@ -480,10 +477,9 @@ def test_weak_slow_touch_starts_within_150_ms_only_with_the_pooled_detector() ->
     # the pooled image (kernel 2.5 x 5 mm, white noise down ~26x, blob kept ~14 %) at ~20 %
     t, images = sequence(ramp_touch(60.0), 4.0, seed=12)
     spread = 0.005
-    early = classify_stream(t, images, X, Y, contact_spread_m=spread)
-    late = classify_stream(
-        t, images, X, Y, config=ClassifierConfig(detect_kernel=0), contact_spread_m=spread
-    )
+    early = classify_stream(TouchClassifier(X, Y, contact_spread_m=spread), t, images)
+    config = ClassifierConfig(detect_kernel=0)
+    late = classify_stream(TouchClassifier(X, Y, config, contact_spread_m=spread), t, images)
     start, _, end = one_touch(early)
     assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.15
     assert start.n_contacts == 0  # before any pixel crosses k_high
@@ -497,7 +493,7 @@ def test_touch_too_weak_to_segment_ends_after_confirm_s_and_does_not_restart() -
     # k_high = 9 sigmas = 64 Pa (it would take 4.8 sigmas of noise on top of the touch)
     t, images = sequence(ramp_touch(30.0, hold_s=1.5), 4.5, seed=13)
     config = ClassifierConfig(confirm_s=0.4, segmentation=SegmentationConfig(k_high=9.0))
-    events = classify_stream(t, images, X, Y, config=config)
+    events = classify_stream(TouchClassifier(X, Y, config), t, images)
     start, _, end = one_touch(events)
     assert LATE_ONSET_S < start.t_s <= LATE_ONSET_S + 0.2
     assert end.t_s - start.t_start_s == pytest.approx(0.4, abs=0.021)
@@ -539,5 +535,5 @@ def test_a_real_devices_noise_wanders_in_time_and_counts_fewer_samples() -> None
     averaged = running_mean(images, 2)
     inside = np.asarray(imager.grid.inside, dtype=bool)
     detector = PooledDetector(inside, kernel_px=4.0, k=5.5, frames_per_sample=2)
-    detector.calibrate(averaged - np.median(averaged, axis=0))
+    detector.learn_noise(averaged - np.median(averaged, axis=0))
     assert detector.sample_frames > 2.5  # more than the 2 a white device would count

@@ -11,10 +11,12 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.resources import config_path
 from eit_skin.sim.drift import NO_DRIFT
-from eit_skin.sim.scenario import HARD_SCENES, Scenario, SheetFrame, hard_scenario
+from eit_skin.sim.random_scenes import HARD_SCENES, hard_scenario
+from eit_skin.sim.scenario import Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
-from eit_skin.touch.classifier import ClassifierConfig, TouchClassifier, classify_stream
+from eit_skin.touch.classifier import TouchClassifier, classify_stream
+from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 from test.patch_copies import small_disc_patch
@@ -41,7 +43,7 @@ def test_sheet_wide_drift_during_back_to_back_touches_does_not_freeze_a_touch() 
 
     t, images = sequence(script, 9.0, seed=3)
     images = images + (8 * SIGMA_PA * np.clip((t - 0.6) / 6.0, 0, 1))[:, None, None]
-    got = ends(classify_stream(t, images.astype(np.float32), X, Y))
+    got = ends(classify_stream(TouchClassifier(X, Y), t, images.astype(np.float32)))
     assert len(got) == 6
     for k, e in enumerate(got):  # each ends with its contact, not seconds later
         assert e.t_end_s == pytest.approx(0.8 + k + 0.85, abs=0.08)
@@ -54,7 +56,7 @@ def test_two_pushes_separated_by_a_tenth_of_a_second_are_two_touches() -> None:
         return [(0.025, 0.01)], 5000.0 * envelope(t, 1.8, 2.6, 0.05)
 
     t, images = sequence(script, 3.5, seed=5)
-    got = ends(classify_stream(t, images, X, Y))
+    got = ends(classify_stream(TouchClassifier(X, Y), t, images))
     assert [e.label for e in got] == ["push", "push"]
     assert got[0].t_end_s < 1.8 <= got[1].t_start_s
 
@@ -150,7 +152,9 @@ def _close_pinch(t):
 
 
 def _labels(t, images, config=None, stretch=None):
-    events = classify_stream(t, images, X, Y, stretch, config, contact_spread_m=WIDE_M)
+    events = classify_stream(
+        TouchClassifier(X, Y, config, contact_spread_m=WIDE_M), t, images, stretch
+    )
     return [e.label for e in ends(events)]
 
 

@@ -3,7 +3,7 @@
 For calibration sessions and bug reports: the layer's board profile reads the port exactly as
 the driver node does (:class:`~eit_skin.hardware.sources.SerialSource`: host commands,
 refusals, reconnects, stamps), and the frames go to an npz that ``reconstruct``, ``classify``,
-``tune --frames`` and ``calibrate-device`` read: ``reference`` (the mean of the first
+``tune --frames`` and ``fit-device`` read: ``reference`` (the mean of the first
 ``--reference-seconds`` of frames), ``frames`` [T, M] volts in protocol order, ``t`` [T]
 seconds since the first frame (the frames' acquisition stamps), ``reference_frames`` (the
 frames averaged into the reference). Nothing is written when no frame came.

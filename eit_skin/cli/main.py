@@ -15,11 +15,6 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     # "name": ("module", "help"),  one line per command, kept alphabetical
     "calibrate": ("calibrate", "Fit a press localiser from labelled presses; k-fold figures."),
-    "calibrate-device": (
-        "calibrate_device",
-        "Fit sheet conductance and contact impedance to a device's no-load frame.",
-    ),
-    "calibrate-posture": ("calibrate_posture", "Record no-load references across a joint sweep."),
     "capture": (
         "capture",
         "Record a board's frames to an offline frames file (npz), without ROS.",
@@ -31,11 +26,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "Recognise the board on a serial port and the patch that fits its frames.",
     ),
     "fake-device": ("fake_device", "Emulate a skin board on a pseudo-terminal."),
+    "fit-device": ("fit_device", "Fit sheet conductance, contact impedance to a no-load frame."),
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),
     "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
     "presses": ("presses", "Make a press session: robot probe CSV + frames, or simulated."),
     "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
+    "record-postures": ("record_postures", "Record no-load references across a joint sweep."),
     "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),
     "simulate": (
         "simulate",
@@ -45,6 +42,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "tune",
         "Choose a layer's regularisation by noise figure and write it into the patch file.",
     ),
+}
+
+#: Former command names, still accepted with a deprecation line: "calibrate" is the press
+#: localiser's alone (calibration/); a device's model is fitted, postures are recorded.
+DEPRECATED: dict[str, str] = {
+    "calibrate-device": "fit-device",
+    "calibrate-posture": "record-postures",
 }
 
 
@@ -62,6 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in DEPRECATED:
+        new = DEPRECATED[argv[0]]
+        print(f"eit-skin: '{argv[0]}' is deprecated, use '{new}'", file=sys.stderr)
+        argv[0] = new
     args = build_parser().parse_args(argv)
     try:
         return int(args._run(args) or 0)

@@ -205,7 +205,7 @@ def _import(args: argparse.Namespace) -> int:
                 f"{args.template}."
                 if template is not None
                 else "Material, contact impedance and current are typical values: measure yours "
-                "(docs/real-devices.md, eit-skin calibrate-device)."
+                "(docs/real-devices.md, eit-skin fit-device)."
             )
             + "\nUnits: metres, siemens, ohm*metre, amperes, pascals. Schema: docs/patch-schema.md."
         )

@@ -133,7 +133,7 @@ def waiting_for_readers(spec, specs):
 def _script_frames(args: argparse.Namespace, specs) -> dict[str, int]:
     """Frames in one pass of each simulated patch's touch script, by namespace."""
     from eit_skin.patch.loading import load_patch
-    from eit_skin.sim.scenario import resolve_scenario
+    from eit_skin.sim.scripts import resolve_scenario
 
     frames = {}
     for spec in specs:

@@ -4,7 +4,8 @@ Modules: ``mesh`` (triangle meshes of a layer), ``forward`` (:class:`ForwardMode
 assembly, one factorisation for every injection, voltages and Jacobian), ``forward_update``
 (exact Woodbury updates for local changes), ``image_grid`` (element values -> ``[H, W]``
 pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic checks),
-``device_fit`` (calibrate sheet conductance and contact impedance to a no-load frame).
+``device_fit`` (calibrate sheet conductance and contact impedance to a no-load frame),
+``phantoms`` (small disc targets simulated exactly: the phantom set of every accuracy figure).
 """
 
 from __future__ import annotations

@@ -14,8 +14,9 @@ keyword arguments silently ignored by one method), and then images any number of
 ``reconstruct(frames, reference, excluded)``: volts in, ``delta sigma / sigma0`` per element
 out, one sign convention (positive = more conductive) and one data normalisation
 (:func:`eit_skin.inverse.one_step.relative_difference`) for all methods, and bad channels left
-out, never imaged. This module stays light and imports no implementation (the patch schema and
-the implementations import its names), so it cannot be part of an import cycle.
+out, never imaged. The method names are the patch schema's (:data:`eit_skin.patch.model.METHODS`,
+re-exported here); this module imports no implementation, so it cannot be part of an import
+cycle.
 """
 
 from __future__ import annotations
@@ -24,14 +25,14 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+# the names belong to the patch schema (the solvers honour them; patch/ knows no solver),
+# re-exported for the solvers
+from eit_skin.patch.model import METHODS as METHODS
+from eit_skin.patch.model import METHODS_WITH_PRIOR as METHODS_WITH_PRIOR
+
 if TYPE_CHECKING:
     from eit_skin.fem.mesh import Mesh
     from eit_skin.inverse.one_step import ReconstructionMatrix
-
-METHODS: tuple[str, ...] = ("one_step", "greit", "gauss_newton")
-
-#: Methods that use ``solver.prior``.
-METHODS_WITH_PRIOR: tuple[str, ...] = ("one_step", "gauss_newton")
 
 #: Noise figure the hyperparameter is chosen for when neither ``h`` nor a noise figure is
 #: given (:func:`eit_skin.inverse.hyperparameter.choose_by_noise_figure`), one per method:

@@ -32,8 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from eit_skin.fem.mesh import Mesh
-
-PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
+from eit_skin.patch.model import PRIOR_KINDS  # the schema's names; make_prior builds each
 
 
 def element_adjacency(mesh: Mesh) -> sp.csr_matrix:

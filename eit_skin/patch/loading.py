@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from eit_skin.inverse.methods import METHODS
-from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
 from eit_skin.patch.device import (
     DEFAULT_PROFILE,
@@ -33,6 +31,8 @@ from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
+    METHODS,
+    PRIOR_KINDS,
     AccuracyTarget,
     Electrode,
     Layer,
@@ -79,7 +79,16 @@ _PROTOCOL_KEYS = tuple(f.name for f in fields(ProtocolSpec))
 
 
 def load_patch(path: str | Path) -> Patch:
-    """Read and validate a patch YAML file."""
+    """Read and validate a patch YAML file.
+
+    Raises:
+        PatchError: the file is not a valid patch, naming the file and the key.
+
+    >>> from eit_skin.resources import config_path
+    >>> patch = load_patch(config_path("face"))  # a shipped patch; any YAML path works
+    >>> [(layer.name, layer.n_electrodes, layer.material.quantity) for layer in patch.layers]
+    [('pressure', 16, 'pressure')]
+    """
     return patch_from_dict(read_yaml(path, PatchError), source=str(path))
 
 

@@ -26,8 +26,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from eit_skin.inverse.methods import METHODS
-from eit_skin.inverse.priors import PRIOR_KINDS
 from eit_skin.patch import geometry
 from eit_skin.patch.device import DEFAULT_DEVICE, DeviceSpec
 from eit_skin.patch.material import Material
@@ -36,6 +34,9 @@ from eit_skin.patch.protocol import ProtocolSpec
 from eit_skin.patch.yaml_reader import ConfigError
 
 __all__ = [
+    "METHODS",
+    "METHODS_WITH_PRIOR",
+    "PRIOR_KINDS",
     "AccuracyTarget",
     "Electrode",
     "Layer",
@@ -143,6 +144,17 @@ class AccuracyTarget:
             )
 
 
+METHODS: tuple[str, ...] = ("one_step", "greit", "gauss_newton")
+"""Names ``solver.method`` may take; :mod:`eit_skin.inverse` implements each of them
+(:func:`eit_skin.inverse.build.build_method`)."""
+
+METHODS_WITH_PRIOR: tuple[str, ...] = ("one_step", "gauss_newton")
+"""Methods that use ``solver.prior``."""
+
+PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
+"""Names ``solver.prior`` may take; :func:`eit_skin.inverse.priors.make_prior` builds each."""
+
+
 @dataclass(frozen=True)
 class SolverSpec:
     """Reconstruction settings of one layer (used by the reconstruction engine).
@@ -150,7 +162,7 @@ class SolverSpec:
     Attributes:
         method: ``"one_step"`` (linearised, precomputed matrix with ``prior``), ``"greit"``
             (the trained one-step matrix, no prior) or ``"gauss_newton"`` (iterative, with
-            ``prior``); :data:`eit_skin.inverse.methods.METHODS`.
+            ``prior``); :data:`METHODS`.
         prior: regularisation ``"laplace"``, ``"tikhonov"`` or ``"noser"``.
         hyperparameter: regularisation weight, or ``None`` to choose it from ``noise_figure``.
         noise_figure: target noise figure for the automatic hyperparameter (> 0), or ``None``
@@ -206,7 +218,7 @@ class Layer:
         electrodes: electrodes in counter-clockwise order.
         contact_impedance_ohm_m: 2-D complete-electrode-model contact impedance, ohm*m: one
             for all electrodes, or a tuple of one per electrode (e.g. from
-            ``eit-skin calibrate-device``).
+            ``eit-skin fit-device``).
         current_a: injected current amplitude, A.
         protocol: drive/measurement protocol.
         material: sheet material.

@@ -2,7 +2,7 @@
 
 :func:`predict_accuracy` builds the layer exactly as the reconstruction does
 (:meth:`~eit_skin.pipeline.builder.LayerImager.build`, the layer's method and noise figure),
-simulates the package's phantom set (:func:`~eit_skin.sim.phantoms.simulate_discs`: discs
+simulates the package's phantom set (:func:`~eit_skin.fem.phantoms.simulate_discs`: discs
 of radius :data:`TARGET_RADIUS_R` R, conductance x :data:`TARGET_CONTRAST`,
 :data:`NOISE` of the RMS difference signal, the figures of ``bench/bench_reconstruction.py``)
 on a *data mesh* finer than and different from the imaging mesh (no inverse crime), and
@@ -30,6 +30,7 @@ import numpy as np
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import build_mesh
+from eit_skin.fem.phantoms import simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.greit import target_centres
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
@@ -37,7 +38,6 @@ from eit_skin.patch import geometry
 from eit_skin.patch.model import Layer, MeshSpec
 from eit_skin.pipeline.builder import LayerImager, forward_model, resolve_layer
 from eit_skin.pipeline.model_choice import equivalent_radius
-from eit_skin.sim.phantoms import simulate_discs
 
 #: Target radius, fraction of the sheet's equivalent radius R (bench_reconstruction's).
 TARGET_RADIUS_R = 0.05

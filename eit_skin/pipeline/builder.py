@@ -343,6 +343,12 @@ class LayerImager:
 
         A layer with ``solver.accuracy_target`` builds its chosen model (:func:`resolve_layer`);
         ``imager.layer`` is then that explicit layer.
+
+        >>> from eit_skin.patch.loading import load_patch
+        >>> from eit_skin.resources import config_path
+        >>> imager = LayerImager.build(load_patch(config_path("face")).layers[0])
+        >>> imager.method, imager.n_measurements, imager.grid.shape  # [H, W] pixels
+        ('greit', 208, (64, 45))
         """
         layer = resolve_layer(layer, cache_dir)
         op = build_operator(layer, cache_dir)

@@ -57,12 +57,12 @@ import numpy as np
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import build_mesh
+from eit_skin.fem.phantoms import simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.greit import target_centres
 from eit_skin.patch import geometry
 from eit_skin.patch.mesh_budget import estimate_cost
 from eit_skin.patch.model import AccuracyTarget, Layer, MeshSpec, PatchError
-from eit_skin.sim.phantoms import simulate_discs
 
 #: Bumped whenever the ladder, the phantom set or the rule changes (stale choices rebuild).
 SELECTOR_VERSION = "2"

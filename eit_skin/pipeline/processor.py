@@ -118,6 +118,20 @@ class LayerProcessor:
             [0, 1) (:func:`fault_check_phase`).
         compiled_step: False: every frame takes the numpy path (the reference
             implementation the compiled step is tested against).
+
+    >>> from eit_skin.patch.loading import load_patch
+    >>> from eit_skin.resources import config_path
+    >>> from eit_skin.sim.simulator import SkinSimulator
+    >>> patch = load_patch(config_path("face"))
+    >>> processor = LayerProcessor(LayerImager.build(patch.layers[0]))
+    >>> recording = SkinSimulator(patch, "push", seed=1).run(duration_s=1.5)
+    >>> frames = recording.layers["pressure"].frames  # [T, M] V
+    >>> images = [processor.step(f, t) for f, t in zip(frames, recording.t.tolist(), strict=True)]
+    >>> sum(i is None for i in images)  # the first frames become the reference
+    20
+    >>> peak_pa = max(float(np.nanmax(i.image)) for i in images[20:])
+    >>> peak_pa > 1000.0  # the 5 N push from 1 s on
+    True
     """
 
     def __init__(

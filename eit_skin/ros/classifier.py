@@ -57,16 +57,12 @@ from eit_skin.ros.node_runner import (
 )
 from eit_skin.ros.parameters import CLASSIFIER
 from eit_skin.ros.topics import RECONSTRUCTION_NODE, patch_topics
-from eit_skin.touch.classifier import (
-    LABELS,
-    STATES,
-    ClassifierConfig,
-    TouchClassifier,
-    classifier_layers,
-)
-from eit_skin.touch.contacts import SegmentationConfig
+from eit_skin.touch.classifier import TouchClassifier, classifier_layers
+from eit_skin.touch.config import ClassifierConfig
+from eit_skin.touch.events import LABELS, STATES
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.pairing import StampPairer
+from eit_skin.touch.settings import settings_from
 from eit_skin.touch.shapes import contact_geometry
 
 
@@ -79,24 +75,8 @@ class ClassifierNode(Node):
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
-        config = ClassifierConfig(
-            segmentation=SegmentationConfig(
-                k_high=float(p["k_high"]),
-                k_low=float(p["k_low"]),
-                artifact_fraction=float(p["artifact_fraction"]),
-            ),
-            calibration_s=float(p["calibration_s"]),
-            baseline_tau_s=float(p["baseline_tau_s"]),
-            start_frames=int(p["start_frames"]),
-            detect_kernel=float(p["detect_kernel"]),
-            k_detect=float(p["k_detect"]),
-            confirm_s=float(p["confirm_s"]),
-            end_hold_s=float(p["end_hold_s"]),
-            update_period_s=float(p["update_period_s"]),
-            rub_travel=float(p["rub_travel"]),
-            pinch_closing=float(p["pinch_closing"]),
-            grab_spread=float(p["grab_spread"]),
-        )
+        # every declared setting from its parameter; out of range: ValueError, exit 2
+        config = settings_from(ClassifierConfig, p)
         started = time.perf_counter()
         # the pixel grid and one fingertip's blur at every pixel (m); no reconstruction
         # matrix unless the spread map is not cached yet

@@ -3,7 +3,9 @@
 One home for them, free of rclpy: the nodes declare them with these descriptors
 (:func:`eit_skin.ros.node_runner.declare_read_only`), the launch files offer each one as a
 launch argument (:func:`launch_overrides`), and ``python -m eit_skin.ros.param_docs`` writes
-the parameter tables of docs/nodes.md from them (a test fails when the page is stale).
+the parameter tables of docs/nodes.md from them (a test fails when the page is stale). The
+classifier's settings are declared once, in :class:`~eit_skin.touch.config.ClassifierConfig`,
+and listed here from there.
 """
 
 from __future__ import annotations
@@ -15,8 +17,8 @@ from eit_skin.pipeline.processor import (
     FAULT_WINDOW_FRAMES,
 )
 from eit_skin.sim.faults import fault_help
-from eit_skin.touch.classifier import ClassifierConfig
-from eit_skin.touch.contacts import SegmentationConfig
+from eit_skin.touch.config import ClassifierConfig
+from eit_skin.touch.settings import declared_settings
 
 #: (name, default, description) of a node parameter; the default fixes its type.
 ParameterTable = list[tuple[str, object, str]]
@@ -106,7 +108,7 @@ RECONSTRUCTION: ParameterTable = [
         "a change above contact_k x noise counts as contact (freezes drift)",
     ),
     ("joint_name", "", "joint whose angle selects the reference (posture compensation)"),
-    ("posture_references", "", "npz from `eit-skin calibrate-posture`; empty: no posture"),
+    ("posture_references", "", "npz from `eit-skin record-postures`; empty: no posture"),
     (
         "posture_wait_s",
         0.5,
@@ -140,25 +142,15 @@ RECONSTRUCTION: ParameterTable = [
     ),
 ]
 
-_SEG = SegmentationConfig()
-_CFG = ClassifierConfig()
 CLASSIFIER: ParameterTable = [
     PATCH_CONFIG,
-    ("k_high", _SEG.k_high, "contact seed threshold, multiples of the image noise"),
-    ("k_low", _SEG.k_low, "contact growth threshold, multiples of the image noise"),
-    ("artifact_fraction", _SEG.artifact_fraction, "regions below this fraction of the peak"),
-    ("calibration_s", _CFG.calibration_s, "initial no-touch time for noise and baseline, s"),
+    # every classifier setting the node can honour, as declared (touch/config.py)
+    *(
+        (s.name, s.default, s.parameter_text())
+        for s in declared_settings(ClassifierConfig)
+        if s.node
+    ),
     ("noise_pa", 0.0, "pressure image noise, Pa; 0: estimated during calibration"),
-    ("baseline_tau_s", _CFG.baseline_tau_s, "baseline drift-following time constant, s"),
-    ("start_frames", _CFG.start_frames, "consecutive frames with contact before START"),
-    ("detect_kernel", _CFG.detect_kernel, "early START detector kernel, finger spreads; 0: off"),
-    ("k_detect", _CFG.k_detect, "early START threshold, multiples of each detector's noise"),
-    ("confirm_s", _CFG.confirm_s, "an early START with no contact segmented by then ends, s"),
-    ("end_hold_s", _CFG.end_hold_s, "time without contact before END, s"),
-    ("update_period_s", _CFG.update_period_s, "shortest time between UPDATEs, s"),
-    ("rub_travel", _CFG.rub_travel, "centroid travel that makes a rub, single-finger spreads"),
-    ("pinch_closing", _CFG.pinch_closing, "relative narrowing of the blob for a pinch, 0..1"),
-    ("grab_spread", _CFG.grab_spread, "blob spread that makes a grab, single-finger spreads"),
     (
         "cache_dir",
         "",

@@ -30,9 +30,8 @@ from eit_skin.ros.bringup import RunningNode, last_lines, start, stop
 from eit_skin.ros.node_graph import NodeSpec
 from eit_skin.ros.node_runner import StopSignals
 from eit_skin.ros.topics import PatchTopics, patch_topics
+from eit_skin.touch.events import LABELS, STATES
 
-LABELS = ("push", "rub", "pinch", "grab")
-STATES = ("START", "UPDATE", "END")
 GIF_PERIOD_S = 0.2
 GIF_MAX_FRAMES = 1500
 """The GIF keeps the last 5 minutes at 5 frames per second."""
@@ -146,7 +145,7 @@ class SkinMonitor(Node):
 
     def _on_event(self, view: PatchView, msg) -> None:
         label = LABELS[msg.label] if msg.label < len(LABELS) else str(msg.label)
-        state = STATES[msg.state] if msg.state < len(STATES) else str(msg.state)
+        state = STATES[msg.state].upper() if msg.state < len(STATES) else str(msg.state)
         duration = msg.duration.sec + 1e-9 * msg.duration.nanosec
         if state == "START":
             view.touch_peak, view.touch_best = -np.inf, {}

@@ -1,10 +1,12 @@
 """The physics simulator: scripted touches -> forward model -> board ADC -> frames.
 
-Modules: ``stimuli`` (touch primitives), ``scenario`` (touch scripts: built-in, random, YAML),
+Modules: ``stimuli`` (touch primitives), ``scenario`` (the touch script model and where touches
+fit), ``scripts`` (built-in scripts; a scenario by name or path), ``random_scenes`` (random and
+hard scenes), ``scenario_yaml`` (scenario files),
 ``adc`` (the board's gain, 12-bit ADC and averaging), ``faults`` (hardware faults), ``drift``
 (background drift), ``recording`` (simulated frames and recordings), ``simulator``
-(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration),
-``phantoms`` (small disc targets simulated exactly: the phantom set of every accuracy figure).
+(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration).
+The phantom set of every accuracy figure is ``eit_skin.fem.phantoms``.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ _EXPORTS: dict[str, str] = {
     "SimFrame": "recording",
     "SimulatedRecording": "recording",
     "SkinSimulator": "simulator",
-    "load_scenario": "scenario",
-    "resolve_scenario": "scenario",
+    "load_scenario": "scenario_yaml",
+    "resolve_scenario": "scripts",
     "simulate_press_session": "press_session",
 }
 
@@ -63,7 +65,9 @@ if TYPE_CHECKING:
     from eit_skin.sim.faults import FAULT_KINDS, Fault
     from eit_skin.sim.press_session import simulate_press_session
     from eit_skin.sim.recording import LayerRecording, SimFrame, SimulatedRecording
-    from eit_skin.sim.scenario import Scenario, load_scenario, resolve_scenario
+    from eit_skin.sim.scenario import Scenario
+    from eit_skin.sim.scenario_yaml import load_scenario
+    from eit_skin.sim.scripts import resolve_scenario
     from eit_skin.sim.simulator import SkinSimulator
     from eit_skin.sim.stimuli import Grab, Pinch, Push, Rub
 

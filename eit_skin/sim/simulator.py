@@ -43,7 +43,8 @@ from eit_skin.sim.adc import AdcConfig, AdcModel
 from eit_skin.sim.drift import DriftModel
 from eit_skin.sim.faults import Fault, apply_faults
 from eit_skin.sim.recording import LayerRecording, SimFrame, SimulatedRecording
-from eit_skin.sim.scenario import Scenario, TouchTruth, resolve_scenario
+from eit_skin.sim.scenario import Scenario, TouchTruth
+from eit_skin.sim.scripts import resolve_scenario
 
 
 class _LayerSim:

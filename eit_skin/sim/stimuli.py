@@ -390,11 +390,3 @@ class PostureTrack:
     @property
     def changing_until_s(self) -> float:
         return float(self.keys[-1][0])
-
-
-TOUCH_TYPES: dict[str, type[Stimulus]] = {
-    "push": Push,
-    "rub": Rub,
-    "pinch": Pinch,
-    "grab": Grab,
-}

@@ -1,9 +1,13 @@
 """Touches from reconstructed images: contacts, shapes, and the push/rub/pinch/grab classifier.
 
 Modules: ``contacts`` (noise, segmentation, tracking, early detection), ``shapes`` (blob
-moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: events and labels),
-``pairing`` (:class:`StampPairer`: pressure and stretch images of the same moment, also from
-two boards), ``frame_evidence`` (the raw frames' shape change over a touch: a close pinch).
+moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: the per-frame
+chain), its concerns ``background`` (baseline and noise following), ``start_gates`` (pooled
+image, matched filter, flicker and roughness), ``assembly`` (START / UPDATE / END) and
+``events`` (events, features, labels), its settings ``config`` (:class:`ClassifierConfig`,
+each setting declared once with ``settings``), ``pairing`` (:class:`StampPairer`: pressure
+and stretch images of the same moment, also from two boards), ``frame_evidence`` (the raw
+frames' shape change over a touch: a close pinch).
 """
 
 from __future__ import annotations
@@ -15,13 +19,13 @@ from eit_skin import lazy_exports
 #: Public name -> the module of this subpackage that defines it (imported on first use,
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
-    "ClassifierConfig": "classifier",
+    "ClassifierConfig": "config",
     "ContactGeometry": "shapes",
     "ContactSegmenter": "contacts",
     "SegmentationConfig": "contacts",
     "StampPairer": "pairing",
     "TouchClassifier": "classifier",
-    "TouchEvent": "classifier",
+    "TouchEvent": "events",
     "classifier_layers": "classifier",
     "contact_geometry": "shapes",
     "layer_image_grid": "shapes",
@@ -43,13 +47,10 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from eit_skin.touch.classifier import (
-        ClassifierConfig,
-        TouchClassifier,
-        TouchEvent,
-        classifier_layers,
-    )
+    from eit_skin.touch.classifier import TouchClassifier, classifier_layers
+    from eit_skin.touch.config import ClassifierConfig
     from eit_skin.touch.contacts import ContactSegmenter, SegmentationConfig
+    from eit_skin.touch.events import TouchEvent
     from eit_skin.touch.pairing import StampPairer
     from eit_skin.touch.shapes import (
         ContactGeometry,

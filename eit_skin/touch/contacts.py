@@ -29,6 +29,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from eit_skin.touch.settings import check_settings, setting
+
 MAD_TO_SIGMA = 1.4826
 """Standard deviation of a normal distribution per median absolute deviation."""
 _EIGHT = np.ones((3, 3), dtype=bool)
@@ -129,31 +131,35 @@ def noise_sample_frames(images: np.ndarray, averaged: int = 1) -> float:
 class SegmentationConfig:
     """Thresholds of the hysteresis segmentation, as multiples of the noise ``sigma``.
 
-    Attributes:
-        k_high: a region needs a pixel above ``k_high * sigma`` (seed). With Gaussian noise a
-            pixel exceeds 6 sigma with probability 1e-9 per frame.
-        k_low: the region grows over pixels above ``k_low * sigma``.
-        split_fraction: fraction of a region's peak at which separate peaks are split apart.
-        artifact_fraction: a region whose peak is below this fraction of the frame's largest
-            value is a reconstruction artifact (sidelobe), not a contact.
-        min_pixels: regions with fewer pixels above the low threshold are ignored.
+    Each field is a :func:`~eit_skin.touch.settings.setting` (type, bounds, unit, meaning),
+    offered as a parameter of the ``eit_classifier`` node. With Gaussian noise a pixel
+    exceeds 6 sigma with probability 1e-9 per frame.
     """
 
-    k_high: float = 6.0
-    k_low: float = 3.0
-    split_fraction: float = 0.5
-    artifact_fraction: float = 0.2
-    min_pixels: int = 2
+    k_high: float = setting(
+        6.0, "noise sigmas", "> 0", "contact seed threshold: a region needs a pixel above it"
+    )
+    k_low: float = setting(
+        3.0, "noise sigmas", "> 0", "contact growth threshold: regions grow over pixels above it"
+    )
+    split_fraction: float = setting(
+        0.5, "", "(0, 1)", "fraction of a region's peak at which separate peaks are split apart"
+    )
+    artifact_fraction: float = setting(
+        0.2,
+        "",
+        "[0, 1)",
+        "a region whose peak is below this fraction of the frame's largest value is a "
+        "reconstruction artifact (sidelobe), not a contact",
+    )
+    min_pixels: int = setting(
+        2, "pixels", ">= 1", "regions with fewer pixels above k_low are ignored"
+    )
 
     def __post_init__(self) -> None:
-        if not 0 < self.k_low <= self.k_high:
+        check_settings(self)
+        if not self.k_low <= self.k_high:
             raise ValueError(f"need 0 < k_low <= k_high, got {self.k_low} and {self.k_high}")
-        if not 0 < self.split_fraction < 1:
-            raise ValueError(f"split_fraction must be in (0, 1), got {self.split_fraction}")
-        if not 0 <= self.artifact_fraction < 1:
-            raise ValueError(f"artifact_fraction must be in [0, 1), got {self.artifact_fraction}")
-        if self.min_pixels < 1:
-            raise ValueError(f"min_pixels must be >= 1, got {self.min_pixels}")
 
 
 @dataclass(frozen=True)
@@ -465,7 +471,7 @@ class PooledDetector:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(self.inside, total / self._weight, np.nan)
 
-    def calibrate(self, images: np.ndarray) -> None:
+    def learn_noise(self, images: np.ndarray) -> None:
         """Noise map of the pooled image from >= 3 no-touch (baseline-free) frames ``[T, H, W]``.
 
         Each pixel's robust estimate (:func:`estimate_noise_map`, floored at half the global
@@ -475,10 +481,10 @@ class PooledDetector:
         samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500); ``n`` counts the
         frames over :func:`noise_sample_frames` of the pooled maps.
         """
-        self.calibrate_pooled(self.pool(images))
+        self.learn_pooled_noise(self.pool(images))
 
-    def calibrate_pooled(self, pooled: np.ndarray) -> None:
-        """:meth:`calibrate` from already pooled no-touch maps ``[T, H, W]``.
+    def learn_pooled_noise(self, pooled: np.ndarray) -> None:
+        """:meth:`learn_noise` from already pooled no-touch maps ``[T, H, W]``.
 
         E.g. the raw frames' :class:`~eit_skin.touch.frame_evidence.TouchFilter` statistic.
         """
@@ -502,7 +508,7 @@ class PooledDetector:
     def update_pooled(self, pooled: np.ndarray) -> int:
         """:meth:`update` from an already pooled map ``[H, W]``; the longest run of ``z > k``.
 
-        The map is of the kind given to :meth:`calibrate_pooled`.
+        The map is of the kind given to :meth:`learn_pooled_noise`.
         """
         return self._step(np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan))
 
@@ -548,7 +554,7 @@ class PooledDetector:
 
         Running mean of its square while fewer than ``2 / alpha`` frames were seen, then an
         exponential average (weight ``alpha`` per frame); the sample count behind the estimate
-        (for the inflation of :meth:`calibrate`) is capped at ``2 / alpha``.
+        (for the inflation of :meth:`learn_noise`) is capped at ``2 / alpha``.
         """
         if self._noise_var is None or not alpha > 0:
             return

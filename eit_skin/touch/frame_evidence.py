@@ -52,7 +52,7 @@ class FrameEvidence:
     def ready(self) -> bool:
         return self.reference is not None
 
-    def calibrate(self, frames_v: np.ndarray) -> None:
+    def learn_noise(self, frames_v: np.ndarray) -> None:
         """Reference (mean) and noise of ``frames_v`` ``[N, M]`` V, no touch, ``N >= 3``.
 
         The noise is the robust spread of frame-to-frame differences over sqrt(2)

@@ -1,4 +1,4 @@
-"""``eit-skin calibrate-device``: fit the layer's model to a device's no-load frame.
+"""``eit-skin fit-device``: fit the layer's model to a device's no-load frame.
 
 Reads the no-load frame (``reference``, in the device's conventions as the patch's
 ``protocol`` names them: layout, complex part, magnitudes) of a frames file and fits the
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         path = patch_path(args.patch, args.write)
-        layer_name, fit = calibrate(path, args.layer, args.frames, args.gain, args.per_electrode)
+        layer_name, fit = fit_layer(path, args.layer, args.frames, args.gain, args.per_electrode)
         for line in fit.lines():
             print(line)
         print(f"gain at the patch's conductance: {fit.gain_at(_patch_sigma(path, layer_name)):.4g}")
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
             print("not written (add --write to store it in the patch file)")
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin calibrate-device: error: {message}", file=sys.stderr)
+        print(f"eit-skin fit-device: error: {message}", file=sys.stderr)
         return 1
     return 0
 
@@ -82,7 +82,7 @@ def _patch_sigma(path: Path, layer_name: str) -> float:
     return load_patch(path).layer(layer_name).material.sheet_conductance_s
 
 
-def calibrate(path: Path, layer_name: str | None, frames: Path, gain: float, per_electrode: str):
+def fit_layer(path: Path, layer_name: str | None, frames: Path, gain: float, per_electrode: str):
     """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``."""
     from eit_skin.fem.device_fit import fit_device
     from eit_skin.fem.mesh import build_mesh

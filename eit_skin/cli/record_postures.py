@@ -1,4 +1,4 @@
-"""``eit-skin calibrate-posture``: record no-load references across a joint's range.
+"""``eit-skin record-postures``: record no-load references across a joint's range.
 
 Run it while the skin's driver is publishing and the joint is moved slowly through its
 range WITHOUT touching the skin (on the simulator: the driver running a posture-only
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         patch = load_patch(config_path(args.patch))
     except (PatchError, OSError) as error:
-        print(f"eit-skin calibrate-posture: {error}", file=sys.stderr)
+        print(f"eit-skin record-postures: {error}", file=sys.stderr)
         return 2
     namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
     topics = patch_topics(patch, namespace)
