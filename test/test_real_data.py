@@ -3,7 +3,8 @@
 eit_skin's shipped defaults (each set's patch file, through ``LayerImager``, the
 reconstruction node's chain, with the reference check and measured channel noise of
 ``LayerImager.use_reference``) must keep imaging every set about as well as they do now, and
-never produce a non-finite pixel. The bounds are loose on purpose: the figures of
+never produce a non-finite pixel, and keep their images clean: few blobs of either sign
+beyond the targets and little image energy away from them (issue 35). The bounds are loose on purpose: the figures of
 ``bench/real_data.md`` (run 2026-11-23) with a margin, so that method work can improve them
 freely while a broken chain (wrong sign, order, scale, geometry) fails. The figures are
 deterministic: no noise is drawn here.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,10 +45,10 @@ def _load_scoring():
 scoring = _load_scoring()
 
 # Position sets: bound on the median position error, metres. Measured (bench/real_data.md,
-# run 2026-11-24, reference check + measured channel noise): ottawa_ph1 16.8 mm, ottawa_ph3
-# 16.5 mm -> 19.0 mm, which the previous defaults (19.5 / 19.8 mm, unweighted, fixed h) fail;
+# run 2026-11-24, reference check + measured channel noise, GREIT at NF 0.13): ottawa_ph1
+# 16.8 mm, ottawa_ph3 16.5 mm (the package default since issue 35: 17.6 / 17.5 mm) -> 19.0 mm, which the previous defaults (19.5 / 19.8 mm, unweighted, fixed h) fail;
 # the images are deterministic, the margin covers BLAS rounding and small method changes.
-# hydrogel_ohmc16 39.5 mm (previously 41.0 mm) -> 40.5 mm, and it must stay better than
+# hydrogel_ohmc16 39.5 mm (previously 41.0 mm; the package default 29.8 mm) -> 40.5 mm, and it must stay better than
 # always answering the centre of the skin (50.9 mm).
 MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16": 0.0405}
 # Track sets: (lowest direction consistency, largest circle-fit residual in metres). Measured:
@@ -55,12 +57,34 @@ MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16":
 # residual x 1.5.
 TRACK_BOUND = {"iirc_rotate": (0.975, 0.0059), "sciospec_adjacent": (0.68, 0.0056)}
 SETS = (*MEDIAN_BOUND_M, *TRACK_BOUND)
+# Image quality (issue 35): (largest mean spurious blobs per frame, largest median artefact
+# energy). Measured with the package default (bench/real_data.md, run 2026-11-27): spurious
+# 0 on the four tanks, 6.43 on hydrogel_ohmc16 (pyEIT 5.50); artefact energy ottawa_ph1 0.41,
+# ottawa_ph3 0.34, iirc_rotate 0.08, sciospec_adjacent 0.13, hydrogel_ohmc16 0.88 (pyEIT 0.25,
+# 0.28, 0.10, 0.12, 0.88). The GREIT matrix at noise figure 0.13 the patch files shipped
+# before scores 13.0 / 0.78, 0.33 / 0.43, 0 / 0.15, 0 / 0.13 and 6.47 / 0.92: it fails the
+# bounds of ottawa_ph1, ottawa_ph3, iirc_rotate and hydrogel_ohmc16
+# (test_quality_bound_fails_for_the_previous_default); on sciospec_adjacent both score alike,
+# so its bound (pyEIT's 0.12 + 25 %) only guards against noise-dominated images.
+QUALITY_BOUND = {
+    "ottawa_ph1": (0.2, 0.45),
+    "ottawa_ph3": (0.2, 0.38),
+    "iirc_rotate": (0.2, 0.11),
+    "sciospec_adjacent": (0.2, 0.15),
+    "hydrogel_ohmc16": (6.6, 0.90),
+}
+PREVIOUS_DEFAULT = {"method": "greit", "noise_figure": 0.13}
 
 
 @functools.cache
-def eit_skin_images(name: str):
-    """The set, eit_skin's images ``[T, H, W]`` of it, the image grid and the sheet radius (m)."""
+def eit_skin_images(name: str, solver: tuple[tuple[str, object], ...] = ()):
+    """The set, eit_skin's images ``[T, H, W]`` of it, the image grid and the sheet radius (m).
+
+    ``solver``: ``(key, value)`` pairs replacing the patch file's solver settings.
+    """
     layer = load_patch(DATA / f"{name}.yaml").layers[0]
+    if solver:
+        layer = replace(layer, solver=replace(layer.solver, **dict(solver)))
     data = scoring.load_set(DATA / f"{name}.npz")
     imager = LayerImager.build(layer)  # cached in EIT_SKIN_CACHE (conftest: never ~/.cache)
     with np.load(DATA / f"{name}.npz") as raw:  # the node's rule: reference check, noise
@@ -89,6 +113,26 @@ def within_bounds(name: str, s: dict[str, float]) -> bool:
 def test_real_set_stays_within_its_bound(name: str) -> None:
     s = scores(name)
     assert within_bounds(name, s), f"{name}: {s}"
+
+
+def within_quality_bound(name: str, s: dict[str, float]) -> bool:
+    spurious, energy = QUALITY_BOUND[name]
+    return s["spurious"] <= spurious and s["artefact_energy"] <= energy
+
+
+@pytest.mark.parametrize("name", SETS)
+def test_real_set_images_are_clean(name: str) -> None:
+    """Few blobs beyond the targets and little energy away from them (issue 35)."""
+    s = scores(name)
+    assert within_quality_bound(name, s), f"{name}: {s}"
+
+
+@pytest.mark.parametrize("name", ["ottawa_ph1", "ottawa_ph3", "iirc_rotate", "hydrogel_ohmc16"])
+def test_quality_bound_fails_for_the_previous_default(name: str) -> None:
+    """The bound has teeth: the noise-dominated GREIT images the patch files gave before fail."""
+    data, images, grid, radius = eit_skin_images(name, tuple(PREVIOUS_DEFAULT.items()))
+    s = scoring.score(data, images, grid.x, grid.y, grid.inside, radius)
+    assert not within_quality_bound(name, s), f"{name}: {s}"
 
 
 @pytest.mark.parametrize("name", SETS)
@@ -178,3 +222,28 @@ def test_presence_follows_the_data_not_the_images() -> None:
     np.testing.assert_array_equal(
         scoring.present_frames(frames, reference), [False, False, True, True, False]
     )
+
+
+def test_blob_count_takes_both_signs_and_is_scale_free() -> None:
+    image = dip((0.05, 0.0), 2.0) + dip((-0.04, 0.03), 0.5) + dip((0.0, -0.06), -1.5)
+    image[0, 0] = np.nan
+    assert scoring.blob_count(image) == 2  # the 0.5 dip is below half of the peak 2.0
+    assert scoring.blob_count(-1e-3 * image) == 2
+    assert scoring.blob_count(image, fraction=0.2) == 3
+    assert scoring.blob_count(np.zeros((5, 5))) == 0
+
+
+def test_artefact_energy_is_the_share_far_from_every_target() -> None:
+    image = np.zeros((41, 41))
+    image[20, 30] = 3.0  # pixel at (0.05, 0): the target
+    image[5, 5] = -4.0  # pixel at (-0.075, -0.075): an artefact
+    target = np.array([[0.05, 0.0]])
+    assert scoring.artefact_energy(image, X, Y, target, radius_m=0.1) == pytest.approx(16 / 25)
+    both = np.array([[0.05, 0.0], [-0.07, -0.07]])
+    assert scoring.artefact_energy(image, X, Y, both, radius_m=0.1) == 0.0
+    assert scoring.artefact_energy(image, X, Y, np.empty((0, 2)), radius_m=0.1) == 1.0
+    q = scoring.image_quality(
+        np.stack([image, image]), X, Y, [target, np.empty((0, 2))], radius_m=0.1
+    )
+    assert q["blobs"] == 2.0 and q["targets"] == 0.5 and q["spurious"] == 1.5
+    assert q["artefact_energy"] == pytest.approx(0.5 * (16 / 25 + 1.0))
