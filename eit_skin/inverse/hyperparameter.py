@@ -20,9 +20,9 @@ Model error (a discrepancy principle, :func:`choose_for_model_error`): on a real
 data's unexplained part is not the measured noise but what the model gets wrong. Its size is
 measured once per reference: the typical relative misfit ``eps`` of the reference to the
 homogeneous model at its scale (:func:`reference_misfit`, medians: faults are not model
-error). Normalised difference data keep only a
-share of it (a common gain, contact impedance or sheet conductance cancels), so the fit must
-leave unexplained ``MODEL_ERROR_SHARE * eps`` of the data: ``h`` such that
+error). Normalised difference data keep only a share of it (a common gain, contact impedance
+or sheet conductance cancels), so the fit must leave unexplained ``MODEL_ERROR_SHARE * eps``
+of the data: ``h`` such that
 ``sqrt(trace((I - A)^2 K) / trace(K)) = MODEL_ERROR_SHARE * eps`` with ``A = K (K +
 lambda^2 I)^-1`` (the relative residual expected for data drawn from the prior, which
 ``K = J P^-1 J^T`` is the covariance of). Scale-free: ``eps`` and the residual are fractions.
