@@ -1,11 +1,17 @@
 """Real measurements: eit_skin's shipped defaults against pyEIT JAC on five real-device recordings.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_real_data.py`` (about 35 s of CPU,
-one core); writes ``bench/real_data.md`` and one figure per set in ``bench/real_data/``.
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_real_data.py`` (about 40 s of CPU,
+one core, with a warm matrix cache; the first run builds every candidate); writes
+``bench/real_data.md`` and one figure per set in ``bench/real_data/``.
 
 * Data: every ``data/real/<set>.npz`` with its patch file ``data/real/<set>.yaml``
   (``data/real/README.md``: devices, truth, licences).
-* eit_skin: the patch file's shipped solver settings through
+* Image quality (issue 35): spurious blobs of either sign and artefact energy of both tools
+  and of the solver the patch files named before (:data:`PREVIOUS_DEFAULT`).
+* Default choice: every solver candidate (:data:`CANDIDATE_METHODS` x noise figures, with and
+  without the model-error rule) on the five sets and a simulated one (:func:`simulated_set`),
+  chosen on five and scored on the sixth (:func:`default_choice`).
+* eit_skin: the patch file as shipped (device facts only: the package default solver) through
   :class:`eit_skin.pipeline.builder.LayerImager` (the reconstruction node's chain: meshes,
   forward model, one-step matrix, image grid), built without the cache so the build time
   is the real one; images of all frames against the set's reference.
