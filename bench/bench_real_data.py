@@ -465,6 +465,13 @@ def simulator_entry() -> dict:
     }
 
 
+def label(cand: tuple[str, float, float]) -> str:
+    """A solver candidate ``(method, noise figure, model-error share)`` in words."""
+    method, nf, share = cand
+    text = f"{'one-step Laplace' if method == 'one_step' else 'GREIT'} NF {nf:g}"
+    return text + (f", model error 1/{1 / share:.0f}" if share else "")
+
+
 def default_choice(entries: dict) -> list[str]:
     """Leave one set out: choose the candidate on the other sets, score it on the one left out.
 
@@ -482,11 +489,6 @@ def default_choice(entries: dict) -> list[str]:
     def total(cand, among):
         f = [failures(n, cand) for n in among]
         return sum(x[0] for x in f), sum(x[1] for x in f)
-
-    def label(cand):
-        method, nf, share = cand
-        text = f"{'one-step Laplace' if method == 'one_step' else 'GREIT'} NF {nf:g}"
-        return text + (f", model error 1/{1 / share:.0f}" if share else "")
 
     lines = [
         "",
@@ -671,13 +673,12 @@ def write_report(
         "",
         "Data: the five recordings of [data/real/](../data/real/README.md) (real devices, "
         "other groups' phantoms and skins). eit_skin: each patch file as shipped, device "
-        "facts only, so the package default solver (one-step, Laplace prior, noise figure "
-        "0.3 on the measured noise and at least the regularisation for 1/16 of the "
-        "reference's misfit to the model, the patch's inverse mesh; chosen below by leaving "
-        "one set out) through "
+        f"facts only, so the package default solver ({label(PACKAGE_DEFAULT)}: the "
+        "hyperparameter is the larger of the one for the noise figure on the measured noise "
+        "and the one leaving that share of the reference's misfit to the model unexplained; "
+        "the patch's inverse mesh; chosen below by leaving one set out) through "
         "`LayerImager`, the reconstruction node's chain, with the set's reference checked "
-        "and its channels weighted by their measured noise, the hyperparameter chosen for "
-        "the noise figure on that noise (`LayerImager.use_reference`, "
+        "and its channels weighted by their measured noise (`LayerImager.use_reference`, "
         "docs/reconstruction.md; what was measured: Details). pyEIT JAC: its examples' settings "
         "(distmesh circle h0 = 0.1, p = 0.5, lambda = 0.01, kotre, normalised Jacobian and "
         "data), electrodes at the patch's electrode centres, the set's own measurement list; "
