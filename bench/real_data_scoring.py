@@ -18,6 +18,15 @@ fewer blobs than targets, every target is measured to its nearest blob (targets 
 merged both count); with no blob at all the error is the sheet's diameter (no answer can be
 further off), and it is counted.
 
+Image quality (artefacts cannot hide behind a matched blob): the blobs of *either* sign are
+the 8-connected components of the pixels whose magnitude is at least :data:`BLOB_FRACTION` of
+the image's largest magnitude, one sign at a time; a frame's spurious blobs are those beyond
+the number of its targets (``max(B - K, 0)``). The artefact energy of a frame is the fraction
+of ``sum(image**2)`` over the sheet that lies farther than :data:`ARTEFACT_RADIUS_FRACTION`
+of the sheet radius from every target (documented targets; on a track, the track's blob,
+i.e. the frame's strongest blob of the expected sign). Both are scale-free (pixels are of
+equal area) and both are 0 for an image that shows only its targets.
+
 Track (no positions documented, an object moving around the tank): on the frames where the
 object is present (RMS relative voltage change at least :data:`PRESENCE_FRACTION` of the
 recording's largest), the blob positions form a track. Its direction consistency is the
@@ -41,6 +50,9 @@ BLOB_FRACTION = 0.5
 #: A frame shows the object when its RMS relative change is at least this fraction of the
 #: recording's largest (the empty-tank frames at the start and end of a track recording).
 PRESENCE_FRACTION = 0.2
+
+#: Artefact energy: pixels farther than this fraction of the sheet radius from every target.
+ARTEFACT_RADIUS_FRACTION = 0.25
 
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 
@@ -123,6 +135,93 @@ def blobs(
     cy = ndimage.sum_labels(s * yy, labels, index) / weight
     order = np.argsort(-weight, kind="stable")
     return np.column_stack([cx, cy])[order], weight[order]
+
+
+def blob_count(image: np.ndarray, fraction: float = BLOB_FRACTION) -> int:
+    """Blobs of either sign: components of ``|image| >= fraction * max|image|``, per sign.
+
+    Args:
+        image: ``[H, W]`` image, NaN outside the sheet.
+        fraction: mask threshold as a fraction of the image's largest magnitude.
+
+    Returns:
+        the number of 8-connected components of the positive and of the negative mask
+        (0 for an image that is zero everywhere).
+    """
+    s = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0)
+    peak = float(np.abs(s).max(initial=0.0))
+    if not peak > 0:
+        return 0
+    n_pos = ndimage.label(s >= fraction * peak, structure=_EIGHT_CONNECTED)[1]
+    n_neg = ndimage.label(-s >= fraction * peak, structure=_EIGHT_CONNECTED)[1]
+    return int(n_pos + n_neg)
+
+
+def artefact_energy(
+    image: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    targets: np.ndarray,
+    radius_m: float,
+    fraction: float = ARTEFACT_RADIUS_FRACTION,
+) -> float:
+    """Fraction of the image's energy farther than ``fraction * radius_m`` from every target.
+
+    Args:
+        image: ``[H, W]`` image, NaN outside the sheet.
+        x: ``[W]`` pixel-centre x, metres.
+        y: ``[H]`` pixel-centre y, metres.
+        targets: ``[K, 2]`` target centres, metres (``K = 0``: all the energy is artefact).
+        radius_m: sheet radius, metres.
+        fraction: the distance, as a fraction of ``radius_m``.
+
+    Returns:
+        ``sum(image**2 far) / sum(image**2)`` in ``[0, 1]``; 0 for an all-zero image.
+    """
+    s = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0) ** 2
+    total = float(s.sum())
+    if not total > 0:
+        return 0.0
+    xx, yy = np.meshgrid(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    far = np.ones(s.shape, dtype=bool)
+    for tx, ty in np.asarray(targets, dtype=np.float64).reshape(-1, 2):
+        far &= np.hypot(xx - tx, yy - ty) > fraction * radius_m
+    return float(s[far].sum()) / total
+
+
+def image_quality(
+    images: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    targets: list[np.ndarray],
+    radius_m: float,
+) -> dict[str, float]:
+    """Spurious blobs and artefact energy of a recording's scored frames.
+
+    Args:
+        images: ``[T, H, W]`` the scored frames' images.
+        x: ``[W]`` pixel-centre x, metres.
+        y: ``[H]`` pixel-centre y, metres.
+        targets: ``T`` arrays ``[K_t, 2]``: each frame's targets, metres.
+        radius_m: sheet radius, metres.
+
+    Returns:
+        ``blobs`` (mean blobs of either sign per frame), ``targets`` (mean targets per frame),
+        ``spurious`` (mean of ``max(B - K, 0)``), ``artefact_energy`` (median over the frames
+        of :func:`artefact_energy`) and ``artefact_energy_p90``.
+    """
+    counts = np.array([blob_count(image) for image in images], dtype=np.float64)
+    k = np.array([len(t) for t in targets], dtype=np.float64)
+    energy = np.array(
+        [artefact_energy(im, x, y, t, radius_m) for im, t in zip(images, targets, strict=True)]
+    )
+    return {
+        "blobs": float(counts.mean()),
+        "targets": float(k.mean()),
+        "spurious": float(np.maximum(counts - k, 0.0).mean()),
+        "artefact_energy": float(np.median(energy)),
+        "artefact_energy_p90": float(np.quantile(energy, 0.9)),
+    }
 
 
 def match_errors(blob_xy: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -315,17 +414,24 @@ def score(
         fraction: blob threshold (:func:`blobs`).
 
     Returns:
-        ``nonfinite``; with documented positions ``median_m``, ``p90_m``, ``n``, ``no_blob``;
-        otherwise ``frames`` (present), ``consistency``, ``sense``, ``fit_radius_m`` and
-        ``fit_residual_m``.
+        ``nonfinite``; the image quality of :func:`image_quality` (``blobs``, ``targets``,
+        ``spurious``, ``artefact_energy``, ``artefact_energy_p90``); with documented
+        positions ``median_m``, ``p90_m``, ``n``, ``no_blob``; otherwise ``frames``
+        (present), ``consistency``, ``sense``, ``fit_radius_m`` and ``fit_residual_m``.
     """
     out: dict[str, float] = {"nonfinite": nonfinite_pixels(images, inside)}
     if data.has_positions:
         errors = position_errors(images, x, y, data.truth_xy, data.expected_sign, fraction)
         out.update(error_summary(errors, radius_m))
+        documented = np.isfinite(data.truth_xy).all(axis=-1)  # [T, K]
+        scored = np.flatnonzero(documented.any(axis=1))
+        targets = [data.truth_xy[t][documented[t]] for t in scored]
+        out.update(image_quality(images[scored], x, y, targets, radius_m))
         return out
     present = present_frames(data.frames, data.reference)
     positions = track(images[present], x, y, data.expected_sign, fraction)
+    targets = [p[None, :] if np.isfinite(p).all() else np.empty((0, 2)) for p in positions]
+    out.update(image_quality(images[present], x, y, targets, radius_m))
     fraction, sense = direction_consistency(positions)
     _, radius, residual = circle_fit(positions)
     out.update(

@@ -1,12 +1,13 @@
 """Regression guard on real measurements: the five recordings of ``data/real/``.
 
 eit_skin's shipped defaults (each set's patch file, through ``LayerImager``, the
-reconstruction node's chain, with the reference check and measured channel noise of
-``LayerImager.use_reference``) must keep imaging every set about as well as they do now, and
-never produce a non-finite pixel. The bounds are loose on purpose: the figures of
-``bench/real_data.md`` (run 2026-11-23) with a margin, so that method work can improve them
-freely while a broken chain (wrong sign, order, scale, geometry) fails. The figures are
-deterministic: no noise is drawn here.
+reconstruction node's chain, with the reference check, measured channel noise and model-error
+rule of ``LayerImager.use_reference``) must keep imaging every set about as well as they do
+now, never produce a non-finite pixel, and keep their images clean: few blobs of either sign
+beyond the targets and little image energy away from them (issue 35). The bounds are the
+figures of ``bench/real_data.md`` with a margin, so that method work can improve them freely
+while a broken chain (wrong sign, order, scale, geometry) or a return to noise-dominated
+images fails. The figures are deterministic: no noise is drawn here.
 
 The scores come from ``bench/real_data_scoring.py``, the module the benchmark uses, loaded
 from its file with ``importlib`` (the benchmark imports it as a sibling; neither side
@@ -18,6 +19,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,29 +44,67 @@ def _load_scoring():
 
 scoring = _load_scoring()
 
-# Position sets: bound on the median position error, metres. Measured (bench/real_data.md,
-# run 2026-11-24, reference check + measured channel noise): ottawa_ph1 16.8 mm, ottawa_ph3
-# 16.5 mm -> 19.0 mm, which the previous defaults (19.5 / 19.8 mm, unweighted, fixed h) fail;
-# the images are deterministic, the margin covers BLAS rounding and small method changes.
-# hydrogel_ohmc16 39.5 mm (previously 41.0 mm) -> 40.5 mm, and it must stay better than
-# always answering the centre of the skin (50.9 mm).
-MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16": 0.0405}
+# Position sets: bound on the median position error, metres. Measured (bench/real_data.md):
+# ottawa_ph1 / ottawa_ph3 16.8 / 16.5 mm with GREIT at NF 0.13 (run 2026-11-24), 17.6 / 17.2
+# mm with the package default (run 2026-11-27) -> 19.0 mm, which the defaults before
+# 2026-11-24 (19.5 / 19.8 mm, unweighted, fixed h) fail; the images are deterministic, the
+# margin covers BLAS rounding and small method changes. hydrogel_ohmc16: 21.8 mm with the
+# package default (39.5 mm with GREIT at NF 0.13, 29.8 mm with the noise figure alone)
+# -> 0.8 x pyEIT's 36.0 mm = 28.8 mm (issue 35's goal), and it must stay better than always
+# answering the centre of the skin (50.9 mm).
+MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16": 0.0288}
 # Track sets: (lowest direction consistency, largest circle-fit residual in metres). Measured:
-# iirc_rotate 0.980 / 3.9 mm (previously 0.970, which fails 0.975), sciospec_adjacent
-# 0.778 / 3.7 mm (unchanged: its slow phase limits it, see the report) -> consistency - 0.1,
-# residual x 1.5.
+# iirc_rotate 0.980 / 3.9 mm (previously 0.970, which fails 0.975; the package default 0.990
+# / 3.8 mm), sciospec_adjacent 0.778 / 3.7 mm (package default 0.804 / 4.1 mm; its slow phase
+# limits it, see the report) -> consistency - 0.1, residual x 1.5.
 TRACK_BOUND = {"iirc_rotate": (0.975, 0.0059), "sciospec_adjacent": (0.68, 0.0056)}
 SETS = (*MEDIAN_BOUND_M, *TRACK_BOUND)
+# Image quality (issue 35): (largest mean spurious blobs per frame, largest median artefact
+# energy). Measured with the package default (bench/real_data.md, run 2026-11-27): spurious
+# 0 on the four tanks, 2.75 on hydrogel_ohmc16 (pyEIT 5.50); artefact energy ottawa_ph1 0.23,
+# ottawa_ph3 0.29, iirc_rotate 0.09, sciospec_adjacent 0.13, hydrogel_ohmc16 0.80 (pyEIT 0.25,
+# 0.28, 0.10, 0.12, 0.88). Bounds: about pyEIT's level plus a margin. Noise-dominated images
+# fail them (test_quality_bound_fails_for_noise_dominated_images): the GREIT matrix at noise
+# figure 0.13 the patch files shipped before scores 13.0 / 0.78, 0.33 / 0.43, 0 / 0.15,
+# 0 / 0.13 and 6.47 / 0.92; the noise figure alone (no model-error rule) 0 / 0.41, 0 / 0.34,
+# 0 / 0.08, 0 / 0.13 and 6.43 / 0.88. On sciospec_adjacent (the smallest model misfit of the
+# tanks but for iirc_rotate, and the least noisy) all three score alike, so its bound
+# (pyEIT's 0.12 + 25 %) only guards against a gross return of artefacts.
+QUALITY_BOUND = {
+    "ottawa_ph1": (0.2, 0.30),
+    "ottawa_ph3": (0.2, 0.33),
+    "iirc_rotate": (0.2, 0.11),
+    "sciospec_adjacent": (0.2, 0.15),
+    "hydrogel_ohmc16": (4.0, 0.85),
+}
+#: Noise-dominated solvers: (solver settings, ``model_error_share``), and the sets whose
+#: quality bound each must fail.
+NOISE_DOMINATED = {
+    "previous": (
+        (("method", "greit"), ("noise_figure", 0.13)),
+        ("ottawa_ph1", "ottawa_ph3", "iirc_rotate", "hydrogel_ohmc16"),
+    ),
+    "noise figure alone": ((), ("ottawa_ph1", "ottawa_ph3", "hydrogel_ohmc16")),
+}
 
 
 @functools.cache
-def eit_skin_images(name: str):
-    """The set, eit_skin's images ``[T, H, W]`` of it, the image grid and the sheet radius (m)."""
+def eit_skin_images(
+    name: str, solver: tuple[tuple[str, object], ...] = (), model_error_share: float | None = None
+):
+    """The set, eit_skin's images ``[T, H, W]`` of it, the image grid and the sheet radius (m).
+
+    ``solver``: ``(key, value)`` pairs replacing the patch file's solver settings;
+    ``model_error_share``: ``use_reference``'s (None: the package's).
+    """
     layer = load_patch(DATA / f"{name}.yaml").layers[0]
+    if solver:
+        layer = replace(layer, solver=replace(layer.solver, **dict(solver)))
     data = scoring.load_set(DATA / f"{name}.npz")
     imager = LayerImager.build(layer)  # cached in EIT_SKIN_CACHE (conftest: never ~/.cache)
     with np.load(DATA / f"{name}.npz") as raw:  # the node's rule: reference check, noise
-        imager.use_reference(data.reference, raw.get("reference_frames"), data.frames)
+        extra = {} if model_error_share is None else {"model_error_share": model_error_share}
+        imager.use_reference(data.reference, raw.get("reference_frames"), data.frames, **extra)
     images = imager.images(imager.relative_change(data.frames, data.reference))
     radius = float(np.linalg.norm(layer.outline, axis=1).max())
     return data, images, imager.grid, radius
@@ -89,6 +129,31 @@ def within_bounds(name: str, s: dict[str, float]) -> bool:
 def test_real_set_stays_within_its_bound(name: str) -> None:
     s = scores(name)
     assert within_bounds(name, s), f"{name}: {s}"
+
+
+def within_quality_bound(name: str, s: dict[str, float]) -> bool:
+    spurious, energy = QUALITY_BOUND[name]
+    return s["spurious"] <= spurious and s["artefact_energy"] <= energy
+
+
+@pytest.mark.parametrize("name", SETS)
+def test_real_set_images_are_clean(name: str) -> None:
+    """Few blobs beyond the targets and little energy away from them (issue 35)."""
+    s = scores(name)
+    assert within_quality_bound(name, s), f"{name}: {s}"
+
+
+@pytest.mark.parametrize(
+    ("solver", "name"),
+    [(label, name) for label, (_, names) in NOISE_DOMINATED.items() for name in names],
+)
+def test_quality_bound_fails_for_noise_dominated_images(solver: str, name: str) -> None:
+    """The bound has teeth: the GREIT images the patch files gave before, and the noise
+    figure without the model-error rule, fail it."""
+    settings, _ = NOISE_DOMINATED[solver]
+    data, images, grid, radius = eit_skin_images(name, settings, model_error_share=0.0)
+    s = scoring.score(data, images, grid.x, grid.y, grid.inside, radius)
+    assert not within_quality_bound(name, s), f"{name}: {s}"
 
 
 @pytest.mark.parametrize("name", SETS)
@@ -178,3 +243,28 @@ def test_presence_follows_the_data_not_the_images() -> None:
     np.testing.assert_array_equal(
         scoring.present_frames(frames, reference), [False, False, True, True, False]
     )
+
+
+def test_blob_count_takes_both_signs_and_is_scale_free() -> None:
+    image = dip((0.05, 0.0), 2.0) + dip((-0.04, 0.03), 0.5) + dip((0.0, -0.06), -1.5)
+    image[0, 0] = np.nan
+    assert scoring.blob_count(image) == 2  # the 0.5 dip is below half of the peak 2.0
+    assert scoring.blob_count(-1e-3 * image) == 2
+    assert scoring.blob_count(image, fraction=0.2) == 3
+    assert scoring.blob_count(np.zeros((5, 5))) == 0
+
+
+def test_artefact_energy_is_the_share_far_from_every_target() -> None:
+    image = np.zeros((41, 41))
+    image[20, 30] = 3.0  # pixel at (0.05, 0): the target
+    image[5, 5] = -4.0  # pixel at (-0.075, -0.075): an artefact
+    target = np.array([[0.05, 0.0]])
+    assert scoring.artefact_energy(image, X, Y, target, radius_m=0.1) == pytest.approx(16 / 25)
+    both = np.array([[0.05, 0.0], [-0.07, -0.07]])
+    assert scoring.artefact_energy(image, X, Y, both, radius_m=0.1) == 0.0
+    assert scoring.artefact_energy(image, X, Y, np.empty((0, 2)), radius_m=0.1) == 1.0
+    q = scoring.image_quality(
+        np.stack([image, image]), X, Y, [target, np.empty((0, 2))], radius_m=0.1
+    )
+    assert q["blobs"] == 2.0 and q["targets"] == 0.5 and q["spurious"] == 1.5
+    assert q["artefact_energy"] == pytest.approx(0.5 * (16 / 25 + 1.0))

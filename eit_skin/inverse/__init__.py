@@ -5,10 +5,10 @@ interface), ``build`` (:func:`build_method`: set up a method by name), ``one_ste
 (:class:`ReconstructionMatrix`, the precomputed difference-imaging matrix of methods one_step
 and greit), ``priors`` (Tikhonov, Laplace, NOSER), ``greit`` (training the GREIT-style matrix),
 ``gauss_newton`` (iterative regularised Gauss-Newton for large contrasts), ``dual_form``
-(``lambda^2`` and ``(K + lambda^2 I)^-1``, shared), ``hyperparameter`` (noise figure, GCV),
-``figures_of_merit`` (GREIT figures), ``electrode_faults`` (detect faulty electrodes, image
-without them), ``channel_noise`` (check a reference, measure the per-channel noise that weights
-the channels).
+(``lambda^2`` and ``(K + lambda^2 I)^-1``, shared), ``hyperparameter`` (noise figure, GCV,
+model error), ``figures_of_merit`` (GREIT figures), ``electrode_faults`` (detect faulty
+electrodes, image without them), ``channel_noise`` (check a reference, measure the per-channel
+noise that weights the channels).
 """
 
 from __future__ import annotations

@@ -38,6 +38,11 @@ from eit_skin.inverse.channel_noise import (
 )
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.hyperparameter import (
+    MODEL_ERROR_SHARE,
+    choose_for_model_error,
+    reference_misfit,
+)
 from eit_skin.inverse.methods import (
     DEFAULT_NOISE_FIGURE,
     METHODS,
@@ -217,7 +222,11 @@ class ReferenceReport:
         median_noise: median relative noise of one frame's ``dv`` over the used channels.
         weighted: channels whose noise is above the median (down-weighted).
         hyperparameter: the ``h`` in use; ``chosen``: whether it was chosen for the measured
-            noise (False: ``solver.hyperparameter`` fixed it, or the method takes no weights).
+            noise and model error (False: ``solver.hyperparameter`` fixed it, or the method
+            takes no weights).
+        model_misfit: the reference's relative misfit to the homogeneous model
+            (:func:`~eit_skin.inverse.hyperparameter.reference_misfit`); NaN: not measured.
+        for_model_error: whether the model-error rule, not the noise figure, set ``h``.
     """
 
     check: ReferenceCheck
@@ -226,6 +235,8 @@ class ReferenceReport:
     weighted: int
     hyperparameter: float
     chosen: bool
+    model_misfit: float = float("nan")
+    for_model_error: bool = False
 
     def lines(self) -> list[str]:
         """Human-readable summary, one fact per line."""
@@ -237,7 +248,12 @@ class ReferenceReport:
                 f"channel noise: {self.noise_source}; median {self.median_noise:.3g} of the "
                 f"reference per frame, {self.weighted} channels noisier (down-weighted)"
             )
-        how = "chosen for the measured noise" if self.chosen else "fixed"
+        if np.isfinite(self.model_misfit):
+            out.append(f"reference misfit to the model {self.model_misfit:.1%}")
+        how = "fixed"
+        if self.chosen:
+            rule = "model error" if self.for_model_error else "measured noise"
+            how = f"chosen for the {rule}"
         out.append(f"hyperparameter {self.hyperparameter:.4g} ({how})")
         return out
 
@@ -295,6 +311,7 @@ class LayerImager:
         reference: np.ndarray,
         reference_frames: np.ndarray | None = None,
         frames: np.ndarray | None = None,
+        model_error_share: float = MODEL_ERROR_SHARE,
     ) -> ReferenceReport:
         """Check a reference ``[M]`` V and weight the channels by their measured noise.
 
@@ -302,10 +319,12 @@ class LayerImager:
         with an unusable reference value are left out of every later image; the noise of
         ``reference_frames`` ``[K, M]`` V (else of ``frames`` ``[T, M]`` V, else of the
         reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
-        not weighted) and the hyperparameter is re-chosen for the layer's noise figure on that
-        measured noise, unless ``solver.hyperparameter`` fixes it. One ``M x M``
-        factorisation per trial, no Jacobian. Gauss-Newton's warm start is reset: the next
-        frame's fit starts from ``sigma0``.
+        not weighted) and the hyperparameter is re-chosen, unless ``solver.hyperparameter``
+        fixes it, as the larger of the one for the layer's noise figure on that measured
+        noise and the one for the model error (``model_error_share`` of the reference's
+        misfit to the homogeneous model: :mod:`eit_skin.inverse.hyperparameter`; 0 turns
+        that rule off). One ``M x M`` factorisation per trial, no Jacobian. Gauss-Newton's
+        warm start is reset: the next frame's fit starts from ``sigma0``.
 
         Raises:
             UnusableReferenceError: (a ValueError) the reference cannot be imaged against.
@@ -330,11 +349,27 @@ class LayerImager:
         if fixed is None:
             target = self.layer.solver.noise_figure or DEFAULT_NOISE_FIGURE[base.method]
         weighted = base.with_channel_scale(scale, noise_figure=target)
+        misfit = float("nan")
+        for_model_error = False
+        if self.model_voltages is not None:
+            misfit = reference_misfit(reference, self.model_voltages, usable)
+        if fixed is None and model_error_share > 0 and np.isfinite(misfit):
+            h_model = choose_for_model_error(weighted.gram[0], model_error_share * misfit)
+            if h_model > weighted.hyperparameter:
+                weighted = weighted.with_hyperparameter(h_model)
+                for_model_error = True
         self.reconstructor = self.matrix = weighted
         median = float(np.median(relative[usable])) if usable.any() else float("nan")
         n_weighted = int(np.count_nonzero(scale[usable] > 1.0))
         return ReferenceReport(
-            check, noise.source, median, n_weighted, weighted.hyperparameter, fixed is None
+            check,
+            noise.source,
+            median,
+            n_weighted,
+            weighted.hyperparameter,
+            fixed is None,
+            misfit,
+            for_model_error,
         )
 
     @classmethod
