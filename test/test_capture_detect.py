@@ -13,12 +13,14 @@ import select
 import subprocess
 import sys
 import threading
+import time
 import tty
 
 import numpy as np
 import pytest
 import yaml
 
+from test.patience import EVENT_S
 from test.test_boards import openeit_line
 
 HYDROGEL = "data/real/hydrogel_ohmc16.yaml"
@@ -141,3 +143,32 @@ def test_capture_with_no_board_writes_nothing(repo, tmp_path):
         )
     assert done.returncode == 1 and not out.exists()
     assert "no frame from" in done.stderr and "nothing written" in done.stderr
+
+
+def test_detect_finds_a_sciospec_runs_its_setup_checks_a_frame_and_stops_it(repo):
+    """A Sciospec says nothing until started: detect asks, sets it up, and stops it again."""
+    from eit_skin.hardware.board_emulators import SciospecEmulator
+    from eit_skin.io.npz import load_frames_npz
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.protocol import build_protocol
+
+    patch = repo / "data/real/sciospec_adjacent.yaml"
+    layer = load_patch(patch).layers[0]
+    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    reference, _, _ = load_frames_npz(repo / "data/real/sciospec_adjacent.npz")
+    board = SciospecEmulator(lambda i: reference, protocol, rate_hz=20.0)
+    board.open()
+    board.start()
+    try:
+        done = eit_skin("detect", board.slave_path, "--patch", str(patch), "--listen", "1")
+        deadline = time.monotonic() + EVENT_S  # the board reads the stop between two frames
+        while board.measuring and time.monotonic() < deadline:
+            time.sleep(0.01)
+        measuring_after = board.measuring
+    finally:
+        board.close()
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "no known format" in out and "a Sciospec device answered" in out, out
+    assert "frames/s after the setup" in out and "looks right" in out, out
+    assert not measuring_after  # the driver's farewell: B4 01 00 B4
