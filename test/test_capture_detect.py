@@ -86,7 +86,7 @@ def test_detect_names_the_board_its_rate_count_and_the_patch(repo, hydrogel_line
     out = done.stdout
     assert "profile openeit" in out and "192 numbers per frame" in out, out
     assert "16-electrode imaging" in out
-    assert "hydrogel_ohmc16/pressure (needs device: {profile: openeit}" in out
+    assert "fits: hydrogel_ohmc16/pressure\n" in out  # its device section names the board
     assert "one-frame check against pressure's model: correlation" in out
     assert board.received == b""  # detect only listens to a board that talks
 

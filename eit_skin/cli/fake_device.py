@@ -249,22 +249,24 @@ def _board(args: argparse.Namespace):
             separator=separator,
             label=args.label or "",
             line_ending="\r\n" if args.line_ending == "crlf" else "\n",
-            drop_zeros=bool(args.drop_zeros),
+            drop_zeros=bool(
+                args.drop_zeros
+                or (layer.device.profile == "lines" and layer.device.get("drop_zeros"))
+            ),
             scale=scale,
         )
         what = f"lines, {protocol.frame_size} values x {scale:g}, separator {separator!r}"
     else:
-        wiring = layer.protocol.electrode_order or [
-            (b + layer.protocol.first_electrode) % layer.n_electrodes
-            for b in range(layer.n_electrodes)
-        ]
+        first = args.first_channel or (
+            int(layer.device.get("first_channel")) if layer.device.profile == "sciospec" else 1
+        )  # default: the wiring the patch's device section states
         device = board_emulators.SciospecEmulator(
             measurements,
             protocol,
             args.rate,
             channels=args.channels,
-            channel_electrodes=wiring,
-            first_channel=args.first_channel or 1,
+            channel_electrodes=protocol.board_to_config.tolist(),
+            first_channel=first,
         )
         what = f"Sciospec, {device.channels} channels, waiting for start"
     return device, f"{label}; {what}"

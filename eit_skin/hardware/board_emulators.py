@@ -18,7 +18,7 @@ Each takes a frame source (frame index -> the layer's ``M`` measurements in prot
 the layer's :class:`~eit_skin.patch.protocol.Protocol` and a rate, and shares the pty
 handling of :class:`~eit_skin.hardware.fake_device.PtyBoard` (plug, unplug, symlink,
 ``write_raw`` to inject garbage, ``cut_next_frame``). What none of them emulate is listed in
-docs/board-emulators.md.
+docs/boards.md (*Emulated boards*).
 """
 
 from __future__ import annotations
