@@ -211,6 +211,9 @@ class Layer:
         material: sheet material.
         mesh: mesh sizing.
         solver: reconstruction settings.
+        full_scale_v: the board's full scale, V: a value with ``|v|`` above it is no
+            measurement of the sheet (flagged ``FLAG_OUT_OF_RANGE``, left out of the image;
+            the simulator's ADC gets this full scale); None: not stated, not checked.
     """
 
     name: str
@@ -224,6 +227,10 @@ class Layer:
     material: Material
     mesh: MeshSpec
     solver: SolverSpec
+    full_scale_v: float | None = None
+
+    #: Keys added after patches were hashed: left out of the content hash at their default.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v",)
 
     @property
     def n_electrodes(self) -> int:

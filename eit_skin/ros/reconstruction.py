@@ -16,7 +16,8 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
   calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
   located by the press calibration when the processor calls the frame touched, else empty
   (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
-* ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults.
+* ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults,
+  values left out (beyond the full scale, one-frame jumps).
 """
 
 from __future__ import annotations
@@ -151,6 +152,7 @@ class ReconstructionNode(Node):
                     posture,
                     float(p["fault_check_period_s"]),
                     fault_check_phase(self.patch.name, layer.name),
+                    jump_k=float(p["jump_k"]),
                 ),
                 quantity=quantity,
                 image_pub=self.create_publisher(Image, topic.image, qos_profile_sensor_data),
@@ -187,6 +189,7 @@ class ReconstructionNode(Node):
             self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
             self.create_timer(0.05, self._release_late_frames)
         self.create_service(Trigger, topics.rezero, self._on_rezero)
+        self._implausible_reported: dict[str, int] = {}  # values left out, last diagnostics
         self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         if float(p["marker_period_s"]) > 0:
@@ -407,12 +410,15 @@ class ReconstructionNode(Node):
                 "reference_age_s": f"{processor.reference_age_s(now * 1e-9):.1f}",
                 "drift_updates": str(processor.drift_updates),
                 "faulty_electrodes": ",".join(str(e) for e in faulty),
+                "values_out_of_range": str(processor.values_out_of_range),
+                "values_jumped": str(processor.values_jumped),
                 "joint_angle_rad": f"{processor.angle_rad:.3f}",
                 "frames_waiting_for_joint": str(self.posture_sync.waiting),
                 "frames_joint_late": str(self.posture_sync.late),
             }
             report = processor.reference_report
             excluded = report.check.excluded.sum() if report is not None else 0
+            implausible = processor.values_out_of_range + processor.values_jumped
             silent_s = time.monotonic() - (state.last_arrival or self.started)
             values["last_frame_age_s"] = f"{silent_s:.1f}" if state.last_arrival else "never"
             if self.frame_timeout_s and silent_s > self.frame_timeout_s:
@@ -426,10 +432,20 @@ class ReconstructionNode(Node):
                 level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif implausible > self._implausible_reported.get(name, 0):
+                level, text = (
+                    1,
+                    (
+                        f"values left out as no measurement of the sheet: "
+                        f"{processor.values_out_of_range} beyond the full scale, "
+                        f"{processor.values_jumped} one-frame jumps"
+                    ),
+                )
             elif not processor.reference_ready:
                 level, text = 0, "capturing the no-load reference (do not touch)"
             else:
                 level, text = 0, f"{values['reconstruction_rate_hz']} images/s"
+            self._implausible_reported[name] = implausible  # WARN while the count grows
             msg.status.append(
                 diagnostic_status(
                     level,
