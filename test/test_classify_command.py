@@ -31,7 +31,12 @@ def test_classify_prints_the_finished_push(elbow_push, capsys, monkeypatch, tmp_
     lines = capsys.readouterr().out.strip().splitlines()
     assert code == 0 and len(lines) == 1
     event = json.loads(lines[0])
-    assert set(event) == {"label", "t_start", "t_end", "confidence", "centroid"}
+    assert set(event) == {
+        *("label", "t_start", "t_end", "confidence", "centroid"),
+        *("fault", "faulty_electrodes", "channels_left_out"),
+    }
+    assert not event["fault"] and not event["faulty_electrodes"]
+    assert event["channels_left_out"] == 0
     assert event["label"] == "push"
     assert truth.t_start_s <= event["t_start"] <= truth.t_start_s + 0.15
     assert event["t_end"] == pytest.approx(truth.t_end_s, abs=0.15)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 
 
@@ -47,27 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.hardware.fake_device import FakeDevice, npz_frame_source
-    from eit_skin.hardware.wire import ValueEncoding
-
-    pattern = {}
-    if args.frames:
-        source, n_values = npz_frame_source(args.frames)
-        label = f"frames from {args.frames} ({n_values} values, looped)"
-    else:
-        source, label, pattern = _simulated_source(args)
-        args.electrodes, args.current = pattern.pop("n_electrodes"), pattern.pop("current_a")
-    encoding = (
-        ValueEncoding.FLOAT32_VOLTS if args.encoding == "volts" else ValueEncoding.INT32_COUNTS
-    )
-    device = FakeDevice(
-        source,
-        args.rate,
-        n_electrodes=args.electrodes,
-        current_a=args.current,
-        value_encoding=encoding,
-        **pattern,
-    )
+    try:
+        device, label = _device(args)
+    except (ValueError, KeyError, OSError) as exc:
+        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"eit-skin fake-device: error: {message}", file=sys.stderr)
+        return 1
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     path = device.open()
@@ -88,6 +74,39 @@ def run(args: argparse.Namespace) -> int:
     finally:
         device.unplug()
     return 0
+
+
+def _device(args: argparse.Namespace):
+    """``(the fake board args ask for, not yet opened; its source's label)``.
+
+    Raises ValueError for a bad option.
+    """
+    from eit_skin.hardware.fake_device import FakeDevice, npz_frame_source
+    from eit_skin.hardware.wire import ValueEncoding
+
+    if not args.rate > 0:
+        raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
+    if args.count < 0:
+        raise ValueError(f"--count: must be >= 0, got {args.count}")
+    pattern = {}
+    if args.frames:
+        source, n_values = npz_frame_source(args.frames)
+        label = f"frames from {args.frames} ({n_values} values, looped)"
+    else:
+        source, label, pattern = _simulated_source(args)
+        args.electrodes, args.current = pattern.pop("n_electrodes"), pattern.pop("current_a")
+    encoding = (
+        ValueEncoding.FLOAT32_VOLTS if args.encoding == "volts" else ValueEncoding.INT32_COUNTS
+    )
+    device = FakeDevice(
+        source,
+        args.rate,
+        n_electrodes=args.electrodes,
+        current_a=args.current,
+        value_encoding=encoding,
+        **pattern,
+    )
+    return device, label
 
 
 def _simulated_source(args: argparse.Namespace):
