@@ -56,6 +56,7 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import CLASSIFIER
+from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import RECONSTRUCTION_NODE, patch_topics
 from eit_skin.touch.classifier import (
     LABELS,
@@ -285,6 +286,8 @@ class ClassifierNode(Node):
                 item.mean = float(c.mean)
                 item.depth_m = item.confidence = float("nan")
                 array.contacts.append(item)
+            points = [(c.centroid.x, c.centroid.y) for c in array.contacts]
+            place_on_surface(array.contacts, self.patch.placement, points)
             self.contacts_pub.publish(array)
         self._busy_s += time.perf_counter() - started
 
@@ -306,6 +309,7 @@ class ClassifierNode(Node):
             out.peak = float(event.peak_pa)
             duration_ns = max(0, round(event.duration_s * 1e9))
             out.duration.sec, out.duration.nanosec = divmod(duration_ns, 1_000_000_000)
+            place_on_surface([out], self.patch.placement, [(out.centroid.x, out.centroid.y)])
             self.events_pub.publish(out)
             self.counts["events"] += 1
 

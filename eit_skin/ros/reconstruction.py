@@ -61,6 +61,7 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import RECONSTRUCTION
+from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import patch_topics
 
 #: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
@@ -315,6 +316,7 @@ class ReconstructionNode(Node):
             item.peak = float(np.nanmax(out.image, initial=-np.inf))
             item.depth_m = contact.depth_m
             item.confidence = contact.confidence
+            place_on_surface([item], self.patch.placement, [contact.xy_m])
             array.contacts.append(item)
         self.calibrated_pub.publish(array)
 
