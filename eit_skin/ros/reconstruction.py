@@ -32,7 +32,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, Header
 from std_srvs.srv import Trigger
@@ -61,15 +61,9 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import RECONSTRUCTION
+from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
 from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import patch_topics
-
-#: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
-FRAME_QOS = QoSProfile(
-    depth=20,
-    reliability=qos_profile_sensor_data.reliability,
-    durability=qos_profile_sensor_data.durability,
-)
 
 #: Seconds between looks at whether a viewer subscribes to a layer's colour image (a look
 #: is an rmw call; once per frame it cost 1.5 % of a frame's CPU at 50 patches).
@@ -156,8 +150,15 @@ class ReconstructionNode(Node):
                     jump_k=float(p["jump_k"]),
                 ),
                 quantity=quantity,
-                image_pub=self.create_publisher(Image, topic.image, qos_profile_sensor_data),
-                colour_pub=self.create_publisher(Image, topic.image_color, qos_profile_sensor_data),
+                image_pub=self.create_publisher(
+                    Image, topic.image, qos_profile_sensor_data, qos_overriding_options=OVERRIDABLE
+                ),
+                colour_pub=self.create_publisher(
+                    Image,
+                    topic.image_color,
+                    qos_profile_sensor_data,
+                    qos_overriding_options=OVERRIDABLE,
+                ),
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
                 frames_topic=topic.frames,
@@ -167,8 +168,9 @@ class ReconstructionNode(Node):
                 _frame_type(),
                 topic.frames,
                 lambda data, name=layer.name: self._on_frame(name, data),
-                FRAME_QOS,
+                SENSOR_READER,
                 raw=True,
+                qos_overriding_options=OVERRIDABLE,
             )
         self.joint = joint
         self.calibrated_pub = None
@@ -176,7 +178,10 @@ class ReconstructionNode(Node):
             name = self.calibration.layer_name
             self.calibration.check_measurements(self.layers[name].imager.n_measurements)
             self.calibrated_pub = self.create_publisher(
-                _contact_types()[1], topics.calibrated_contacts, 10
+                _contact_types()[1],
+                topics.calibrated_contacts,
+                10,
+                qos_overriding_options=OVERRIDABLE,
             )
             self.get_logger().info(
                 f"layer {name}: calibrated contacts on {topics.calibrated_contacts} "
@@ -187,15 +192,25 @@ class ReconstructionNode(Node):
         self.joint_history = JointAngleHistory()
         self.posture_sync = PostureSync(self.joint_history, float(p["posture_wait_s"]))
         if joint:
-            self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
+            self.create_subscription(
+                JointState,
+                topics.joint_states,
+                self._on_joint_state,
+                10,
+                qos_overriding_options=OVERRIDABLE,
+            )
             self.create_timer(0.05, self._release_late_frames)
         self.create_service(Trigger, topics.rezero, self._on_rezero)
         self._implausible_reported: dict[str, int] = {}  # values left out, last diagnostics
-        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        self.diagnostics = self.create_publisher(
+            DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
+        )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         if float(p["marker_period_s"]) > 0:
             self.marker_pubs = {
-                name: self.create_publisher(Marker, state.marker_topic, 1)
+                name: self.create_publisher(
+                    Marker, state.marker_topic, 1, qos_overriding_options=OVERRIDABLE
+                )
                 for name, state in self.layers.items()
             }
             self._marker_geometry = {
