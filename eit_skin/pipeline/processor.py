@@ -12,8 +12,10 @@ Per frame ``[M]`` volts at frame time ``t_s``:
    flagged the same way (:func:`~eit_skin.frames.implausible_flags`): beyond the board's full
    scale (the layer's ``full_scale_v``, when stated: ``FLAG_OUT_OF_RANGE``), or jumped by more
    than ``jump_k`` times the channel's measured noise since the previous frame (``FLAG_JUMP``;
-   once the reference's noise is known). A one-frame spike is left out in its frame and the
-   next (the way back is a jump too); a step that stays is taken from its second frame on.
+   once the reference's noise is known; a jump must be one from the previous frame and from
+   the channel's last value kept). A one-frame spike is left out in its frame only; a step
+   that stays is taken from its second frame on; an input that jumps every frame (floating)
+   is left out every frame until the fault check names its electrode.
    Counted in :attr:`LayerProcessor.values_out_of_range` and
    :attr:`LayerProcessor.values_jumped`, the last frame's in :attr:`LayerProcessor.last_flags`.
 2. **Reference.** Until the reference is ready (:class:`ReferenceTracker`: capture of the
