@@ -7,8 +7,9 @@ reconstruction node's per-frame pipeline (:class:`~eit_skin.pipeline.processor.L
 reference, drift tracking, fault checks; the same options as ``eit-skin reconstruct``), runs
 :class:`~eit_skin.touch.classifier.TouchClassifier` on the images and prints one JSON object
 per FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame),
-``confidence``, ``centroid`` ([x, y] m, patch frame). The electrodes the pipeline's fault
-checks leave out go to the classifier with every image
+``confidence``, ``centroid`` ([x, y] m, patch frame), ``position`` and ``normal`` (the
+centroid on the patch's placed surface and its outward normal, patch frame). The electrodes
+the pipeline's fault checks leave out go to the classifier with every image
 (:meth:`~eit_skin.touch.classifier.TouchClassifier.set_faulty_electrodes`), and so does
 each imaged frame itself (its raw channels tell a close pinch from a push). Frame times:
 ``--rate`` when given, else the file's ``t``. The first ``calibration_s`` (0.5 s) of images
@@ -34,6 +35,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from eit_skin.cli.reconstruct import FileRun
+    from eit_skin.patch.placement import Placement
 
 from eit_skin.cli.reconstruct import add_pipeline_arguments
 
@@ -202,7 +204,7 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
             classifier.set_faulty_electrodes(images.faulty_electrodes)
             for event in classifier.step(t_rel, images.image, image, images.frame_v):
                 if event.state == "end":
-                    yield _touch_line(event, faults)
+                    yield _touch_line(event, faults, patch.placement)
     if not classifier.calibrated:
         raise ValueError(
             f"{args.frames}: {n_imaged} imaged frame(s) do not cover the classifier's "
@@ -210,12 +212,21 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
             "nothing classified"
         )
     for event in classifier.finish():
-        yield _touch_line(event, faults)
+        yield _touch_line(event, faults, patch.placement)
 
 
-def _touch_line(event, faults: FaultSpans) -> dict:
-    """A finished touch's JSON line: the event's fields and the faults it overlapped."""
-    return {**event.to_dict(), **faults.during(event.t_start_s, event.t_end_s)}
+def _touch_line(event, faults: FaultSpans, placement: Placement) -> dict:
+    """A finished touch's JSON line: its fields, its surface point and its faults.
+
+    ``position`` (m) and ``normal``: the centroid on the placed surface, patch frame, as in
+    ``TouchEvent``; the faults it overlapped: :meth:`FaultSpans.during`.
+    """
+    xy = [event.centroid_m]
+    surface = {
+        "position": [round(float(v), 5) for v in placement.to_3d(xy)[0]],
+        "normal": [round(float(v), 5) for v in placement.normals(xy)[0]],
+    }
+    return {**event.to_dict(), **surface, **faults.during(event.t_start_s, event.t_end_s)}
 
 
 def _reader(imager, path: Path, args: argparse.Namespace):
