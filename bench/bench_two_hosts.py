@@ -123,11 +123,10 @@ def main() -> int:
                 )
             )
         out = work / "observed.json"
-        path = os.pathsep.join(sys.path)
         observer = subprocess.Popen(
             ["ip", "netns", "exec", b, sys.executable, __file__, "--patches", str(args.patches),
              "--observe", ",".join(namespaces), "--out", str(out)],
-            env={**base, "ROS_STATIC_PEERS": f"{SUBNET}.1", "PYTHONPATH": path},
+            env={**base, "ROS_STATIC_PEERS": f"{SUBNET}.1"},  # the same venv: no PYTHONPATH
         )  # fmt: skip
         time.sleep(args.seconds)  # a benchmark: the window is the measurement
         ip("-n", a, "link", "set", link, "down")
