@@ -167,3 +167,57 @@ def test_full_scale_v_is_read_refused_when_bad_and_is_the_simulated_boards():
     with pytest.raises(PatchError, match=r"layers\[0\]\.full_scale_v: must be > 0"):
         patch_from_dict(data)
     assert load_patch(config_path("elbow")).content_hash == base_hash  # unstated: hash as before
+
+
+@pytest.mark.ros
+def test_the_node_leaves_the_1e6_volt_value_out_and_counts_it(pinch, cache, tmp_path):
+    """The reconstruction node over DDS: the spiked frame's image is like its neighbours',
+    and the diagnostics count one jumped value (WARN)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from eit_skin_msgs.msg import EitFrame
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
+    from test.patience import EVENT_S
+
+    layer = load_patch(config_path("arm")).layers[0]
+    with np.load(pinch / "ok" / "pressure.npz") as data:
+        frames = data["frames"][:45].copy()
+    frames[30, 17] = 1e6
+    probe = Probe("spike_probe")
+    probe.subscribe(DiagnosticArray, "/diagnostics", 50)
+    probe.subscribe(Image, "/spike/pressure/image")
+    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    publisher = probe.node.create_publisher(EitFrame, "/spike/pressure/frames", reliable)
+    log = tmp_path / "recon.log"
+    params = {"patch_config": "arm", "diagnostics_period_s": 0.1, "frame_timeout_s": 0.0}
+    node = start_node("eit_reconstruction", "/spike", params, log)
+
+    def jumped() -> int:
+        for _, msg in reversed(probe.messages["/diagnostics"]):
+            for status in msg.status:
+                if status.name.endswith("eit_reconstruction: pressure"):
+                    return int({kv.key: kv.value for kv in status.values}["values_jumped"])
+        return 0
+
+    try:
+        assert probe.spin_until(
+            lambda: publisher.get_subscription_count() > 0 or node.poll() is not None, EVENT_S
+        ), log.read_text()
+        for k, frame in enumerate(frames):
+            publisher.publish(frame_msg(layer, k, frame, patch="arm", frame_id="arm_skin_link"))
+            probe.spin_for(0.02)  # the sensor's 50 Hz
+        last = stamp_ns(frame_msg(layer, len(frames) - 1, frames[-1]))
+        images = probe.messages["/spike/pressure/image"]
+        assert probe.spin_until(
+            lambda: images and stamp_ns(images[-1][1]) >= last and jumped() >= 1, EVENT_S
+        ), log.read_text()
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+    assert jumped() == 1
+    peaks = {stamp_ns(m): np.nanmax(np.frombuffer(bytes(m.data), np.float32)) for _, m in images}
+    spiked = stamp_ns(frame_msg(layer, 30, frames[30]))
+    neighbours = [peaks[stamp_ns(frame_msg(layer, k, frames[k]))] for k in (28, 29, 31, 32)]
+    assert peaks[spiked] < 2.0 * max(neighbours) < 20e3  # Pa; it was 270 kPa
