@@ -47,12 +47,16 @@ from eit_skin.patch.loading import load_patch  # noqa: E402
 from eit_skin.pipeline.builder import LayerImager  # noqa: E402
 from eit_skin.resources import config_path  # noqa: E402
 from eit_skin.ros.probe import Probe, start_node, stop_node  # noqa: E402
+from eit_skin.ros.qos import RAW_FRAMES  # noqa: E402
 from eit_skin.ros.topics import patch_topics  # noqa: E402
 from eit_skin.sim.simulator import SkinSimulator  # noqa: E402
 
 #: Longest warm-up of the throughput runs, s (until every patch has imaged a frame).
 WARM_UP_LIMIT_S = 120.0
 BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+#: ``--feed-qos``: what the feeder (standing in for the drivers) publishes frames with:
+#: the driver's (reliable, bounded depth: issue 38), or best effort (the drivers until then).
+FEED_QOS = {"reliable": RAW_FRAMES, "best_effort": BEST_EFFORT}
 #: An image's CDR bytes: 4 bytes of encapsulation (the second 1 for little-endian), then its
 #: header stamp (int32 s, uint32 ns); by the encapsulation's byte order.
 CDR_STAMP = {0: struct.Struct(">4xiI"), 1: struct.Struct("<4xiI")}
@@ -124,12 +128,14 @@ def build_cache(cache: Path, patches: list[str]) -> None:
 
 
 # ---------------------------------------------------------------------------- latency
-def latency(seconds: float, workdir: Path, cache: Path) -> dict[str, float]:
+def latency(
+    seconds: float, workdir: Path, cache: Path, feed_qos: QoSProfile = RAW_FRAMES
+) -> dict[str, float]:
     frames = simulated_frames("arm", 500)
     topics = patch_topics(load_patch(config_path("arm")), "/arm")
     probe = Probe("bench_latency")
     pubs = {
-        layer: probe.node.create_publisher(EitFrame, topics.layers[layer].frames, BEST_EFFORT)
+        layer: probe.node.create_publisher(EitFrame, topics.layers[layer].frames, feed_qos)
         for layer in frames
     }
     sent: dict[int, int] = {}
@@ -337,7 +343,13 @@ def _stop(proc: subprocess.Popen) -> str:
 
 
 def throughput(
-    k: int, seconds: float, workdir: Path, cache: Path, frames: np.ndarray, stage: str = "full"
+    k: int,
+    seconds: float,
+    workdir: Path,
+    cache: Path,
+    frames: np.ndarray,
+    stage: str = "full",
+    feed_qos: QoSProfile = RAW_FRAMES,
 ) -> dict[str, float]:
     """K patches at 100 Hz each, fed unsynchronised: imaged and received shares, CPU, latency.
 
@@ -365,7 +377,7 @@ def throughput(
     probe = Probe(f"bench_feed_{k}")
     face = load_patch(config_path("face"))
     topics = [patch_topics(face, f"/p{i}").layers["pressure"] for i in range(k)]
-    pubs = [probe.node.create_publisher(EitFrame, t.frames, BEST_EFFORT) for t in topics]
+    pubs = [probe.node.create_publisher(EitFrame, t.frames, feed_qos) for t in topics]
     node = probe.node
     up = probe.spin_until(
         lambda: (
@@ -497,11 +509,13 @@ def steadiness(seconds: float) -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- memory
-def memory(seconds: float, workdir: Path, cache: Path) -> list[tuple[float, float]]:
+def memory(
+    seconds: float, workdir: Path, cache: Path, feed_qos: QoSProfile = RAW_FRAMES
+) -> list[tuple[float, float]]:
     frames = simulated_frames("face", 500)["pressure"]
     topics = patch_topics(load_patch(config_path("face")), "/m").layers["pressure"]
     probe = Probe("bench_memory")
-    pub = probe.node.create_publisher(EitFrame, topics.frames, BEST_EFFORT)
+    pub = probe.node.create_publisher(EitFrame, topics.frames, feed_qos)
     node = start_node(
         "eit_reconstruction", "/m",
         {"patch_config": "face", "cache_dir": str(cache), "marker_period_s": 0.5},
@@ -548,6 +562,12 @@ def main() -> None:
         "--patches", type=int, nargs="+", help="patch counts of the throughput runs"
     )
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("skin.md"))
+    parser.add_argument(
+        "--feed-qos",
+        choices=tuple(FEED_QOS),
+        default="reliable",
+        help="QoS of the frames the feeder publishes: the driver's (reliable) or best effort",
+    )
     args = parser.parse_args()
     if args.worker:
         worker(args.worker, args.cache, args.stage)
@@ -573,13 +593,14 @@ def main() -> None:
         ).stdout.splitlines()[-1]
     )  # fmt: skip
     print(f"steadiness: {machine}", flush=True)
-    lat = latency(seconds, workdir, cache)
+    feed_qos = FEED_QOS[args.feed_qos]
+    lat = latency(seconds, workdir, cache, feed_qos)
     print(f"latency: {lat}")
     face = simulated_frames("face", 500)["pressure"]
     results = []
     counts = args.patches or ((1, 10, 20, 50) if args.quick else (1, 10, 20, 30, 40, 50, 60))
     for k in counts:
-        r = throughput(k, seconds, workdir, cache, face)
+        r = throughput(k, seconds, workdir, cache, face, feed_qos=feed_qos)
         results.append((k, r))
         print(
             f"throughput: {k} patches at 100 Hz -> {100 * r['imaged']:.1f} % imaged, "
@@ -592,7 +613,7 @@ def main() -> None:
         if r["received"] < 0.9:
             break
     mem_seconds = 60.0 if args.quick else args.memory_seconds
-    mem = memory(mem_seconds, workdir, cache)
+    mem = memory(mem_seconds, workdir, cache, feed_qos)
     print(f"memory: {mem}")
 
     sustained = max([k for k, r in results if r["received"] >= 0.99], default=0)

@@ -24,13 +24,19 @@ FLAG_SATURATED = 1
 """The ADC hit a rail during this channel's conversions."""
 FLAG_INVALID = 2
 """Not a measurement (NaN, dead channel, firmware marked it bad)."""
+FLAG_OUT_OF_RANGE = 4
+"""Beyond the board's full scale (the layer's ``full_scale_v``): no measurement of the sheet."""
+FLAG_JUMP = 8
+"""Jumped more than ``jump_k`` times the channel's measured noise since the previous frame."""
 FLAGS: dict[str, int] = {
     "FLAG_OK": FLAG_OK,
     "FLAG_SATURATED": FLAG_SATURATED,
     "FLAG_INVALID": FLAG_INVALID,
+    "FLAG_OUT_OF_RANGE": FLAG_OUT_OF_RANGE,
+    "FLAG_JUMP": FLAG_JUMP,
 }
 #: Flags that keep a channel out of imaging.
-EXCLUDING_FLAGS = FLAG_SATURATED | FLAG_INVALID
+EXCLUDING_FLAGS = FLAG_SATURATED | FLAG_INVALID | FLAG_OUT_OF_RANGE | FLAG_JUMP
 #: Last name of the topic that carries a layer's frames: ``<namespace>/<layer>/frames``.
 FRAMES_TOPIC_NAME = "frames"
 
@@ -45,6 +51,38 @@ def excluded_channels(flags: np.ndarray | None, n_channels: int) -> np.ndarray:
     if flags is None or np.size(flags) == 0:
         return np.zeros(n_channels, dtype=bool)
     return (np.asarray(flags, dtype=np.uint8) & EXCLUDING_FLAGS) != 0
+
+
+def implausible_flags(
+    volts: np.ndarray,
+    full_scale_v: float | None,
+    jump_limit_v: np.ndarray | None,
+    previous_v: np.ndarray | None,
+    accepted_v: np.ndarray | None = None,
+) -> np.ndarray:
+    """uint8 ``[M]``: :data:`FLAG_OUT_OF_RANGE` and :data:`FLAG_JUMP` bits of one frame.
+
+    Args:
+        volts: ``[M]`` the frame, V (NaN: missing, never flagged here).
+        full_scale_v: the board's full scale, V (``|v| > full_scale_v`` is out of range);
+            None: not known, no range check.
+        jump_limit_v: ``[M]`` largest plausible change in one frame, V; None: no jump check.
+        previous_v: ``[M]`` the previous frame as received, V (NaN: no comparison).
+        accepted_v: ``[M]`` each channel's last value not flagged, V; a jump must also be
+            one from it, so the way back from a one-frame spike is not flagged. None: the
+            previous frame's.
+    """
+    v = np.asarray(volts, dtype=np.float64)
+    flags = np.zeros(v.shape, dtype=np.uint8)
+    with np.errstate(invalid="ignore"):
+        if full_scale_v is not None:
+            flags[np.abs(v) > full_scale_v] |= FLAG_OUT_OF_RANGE
+        if previous_v is not None and jump_limit_v is not None:
+            jumped = np.abs(v - previous_v) > jump_limit_v
+            if accepted_v is not None:
+                jumped &= np.abs(v - accepted_v) > jump_limit_v
+            flags[jumped] |= FLAG_JUMP
+    return flags
 
 
 def flagged_as_nan(voltages: np.ndarray, flags: np.ndarray | None) -> np.ndarray:

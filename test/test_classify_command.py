@@ -31,7 +31,18 @@ def test_classify_prints_the_finished_push(elbow_push, capsys, monkeypatch, tmp_
     lines = capsys.readouterr().out.strip().splitlines()
     assert code == 0 and len(lines) == 1
     event = json.loads(lines[0])
-    assert set(event) == {"label", "t_start", "t_end", "confidence", "centroid"}
+    assert set(event) == {
+        *("label", "t_start", "t_end", "confidence", "centroid", "position", "normal"),
+        *("fault", "faulty_electrodes", "channels_left_out"),
+    }
+    placement = load_patch(config_path("elbow")).placement
+    on_surface = placement.to_3d([event["centroid"]])[0]
+    assert event["position"] == pytest.approx(list(on_surface), abs=1e-4)  # centroid rounded
+    assert event["normal"] == pytest.approx(
+        list(placement.normals([event["centroid"]])[0]), abs=1e-3
+    )
+    assert not event["fault"] and not event["faulty_electrodes"]
+    assert event["channels_left_out"] == 0
     assert event["label"] == "push"
     assert truth.t_start_s <= event["t_start"] <= truth.t_start_s + 0.15
     assert event["t_end"] == pytest.approx(truth.t_end_s, abs=0.15)

@@ -180,3 +180,24 @@ def test_the_environment_switch_keeps_a_process_on_the_numpy_path():
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "numpy (EIT_SKIN_JIT=0)"
+
+
+def test_values_no_sheet_can_give_are_left_out_alike_on_both_paths(tmp_path):
+    """A 1e6 V spike, a value beyond the layer's full scale and a step that stays: both
+    paths flag the same values, image the same, and a flagged value never reaches an image."""
+    from dataclasses import replace
+
+    layer = layer_of(tmp_path)
+    plain = LayerImager.build(layer, cache_dir=None)
+    frames = stream(plain, layer)
+    full_scale = 1.5 * float(np.abs(frames).max())
+    imager = replace(plain, layer=replace(layer, full_scale_v=full_scale))
+    frames[60, 17] = 1e6  # one channel reading 1e6 V, untouched frame
+    frames[70, 30] = -2.0 * full_scale  # beyond the full scale, and a jump
+    frames[130:, 40] += np.sqrt(np.mean(frames[:20] ** 2))  # a step that stays: 1e4 noise
+    compiled, numpy_path, _ = run_both(imager, frames)
+    for processor in (compiled, numpy_path):
+        assert processor.values_out_of_range == 2  # 1e6 V is beyond it too
+        assert processor.values_jumped == 3  # the spike, the railed value, the step's start
+    assert compiled.frames_imaged == 200
+    assert 190 <= compiled.frames_compiled <= 197  # the flagged frames took the numpy path

@@ -108,13 +108,13 @@ def test_flagged_channels_are_missing_values_everywhere(small) -> None:
     imager, v0, _ = small
     with_flags = captured(imager, v0, drift_time_constant_s=1.0)
     with_nan = captured(imager, v0, drift_time_constant_s=1.0)
-    plain = captured(imager, v0, drift_time_constant_s=1.0)
+    plain = captured(imager, v0, drift_time_constant_s=1.0, jump_k=0.0)  # no jump check
     m = imager.n_measurements
     for k, frame in enumerate(noisy(v0, 3, 2)):
         garbage = frame.copy()
         garbage[[7, 100]] = [5.0, -3.0]  # volts the ADC did not really measure
         flags = np.zeros(m, np.uint8)
-        flags[7], flags[100], flags[50] = FLAG_SATURATED, FLAG_INVALID, 4  # bit 4: not excluding
+        flags[7], flags[100], flags[50] = FLAG_SATURATED, FLAG_INVALID, 16  # not excluding
         holes = frame.copy()
         holes[[7, 100]] = np.nan
         t = 0.1 + 0.1 * k
@@ -145,8 +145,9 @@ def test_faults_are_checked_on_frame_time(small) -> None:
             continue
         # reference ready at frame 3 (0.1875 s): first check due on the grid (phase 0) at
         # 1.0 s = frame 16
-        if k < 16:
-            assert processor.faulty_electrodes.size == 0 and out.channels_used == dead.size
+        if k < 16:  # not named yet; the one-frame jump check leaves the floating values out
+            assert processor.faulty_electrodes.size == 0
+            assert dead.size - dead.sum() <= out.channels_used < dead.size
         else:
             assert processor.faulty_electrodes.tolist() == [5]
             assert out.channels_used == dead.size - dead.sum()
@@ -265,7 +266,10 @@ def test_images_stay_in_the_materials_range_while_a_dead_electrode_is_not_yet_fo
     material = imager.layer.material
     low, high = material.physical_range
     assert (low, high) == pytest.approx((-0.9 * 3.0e4, 9.0 * 3.0e4))  # [1/10, 10] x sigma0
-    processor = captured(imager, v0, drift_time_constant_s=0.0, fault_check_period_s=1.0)
+    # no jump check: it would leave most floating values out before the fault check does
+    processor = captured(
+        imager, v0, drift_time_constant_s=0.0, fault_check_period_s=1.0, jump_k=0.0
+    )
     normal = processor.step(pressed, 0.05)
     unclipped = imager.images(material.to_physical(normal.values).astype(np.float32))
     np.testing.assert_array_equal(normal.image, unclipped)

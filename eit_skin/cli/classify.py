@@ -7,12 +7,22 @@ reconstruction node's per-frame pipeline (:class:`~eit_skin.pipeline.processor.L
 reference, drift tracking, fault checks; the same options as ``eit-skin reconstruct``), runs
 :class:`~eit_skin.touch.classifier.TouchClassifier` on the images and prints one JSON object
 per FINISHED touch: ``label``, ``t_start``, ``t_end`` (s from the first frame),
-``confidence``, ``centroid`` ([x, y] m, patch frame). The electrodes the pipeline's fault
-checks leave out go to the classifier with every image
+``confidence``, ``centroid`` ([x, y] m, patch frame), ``position`` and ``normal`` (the
+centroid on the patch's placed surface and its outward normal, patch frame). The electrodes
+the pipeline's fault checks leave out go to the classifier with every image
 (:meth:`~eit_skin.touch.classifier.TouchClassifier.set_faulty_electrodes`), and so does
 each imaged frame itself (its raw channels tell a close pinch from a push). Frame times:
 ``--rate`` when given, else the file's ``t``. The first ``calibration_s`` (0.5 s) of images
-must be free of touch: they give the noise level. Errors: one line on stderr, exit status 1.
+must be free of touch: they give the noise level; a file too short for it is an error.
+Errors: one line on stderr, exit status 1.
+
+Faults are reported, never silent. Whenever the electrodes left out change, a JSON line
+``{"kind": "fault", "t": s, "faulty_electrodes": [...]}`` (and a line on stderr); every
+touch line says whether it overlapped a fault: ``fault`` (bool: an electrode or a value was
+left out in one of its frames), ``faulty_electrodes`` (those left out meanwhile) and
+``channels_left_out`` (the most channels left out of one of its frames, of M). The values
+left out as no measurement of the sheet (beyond the full scale, one-frame jumps) and the
+frames skipped are named on stderr at the end, as ``eit-skin reconstruct`` does.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from eit_skin.cli.reconstruct import FileRun
+    from eit_skin.patch.placement import Placement
 
 from eit_skin.cli.reconstruct import add_pipeline_arguments
 
@@ -57,25 +68,72 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.cli.reconstruct import report_skipped
+    from eit_skin.cli.reconstruct import report_run
 
     runs: dict[Path, FileRun] = {}
     try:
-        for event in classify_file(args, runs):
-            print(json.dumps(event.to_dict()), flush=True)
+        for line in classify_file(args, runs):
+            if line.get("kind") == "fault":
+                left_out = line["faulty_electrodes"] or "none any more"
+                print(
+                    f"eit-skin classify: {args.frames}: t = {line['t']:g} s: faulty electrodes "
+                    f"left out: {left_out}",
+                    file=sys.stderr,
+                )
+            print(json.dumps(line), flush=True)
     except (ValueError, KeyError, OSError) as exc:
         message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"eit-skin classify: error: {message}", file=sys.stderr)
         return 1
     for path, file_run in runs.items():
-        report_skipped("eit-skin classify", path, file_run)
+        report_run("eit-skin classify", path, file_run)
     return 0
 
 
-def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = None):
-    """Finished touch events (END) of the files named in ``args``, read block by block.
+class FaultSpans:
+    """When faults were on (times s), to mark the touches that overlapped one.
 
-    ``runs`` (if given) receives, per file, the frames skipped and electrodes left out.
+    One span per run of consecutive frames with a fault (an electrode or a value left
+    out): ``[t_first, t_last, electrodes, most channels left out]``.
+    """
+
+    def __init__(self) -> None:
+        self.spans: list[list] = []
+        self._open = False
+
+    def add(self, t_s: float, electrodes: tuple[int, ...], left_out: int) -> None:
+        """One imaged frame at ``t_s`` with its left-out electrodes and channel count."""
+        if not electrodes and not left_out:
+            self._open = False
+            return
+        if not self._open:
+            self.spans.append([t_s, t_s, set(), 0])
+            self._open = True
+        span = self.spans[-1]
+        span[1] = t_s
+        span[2].update(electrodes)
+        span[3] = max(span[3], left_out)
+
+    def during(self, t_start_s: float, t_end_s: float) -> dict:
+        """The fault fields of a touch from ``t_start_s`` to ``t_end_s``."""
+        electrodes: set[int] = set()
+        left_out = 0
+        for first, last, names, most in self.spans:
+            if first <= t_end_s and last >= t_start_s:
+                electrodes |= names
+                left_out = max(left_out, most)
+        return {
+            "fault": bool(electrodes or left_out),
+            "faulty_electrodes": sorted(electrodes),
+            "channels_left_out": left_out,
+        }
+
+
+def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = None):
+    """JSON-ready lines: finished touches (END) and fault changes, read block by block.
+
+    ``runs`` (if given) receives, per file, the frames skipped and values and electrodes
+    left out. Raises ValueError for a file too short for the classifier's calibration.
     """
     import numpy as np
 
@@ -125,19 +183,50 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
         contact_rel=contact,
     )
     t0 = None
+    faults = FaultSpans()
+    faulty: tuple[int, ...] = ()
+    n_imaged = 0
+    m = imager.n_measurements
     for times, pressure in _images(imager, reader, args, runs, patch.name):
         extras = [None] * len(times) if stretch is None else next(stretch)[1]
         t0 = times[0] if t0 is None else t0
         for t, images, extra in zip(times, pressure, extras, strict=True):
             if images is None:  # reference capture (--reference capture) or no usable channel
                 continue
+            n_imaged += 1
+            t_rel = float(t - t0)
+            if images.faulty_electrodes != faulty:
+                faulty = images.faulty_electrodes
+                yield {"kind": "fault", "t": round(t_rel, 4), "faulty_electrodes": list(faulty)}
+            faults.add(t_rel, faulty, m - images.channels_used)
             image = None if extra is None else extra.image
             # the electrodes the imaging left out: less confidence near them
             classifier.set_faulty_electrodes(images.faulty_electrodes)
-            for event in classifier.step(t - t0, images.image, image, images.frame_v):
+            for event in classifier.step(t_rel, images.image, image, images.frame_v):
                 if event.state == "end":
-                    yield event
-    yield from classifier.finish()
+                    yield _touch_line(event, faults, patch.placement)
+    if not classifier.calibrated:
+        raise ValueError(
+            f"{args.frames}: {n_imaged} imaged frame(s) do not cover the classifier's "
+            f"calibration ({classifier.config.calibration_s:g} s of untouched frames): "
+            "nothing classified"
+        )
+    for event in classifier.finish():
+        yield _touch_line(event, faults, patch.placement)
+
+
+def _touch_line(event, faults: FaultSpans, placement: Placement) -> dict:
+    """A finished touch's JSON line: its fields, its surface point and its faults.
+
+    ``position`` (m) and ``normal``: the centroid on the placed surface, patch frame, as in
+    ``TouchEvent``; the faults it overlapped: :meth:`FaultSpans.during`.
+    """
+    xy = [event.centroid_m]
+    surface = {
+        "position": [round(float(v), 5) for v in placement.to_3d(xy)[0]],
+        "normal": [round(float(v), 5) for v in placement.normals(xy)[0]],
+    }
+    return {**event.to_dict(), **surface, **faults.during(event.t_start_s, event.t_end_s)}
 
 
 def _reader(imager, path: Path, args: argparse.Namespace):

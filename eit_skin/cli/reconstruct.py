@@ -18,10 +18,12 @@ frame). The file is read, imaged and written ``--block-frames`` frames at a time
 not grow with T); the output goes to temporary files next to OUT and is renamed into place,
 so it is either complete or absent. A frame without a usable channel (e.g. all NaN) is not
 imaged (``imaged`` False, all-NaN images); how many were skipped and the first indices go to
-stderr, exit status 0. Errors: one line on stderr, exit status 1, nothing written; an
-unusable reference (all zero, more than half of the channels 0/NaN/Inf/near zero/of the
-wrong sign) is such an error, single bad reference channels are left out and named in
-the summary.
+stderr, exit status 0, and so do the values left out as no measurement of the sheet (beyond
+the layer's ``full_scale_v``, or a one-frame jump of more than ``--jump-k`` times the
+channel's noise: docs/faults.md), the first named by frame and channel. Errors: one line
+on stderr, exit status 1, nothing written; an unusable reference (all zero, more than half
+of the channels 0/NaN/Inf/near zero/of the wrong sign, in another unit than the frames) is
+such an error, single bad reference channels are left out and named in the summary.
 
 Every frame goes through :class:`~eit_skin.pipeline.processor.LayerProcessor`, the code the
 reconstruction node runs per frame: drift tracking, flag/NaN handling and fault checks on frame
@@ -90,6 +92,7 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         DEFAULT_CONTACT_K,
         DEFAULT_DRIFT_TIME_CONSTANT_S,
         DEFAULT_FAULT_CHECK_PERIOD_S,
+        DEFAULT_JUMP_K,
     )
 
     group = parser.add_argument_group("per-frame pipeline (as eit_reconstruction)")
@@ -132,6 +135,14 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {DEFAULT_FAULT_CHECK_PERIOD_S:g})",
     )
     group.add_argument(
+        "--jump-k",
+        type=float,
+        default=DEFAULT_JUMP_K,
+        metavar="K",
+        help="a value that changed by more than K x its channel's noise in one frame is left "
+        f"out; 0: no such check (default {DEFAULT_JUMP_K:g}; off for per-press references)",
+    )
+    group.add_argument(
         "--block-frames",
         type=int,
         default=DEFAULT_BLOCK_FRAMES,
@@ -159,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {args.out}: {result.n_frames} images {h}x{w}, {result.n_imaged} imaged; "
         f"{result.summary}"
     )
-    report_skipped("eit-skin reconstruct", args.frames, result.run)
+    report_run("eit-skin reconstruct", args.frames, result.run)
     return 0
 
 
@@ -176,17 +187,24 @@ class OfflineImages:
 
 @dataclass
 class FileRun:
-    """What a run over a file met: skipped frames and left-out electrodes.
+    """What a run over a file met: skipped frames, left-out values and electrodes.
 
     Skipped: frames without a usable channel after the reference was ready (``count``, the
-    ``first`` indices); ``faulty``: electrodes the fault checks left out.
+    ``first`` indices); ``faulty``: electrodes the fault checks left out; ``out_of_range``,
+    ``jumped``: values flagged beyond the full scale / as a one-frame jump, the first
+    ``implausible`` named (frame, channel description, value V, why);
+    ``fault_changes``: ``(frame, t s, electrodes)`` whenever the left-out set changed.
     """
 
     count: int = 0
     first: list[int] = field(default_factory=list)
     faulty: set[int] = field(default_factory=set)
+    out_of_range: int = 0
+    jumped: int = 0
+    implausible: list[str] = field(default_factory=list)
+    fault_changes: list[tuple[int, float, tuple[int, ...]]] = field(default_factory=list)
 
-    #: Frame indices kept for the report.
+    #: Frame indices (and values) kept for the report.
     KEEP = 5
 
     def add(self, index: int) -> None:
@@ -194,14 +212,47 @@ class FileRun:
         if len(self.first) < self.KEEP:
             self.first.append(index)
 
+    def note_frame(
+        self, index: int, t_s: float, frame: np.ndarray, processor: LayerProcessor
+    ) -> None:
+        """Note what ``processor`` did with frame ``index`` (``frame`` [M] V) at ``t_s``."""
+        import numpy as np
 
-def report_skipped(command: str, path: Path, run: FileRun) -> None:
-    """One stderr line: how many frames of ``path`` were skipped, and the first indices."""
+        from eit_skin.frames import FLAG_JUMP, FLAG_OUT_OF_RANGE
+        from eit_skin.inverse.channel_noise import describe_channel
+
+        faulty = tuple(processor.faulty_electrodes.tolist())
+        last = self.fault_changes[-1][2] if self.fault_changes else ()
+        if faulty != last:
+            self.fault_changes.append((index, float(t_s), faulty))
+        self.faulty.update(faulty)
+        flags = processor.last_flags
+        if flags is None:
+            return
+        self.out_of_range += int(np.count_nonzero(flags & FLAG_OUT_OF_RANGE))
+        self.jumped += int(np.count_nonzero(flags & FLAG_JUMP))
+        for m in np.flatnonzero(flags)[: self.KEEP - len(self.implausible)]:
+            why = "beyond the full scale" if flags[m] & FLAG_OUT_OF_RANGE else "a one-frame jump"
+            where = describe_channel(processor.imager.protocol, int(m))
+            self.implausible.append(f"frame {index} {where}: {frame[m]:.4g} V, {why}")
+
+
+def report_run(command: str, path: Path, run: FileRun) -> None:
+    """Stderr lines: frames of ``path`` skipped, and values left out (the first named)."""
     if run.count:
         more = ", ..." if run.count > len(run.first) else ""
         print(
             f"{command}: {path}: skipped {run.count} frame(s) without a usable channel "
             f"(frame {', '.join(map(str, run.first))}{more}): not imaged",
+            file=sys.stderr,
+        )
+    n = run.out_of_range + run.jumped
+    if n:
+        more = "; ..." if n > len(run.implausible) else ""
+        print(
+            f"{command}: {path}: left out {n} value(s) no sheet can give "
+            f"({run.out_of_range} beyond the board's full scale, {run.jumped} one-frame "
+            f"jumps): {'; '.join(run.implausible)}{more}",
             file=sys.stderr,
         )
 
@@ -281,6 +332,7 @@ def make_processor(
         args.contact_k,
         fault_check_period_s=args.fault_check_period,
         fault_check_phase=fault_check_phase(patch_name, imager.layer.name),
+        jump_k=0.0 if per_press else args.jump_k,  # per-press frames are no time series
     )
 
 
@@ -297,7 +349,8 @@ def process_file(
     file's reference is the reference at the first frame time, the first
     ``processor.reference_frames`` frames (those with any value) give the noise;
     ``"capture"``: it is not used. Frames without a usable channel once the reference is
-    ready, and the electrodes found faulty, are noted in ``run``.
+    ready, the electrodes found faulty and the values left out are noted in ``run``.
+    Raises ValueError (naming the file) for an unusable reference.
 
     Per-press ``references`` (``reader.has_references``; the processor made with
     ``per_press``): frame ``v_k`` with reference ``r_k`` is fed as the frame with the same
@@ -318,6 +371,8 @@ def process_file(
                 noise = refs[: processor.reference_frames]
             noise = noise[np.isfinite(noise).any(axis=1)]  # an all-NaN frame has no noise
             processor.set_reference(reader.reference, block_times[0], noise)
+        if processor.reference_error is not None:
+            raise ValueError(f"{reader.path}: {processor.reference_error}")
         if refs is not None:
             base = reader.reference
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -326,9 +381,11 @@ def process_file(
         for k, (frame, t) in enumerate(zip(frames, block_times, strict=True)):
             unusable = processor.frames_unusable
             results.append(processor.step(frame, t))
-            run.faulty.update(processor.faulty_electrodes.tolist())
+            run.note_frame(start + k, t, frame, processor)
             if processor.frames_unusable > unusable:
                 run.add(start + k)
+        if processor.reference_error is not None:  # a captured reference
+            raise ValueError(f"{reader.path}: {processor.reference_error}")
         yield block_times, results
 
 
@@ -373,8 +430,6 @@ def run_offline(
                 done = [r for r in results if r is not None]
                 physical[imaged] = np.stack([r.image for r in done])
                 images[imaged] = imager.images(np.stack([r.values for r in done]))
-            if processor.reference_error is not None:
-                raise ValueError(f"{args.frames}: {processor.reference_error}")
             writer.append(images=images, physical=physical, imaged=imaged, t=block_times)
             n_imaged += int(imaged.sum())
     if reader.has_references:

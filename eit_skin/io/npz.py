@@ -96,6 +96,24 @@ def write_npz_atomic(path: str | Path, **arrays: np.ndarray | float) -> None:
         raise
 
 
+_ZIP_SIGNATURES = (b"PK\x03\x04", b"PK\x05\x06")
+"""The first bytes of an ``.npz``: a zip archive (an empty one starts ``PK\x05\x06``)."""
+
+
+def _require_zip(path: str | Path) -> None:
+    """ValueError naming ``path`` unless it starts like a zip archive (an ``.npz``).
+
+    Without it numpy takes any other file for a pickle and talks about pickled data.
+    """
+    with open(path, "rb") as stream:
+        head = stream.read(4)
+    if head not in _ZIP_SIGNATURES:
+        raise ValueError(
+            f"{path}: not an .npz frames file: an .npz is a zip archive (starting 'PK'), this "
+            f"file starts with {head!r}"
+        )
+
+
 def load_frames_npz(
     path: str | Path, n_measurements: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -105,6 +123,7 @@ def load_frames_npz(
     different from ``n_measurements``. A NaN/Inf in the reference is a missing channel, left to
     the pipeline's reference check (:func:`eit_skin.inverse.channel_noise.check_reference`).
     """
+    _require_zip(path)
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):

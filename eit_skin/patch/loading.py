@@ -61,6 +61,7 @@ LAYER_KEYS = (
     "material",
     "holes",
     "current",
+    "full_scale_v",
     "protocol",
     "mesh",
     "solver",
@@ -135,6 +136,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
     )
     holes = read_holes(r, d.get("holes", []), r.join(path, "holes"), outline, electrodes)
     current = r.number(d, "current", path, default=1e-3, positive=True)
+    full_scale = r.number(d, "full_scale_v", path, default=None, positive=True, allow_none=True)
     material = _material(r, d["material"], r.join(path, "material"))
     protocol = _protocol(r, d.get("protocol", {}), r.join(path, "protocol"), len(electrodes))
     mesh = _mesh_spec(r, d.get("mesh", {}), r.join(path, "mesh"), outline, electrodes)
@@ -157,6 +159,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
         mesh=mesh,
         solver=solver,
         device=device,
+        full_scale_v=full_scale,
     )
     if check_budget:
         problem = budget_problem(layer)

@@ -226,10 +226,10 @@ class Layer:
         solver: reconstruction settings.
         device: the board the layer is read from (profile and options); not part of the
             content hash (it changes no model).
+        full_scale_v: the board's full scale, V: a value with ``|v|`` above it is no
+            measurement of the sheet (flagged ``FLAG_OUT_OF_RANGE``, left out of the image;
+            the simulator's ADC gets this full scale); None: not stated, not checked.
     """
-
-    #: Fields that do not change the model: left out of the content hash.
-    HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("device",)
 
     name: str
     outline_kind: str
@@ -243,6 +243,12 @@ class Layer:
     mesh: MeshSpec
     solver: SolverSpec
     device: DeviceSpec = DEFAULT_DEVICE
+    full_scale_v: float | None = None
+
+    #: Fields that do not change the model: left out of the content hash.
+    HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("device",)
+    #: Keys added after patches were hashed: left out of the content hash at their default.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v",)
 
     @property
     def n_electrodes(self) -> int:

@@ -9,6 +9,12 @@ sheet) to 3-D points (metres) in the patch's ROS frame (``frame_id``):
   ``axis``), sheet ``y`` along ``axis``, the sheet normal points outwards.
 * :class:`HeightmapPlacement`: ``z`` from a bilinear height grid over the
   sheet's bounding box (the face), then a rigid transform.
+
+:meth:`Placement.normals` gives the surface's outward unit normal there: the direction of
+``dp/dx x dp/dy``, the flat sheet's ``+z`` carried along (a plane's ``R @ z``, a cylinder's
+radial direction, a height map's ``(-dh/dx, -dh/dy, 1)`` rotated). A contact found at sheet
+point ``(x, y)`` touches the robot at ``to_3d`` with that normal (``Contact.position`` and
+``Contact.normal`` of the messages).
 """
 
 from __future__ import annotations
@@ -45,6 +51,10 @@ class Placement:
     def to_3d(self, points_xy: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def normals(self, points_xy: np.ndarray) -> np.ndarray:
+        """``[n, 3]`` outward unit normals of the placed surface at ``[n, 2]`` sheet points."""
+        raise NotImplementedError
+
     def describe(self) -> str:
         raise NotImplementedError
 
@@ -65,6 +75,10 @@ class PlanePlacement(Placement):
         pts = np.asarray(points_xy, float).reshape(-1, 2)
         local = np.column_stack([pts, np.zeros(len(pts))])
         return self.origin + local @ rotation_from_rpy(self.rpy).T
+
+    def normals(self, points_xy: np.ndarray) -> np.ndarray:
+        n = len(np.asarray(points_xy, float).reshape(-1, 2))
+        return np.tile(rotation_from_rpy(self.rpy)[:, 2], (n, 1))
 
     def describe(self) -> str:
         return f"plane at {self.origin.tolist()} m, rpy {self.rpy.tolist()} rad"
@@ -116,6 +130,12 @@ class CylinderPlacement(Placement):
         radial = np.cos(theta)[:, None] * self.reference + np.sin(theta)[:, None] * tangent
         return self.origin + pts[:, 1:2] * self.axis + self.radius * radial
 
+    def normals(self, points_xy: np.ndarray) -> np.ndarray:
+        pts = np.asarray(points_xy, float).reshape(-1, 2)
+        theta = pts[:, 0] / self.radius
+        tangent = np.cross(self.axis, self.reference)
+        return np.cos(theta)[:, None] * self.reference + np.sin(theta)[:, None] * tangent
+
     def describe(self) -> str:
         return f"cylinder r={self.radius:g} m, axis {np.round(self.axis, 6).tolist()}"
 
@@ -151,16 +171,21 @@ class HeightmapPlacement(Placement):
         object.__setattr__(self, "origin", _vector(self.origin, 3, "origin"))
         object.__setattr__(self, "rpy", _vector(self.rpy, 3, "rpy"))
 
-    def height(self, points_xy: np.ndarray) -> np.ndarray:
-        """``[n]`` bilinear height (m) at sheet points ``[n, 2]``."""
+    def _cells(self, points_xy: np.ndarray):
+        """Grid cell ``(i, j)``, fractions ``(fu, fv)`` and whether inside ``(in_u, in_v)``."""
         pts = np.asarray(points_xy, float).reshape(-1, 2)
         rows, cols = self.heights.shape
         x_min, x_max, y_min, y_max = self.bounds
-        u = np.clip((pts[:, 0] - x_min) / (x_max - x_min) * (cols - 1), 0, cols - 1)
-        v = np.clip((pts[:, 1] - y_min) / (y_max - y_min) * (rows - 1), 0, rows - 1)
+        u_raw = (pts[:, 0] - x_min) / (x_max - x_min) * (cols - 1)
+        v_raw = (pts[:, 1] - y_min) / (y_max - y_min) * (rows - 1)
+        u, v = np.clip(u_raw, 0, cols - 1), np.clip(v_raw, 0, rows - 1)
         j = np.minimum(np.floor(u).astype(int), cols - 2)
         i = np.minimum(np.floor(v).astype(int), rows - 2)
-        fu, fv = u - j, v - i
+        return i, j, u - j, v - i, u == u_raw, v == v_raw
+
+    def height(self, points_xy: np.ndarray) -> np.ndarray:
+        """``[n]`` bilinear height (m) at sheet points ``[n, 2]``."""
+        i, j, fu, fv, _, _ = self._cells(points_xy)
         h = self.heights
         return (
             h[i, j] * (1 - fu) * (1 - fv)
@@ -168,6 +193,24 @@ class HeightmapPlacement(Placement):
             + h[i + 1, j] * (1 - fu) * fv
             + h[i + 1, j + 1] * fu * fv
         )
+
+    def normals(self, points_xy: np.ndarray) -> np.ndarray:
+        """``[n, 3]`` outward unit normals of the bilinear surface at ``[n, 2]`` sheet points.
+
+        Beyond the bounds, where the edge value is held, the slope across the edge is 0; on
+        a cell edge, the slope of the cell above it.
+        """
+        i, j, fu, fv, in_u, in_v = self._cells(points_xy)
+        h = self.heights
+        rows, cols = h.shape
+        x_min, x_max, y_min, y_max = self.bounds
+        dh_du = (h[i, j + 1] - h[i, j]) * (1 - fv) + (h[i + 1, j + 1] - h[i + 1, j]) * fv
+        dh_dv = (h[i + 1, j] - h[i, j]) * (1 - fu) + (h[i + 1, j + 1] - h[i, j + 1]) * fu
+        dh_dx = np.where(in_u, dh_du * (cols - 1) / (x_max - x_min), 0.0)
+        dh_dy = np.where(in_v, dh_dv * (rows - 1) / (y_max - y_min), 0.0)
+        local = np.column_stack([-dh_dx, -dh_dy, np.ones(len(dh_dx))])
+        local /= np.linalg.norm(local, axis=1, keepdims=True)
+        return local @ rotation_from_rpy(self.rpy).T
 
     def to_3d(self, points_xy: np.ndarray) -> np.ndarray:
         pts = np.asarray(points_xy, float).reshape(-1, 2)

@@ -277,6 +277,8 @@ class LayerImager:
         signs: ``[M]`` +-1 the frames and references are multiplied by before imaging: the
             homogeneous model's signs for a device reporting magnitudes
             (``protocol.values: magnitude``), else None.
+        channel_noise_v: ``[M]`` the noise of one frame per channel, V, that
+            :meth:`use_reference` measured (NaN: unknown); None before or when not measurable.
     """
 
     layer: Layer
@@ -289,6 +291,7 @@ class LayerImager:
     model_voltages: np.ndarray | None = None
     reference_excluded: np.ndarray | None = None
     signs: np.ndarray | None = field(default=None, init=False)
+    channel_noise_v: np.ndarray | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         if self.reconstructor is None:
@@ -337,6 +340,7 @@ class LayerImager:
         if isinstance(base, GaussNewtonReconstructor):
             base.reset()  # the last solution belongs to the old reference
         noise = estimate_channel_noise(reference, self.protocol, reference_frames, frames)
+        self.channel_noise_v = None if noise is None else noise.sigma_v
         if noise is None or not isinstance(base, ReconstructionMatrix):
             self.reconstructor = base
             self.matrix = base.linearised

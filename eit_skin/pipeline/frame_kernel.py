@@ -8,6 +8,8 @@ in one process (cold caches between a patch's frames) it cost about half of a fr
 (bench/frame_cost.md). :class:`FrameKernel` runs the same arithmetic in one call compiled with
 numba:
 
+0. the values no sheet can give (beyond the full scale, a one-frame jump): the kernel only
+   finds that there are some and leaves the frame to the numpy step, which flags them;
 1. the relative change ``x = R (v - v_ref) / s_ref`` of the single-frame path of
    :class:`~eit_skin.inverse.one_step.ReconstructionMatrix` (the float64 quotient, the
    reciprocal channels merged, one float32 ``sgemv`` of SciPy's BLAS);
@@ -51,12 +53,17 @@ if TYPE_CHECKING:
 JIT_SWITCH = "EIT_SKIN_JIT"
 
 
-def _step(v, ref, signs, a, index, weights, floor, noise, k, alpha, low, high, scale, owner, h, w):
+def _step(
+    v, ref, signs, a, index, weights, floor, noise, k, alpha, low, high, scale, owner, h, w,
+    full_scale, prev, jump,
+):  # fmt: skip
     """One frame; see :class:`FrameKernel` (plain Python until numba compiles it)."""
     m = ref.size
     d = np.empty(m + 1)
     d[m] = 0.0  # the zero input of unpaired channels
     for i in range(m):
+        if abs(v[i]) > full_scale or abs(v[i] - prev[i]) > jump[i]:  # NaN prev: no jump
+            return np.empty(0, dtype=np.float32), ref, np.empty((h, w), np.float32), True, False
         r = ref[i] * signs[i]
         s = abs(r)
         if s < floor:
@@ -111,7 +118,7 @@ def _compiled() -> tuple[Callable[..., Any] | None, str]:
         (f32[::1], f64[::1], f32[:, ::1], numba.boolean, numba.boolean)
     )(
         f64[::1], f64[::1], f64[::1], f32[::1, :], i64[::1], f64[::1], f64, f64[::1], f64,
-        f64, f32, f32, f64, numba.intp[::1], i64, i64,
+        f64, f32, f32, f64, numba.intp[::1], i64, i64, f64, f64[::1], f64[::1],
     )  # fmt: skip
     kernel = numba.njit(signature, cache=False, nogil=True)(_step)
     return kernel, f"compiled (numba {numba.__version__})"
@@ -147,6 +154,8 @@ class FrameKernel:
             np.ones(m) if imager.signs is None else np.asarray(imager.signs, dtype=np.float64)
         )
         self._no_noise = np.zeros(0)
+        self._no_previous = np.full(m, np.nan)  # no jump check
+        self._no_limit = np.full(m, np.inf)
         self.kernel = _compiled()[0] if enabled and self._scale > 0 else None
         self._checked: object = None  # the reconstructor :meth:`usable` last looked at
         self._plan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # its matrix
@@ -182,6 +191,9 @@ class FrameKernel:
         element_noise: np.ndarray | None,
         contact_k: float,
         alpha: float | None,
+        full_scale_v: float | None = None,
+        previous_v: np.ndarray | None = None,
+        jump_limit_v: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool] | None:
         """One frame ``[M]`` V (every value finite) against the reference ``[M]`` V.
 
@@ -194,11 +206,16 @@ class FrameKernel:
             contact_k: contact threshold in noise units.
             alpha: drift weight of an untouched frame (``ReferenceTracker.drift_alpha``);
                 None: tracking off.
+            full_scale_v: the board's full scale, V; None: no range check.
+            previous_v: float64 ``[M]`` the previous frame, V (NaN: no comparison); None: none.
+            jump_limit_v: float64 ``[M]`` largest plausible one-frame change, V; None: none.
 
         Returns:
             ``(values float32 [N], image float32 [H, W], reference [M] V after drift
             tracking, touching)``, or None when the numpy path must decide (the reference's
-            floor or the product is not finite). Call only when :meth:`usable`.
+            floor or the product is not finite, a value beyond ``full_scale_v`` or jumped
+            more than ``jump_limit_v`` from ``previous_v``: the numpy step flags it). Call
+            only when :meth:`usable`.
         """
         a, index, weights = self._plan
         floor = reference_floor(reference_v)  # numpy's ddot, as the numpy path
@@ -209,7 +226,9 @@ class FrameKernel:
             frame_v, reference_v, self._signs, a, index, weights, floor,
             self._no_noise if element_noise is None else element_noise, float(contact_k),
             -1.0 if alpha is None else float(alpha), self._low, self._high, self._scale,
-            self._owner, h, w,
+            self._owner, h, w, math.inf if full_scale_v is None else float(full_scale_v),
+            self._no_previous if previous_v is None or jump_limit_v is None else previous_v,
+            self._no_limit if previous_v is None or jump_limit_v is None else jump_limit_v,
         )  # fmt: skip
         if not finite:
             return None

@@ -8,14 +8,25 @@ Per frame ``[M]`` volts at frame time ``t_s``:
 1. **Flags.** Channels whose flag byte has an :data:`~eit_skin.frames.EXCLUDING_FLAGS` bit
    (saturated, invalid) become missing values (NaN), exactly like the NaN that
    ``eit-skin frames export`` writes for them; a frame with flags and the same frame with NaN
-   there are the same frame to everything below.
+   there are the same frame to everything below. Then the values no sheet can give are
+   flagged the same way (:func:`~eit_skin.frames.implausible_flags`): beyond the board's full
+   scale (the layer's ``full_scale_v``, when stated: ``FLAG_OUT_OF_RANGE``), or jumped by more
+   than ``jump_k`` times the channel's measured noise since the previous frame (``FLAG_JUMP``;
+   once the reference's noise is known; a jump must be one from the previous frame and from
+   the channel's last value kept). A one-frame spike is left out in its frame only; a step
+   that stays is taken from its second frame on; an input that jumps every frame (floating)
+   is left out every frame until the fault check names its electrode.
+   Counted in :attr:`LayerProcessor.values_out_of_range` and
+   :attr:`LayerProcessor.values_jumped`, the last frame's in :attr:`LayerProcessor.last_flags`.
 2. **Reference.** Until the reference is ready (:class:`ReferenceTracker`: capture of the
    first ``reference_frames`` frames, or :meth:`LayerProcessor.set_reference`) no image is
    made. The reference is checked (:meth:`LayerImager.use_reference`): channels whose
    reference is 0, NaN, Inf, near zero or of the wrong sign are left out, named in
    :attr:`LayerProcessor.reference_report`; an unusable reference (all zero, more than half of
    the channels bad) sets :attr:`LayerProcessor.reference_error` and no frame is imaged until
-   the next capture. The captured frames give the per-channel noise that weights the channels
+   the next capture; so is a reference whose frames are more than
+   ``CONDUCTANCE_RATIO_LIMIT`` times larger or smaller than it (a reference in another unit).
+   The captured frames give the per-channel noise that weights the channels
    and chooses the hyperparameter, and the per-element noise of the contact decision.
 3. **Faults.** The captured frames, and then every ``fault_check_period_s`` of FRAME time
    (not wall time: an offline run over recorded frames checks at the same frames as the node
@@ -45,9 +56,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eit_skin.frames import FLAG_INVALID, flagged_as_nan
+from eit_skin.frames import (
+    FLAG_INVALID,
+    FLAG_JUMP,
+    FLAG_OUT_OF_RANGE,
+    flagged_as_nan,
+    implausible_flags,
+)
 from eit_skin.inverse.channel_noise import UnusableReferenceError
 from eit_skin.inverse.electrode_faults import faulty_electrodes
+from eit_skin.patch.material import CONDUCTANCE_RATIO_LIMIT
 from eit_skin.pipeline.builder import LayerImager, ReferenceReport
 from eit_skin.pipeline.frame_kernel import FrameKernel
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
@@ -56,6 +74,14 @@ from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 DEFAULT_DRIFT_TIME_CONSTANT_S = 60.0
 DEFAULT_CONTACT_K = 5.0
 DEFAULT_FAULT_CHECK_PERIOD_S = 1.0
+#: A one-frame change above this many times the channel's noise is flagged ``FLAG_JUMP``:
+#: 7x the largest of any simulated touch (688 noise sigmas: arm, face, elbow, demo and random
+#: scripts at 50 Hz) and 25x the largest of the real recordings (197: data/real/, sciospec);
+#: a wrong flag costs the channel one frame.
+DEFAULT_JUMP_K = 5000.0
+#: Median channel noise below this fraction of the reference's RMS is no measured noise (a
+#: millionth, 20 bits: model voltages, or one frame repeated): no jump check on it.
+MIN_MEASURED_NOISE = 1e-6
 #: Frames the fault check looks at, and the fewest it needs.
 FAULT_WINDOW_FRAMES = 50
 MIN_FAULT_FRAMES = 10
@@ -118,6 +144,9 @@ class LayerProcessor:
             [0, 1) (:func:`fault_check_phase`).
         compiled_step: False: every frame takes the numpy path (the reference
             implementation the compiled step is tested against).
+        jump_k: a one-frame change above ``jump_k`` times the channel's measured noise is
+            flagged ``FLAG_JUMP`` and left out; <= 0: no jump check (frames that are not a
+            time series: per-press references).
 
     >>> from eit_skin.patch.loading import load_patch
     >>> from eit_skin.resources import config_path
@@ -144,6 +173,7 @@ class LayerProcessor:
         fault_check_period_s: float = DEFAULT_FAULT_CHECK_PERIOD_S,
         fault_check_phase: float = 0.0,
         compiled_step: bool = True,
+        jump_k: float = DEFAULT_JUMP_K,
     ) -> None:
         if not 0.0 <= fault_check_phase < 1.0:
             raise ValueError(f"fault_check_phase must be in [0, 1), got {fault_check_phase}")
@@ -168,6 +198,14 @@ class LayerProcessor:
         self._fault_flags: np.ndarray | None = None
         self._next_fault_check_s: float | None = None
         self._noise_frames: np.ndarray | None = None  # [K, M] V behind the element noise
+        self.full_scale_v = imager.layer.full_scale_v
+        self.jump_k = float(jump_k)
+        self._jump_limit: np.ndarray | None = None  # [M] V, from the reference's noise
+        self._previous: np.ndarray | None = None  # [M] V, the last frame as received
+        self._accepted: np.ndarray | None = None  # [M] V, each channel's last value kept
+        self.last_flags: np.ndarray | None = None  # uint8 [M] of the last frame; None: none
+        self.values_out_of_range = 0
+        self.values_jumped = 0
         self.reference_report: ReferenceReport | None = None
         self.reference_error: str | None = None
         self.frames_in = 0
@@ -270,6 +308,21 @@ class LayerProcessor:
         if flags is not None and np.size(flags) and np.shape(flags) != (m,):
             raise ValueError(f"flags must be [{m}] (or empty), got shape {np.shape(flags)}")
         frame = flagged_as_nan(frame, flags)  # a copy: flagged values become NaN
+        previous, accepted = self._previous, self._accepted
+        implausible = implausible_flags(
+            frame, self.full_scale_v, self._jump_limit, previous, accepted
+        )
+        self._previous = frame
+        if implausible.any():
+            self._count_implausible(implausible)
+            self._previous = frame.copy()
+            frame[implausible != 0] = np.nan
+        else:
+            self.last_flags = None
+        if accepted is None or np.isfinite(frame).all():
+            self._accepted = frame
+        else:
+            self._accepted = np.where(np.isfinite(frame), frame, accepted)
         self.frames_in += 1
         tracker = self.tracker
         if angle_rad is not None and np.isfinite(angle_rad):
@@ -307,7 +360,7 @@ class LayerProcessor:
         if used == 0:
             self.frames_unusable += 1
             return None
-        compiled = self._compiled_step(frame, reference, t_s) if common else None
+        compiled = self._compiled_step(frame, reference, t_s, None) if common else None
         if compiled is None:
             values = self.imager.relative_change(frame, reference, self._fault_flags)
             touching = tracker.touching(values)
@@ -360,10 +413,12 @@ class LayerProcessor:
         if self._reference_excluded() is not None:
             return None
         frame = np.array(frame_v, dtype=np.float64)  # a copy: the fault window keeps it
-        compiled = self._compiled_step(frame, tracker.reference(), t)
+        compiled = self._compiled_step(frame, tracker.reference(), t, self._previous)
         if compiled is None:
             return None
         values, image, touching = compiled
+        self._previous = self._accepted = frame
+        self.last_flags = None
         self.frames_in += 1
         self._recent.append(frame)
         self.frames_compiled += 1
@@ -384,18 +439,33 @@ class LayerProcessor:
         return excluded if self._excluded_any else None
 
     def _compiled_step(
-        self, frame: np.ndarray, reference: np.ndarray, t_s: float
+        self,
+        frame: np.ndarray,
+        reference: np.ndarray,
+        t_s: float,
+        previous: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, bool] | None:
         """Relative change, image and contact of a frame by the compiled kernel, or None.
 
         For frames whose every channel is used; drift tracking included. None: the frame
-        takes the numpy path.
+        takes the numpy path (which flags the values beyond the full scale or jumped from
+        ``previous`` ``[M]`` V: the kernel only finds that there may be some; None: the
+        numpy step checked the frame already).
         """
         kernel, tracker = self._kernel, self.tracker
         if tracker.posture is not None or not kernel.usable():
             return None
         alpha = tracker.drift_alpha(t_s)
-        out = kernel.step(frame, reference, tracker.element_noise, tracker.contact_k, alpha)
+        out = kernel.step(
+            frame,
+            reference,
+            tracker.element_noise,
+            tracker.contact_k,
+            alpha,
+            self.full_scale_v,
+            previous,
+            self._jump_limit,
+        )
         if out is None:
             return None
         values, image, base, touching = out
@@ -403,15 +473,26 @@ class LayerProcessor:
             tracker.follow(base, t_s)
         return values, image, touching
 
+    def _count_implausible(self, flags: np.ndarray) -> None:
+        """Note one frame's :func:`~eit_skin.frames.implausible_flags` (some set)."""
+        self.last_flags = flags
+        self.values_out_of_range += int(np.count_nonzero(flags & FLAG_OUT_OF_RANGE))
+        self.values_jumped += int(np.count_nonzero(flags & FLAG_JUMP))
+
     # ----------------------------------------------------------------- faults
     def _reference_ready(self, t_s: float) -> None:
         """Reference check and channel noise, faults in the frames behind it, element noise."""
         frames = self._noise_frames
+        reference = self.tracker.reference()
+        self.reference_error = unit_mismatch(reference, frames)
+        if self.reference_error is not None:
+            return
         try:
-            self.reference_report = self.imager.use_reference(self.tracker.reference(), frames)
+            self.reference_report = self.imager.use_reference(reference, frames)
         except UnusableReferenceError as error:
             self.reference_error = str(error)
             return
+        self._jump_limit = jump_limit(self.imager.channel_noise_v, reference, self.jump_k)
         if frames is not None and len(frames) >= MIN_FAULT_FRAMES and self.fault_check_period_s > 0:
             self._check_faults(frames, self.tracker.reference())
         self._update_element_noise()
@@ -444,7 +525,7 @@ class LayerProcessor:
     def _check_faults(self, frames: np.ndarray, reference: np.ndarray) -> bool:
         """Find faulty electrodes in ``frames`` ``[T, M]``; returns whether the set changed."""
         protocol = self.imager.protocol
-        faulty = faulty_electrodes(frames, reference, protocol)
+        faulty = faulty_electrodes(frames, reference, protocol, saturation_v=self.full_scale_v)
         if np.array_equal(faulty, self._faulty):
             return False
         self._faulty = faulty
@@ -456,3 +537,51 @@ class LayerProcessor:
             self._fault_mask = np.zeros(self.n_measurements, dtype=bool)
             self._fault_flags = None
         return True
+
+
+def jump_limit(
+    channel_noise_v: np.ndarray | None, reference_v: np.ndarray, jump_k: float
+) -> np.ndarray | None:
+    """``[M]`` V: ``jump_k`` times each channel's noise; None: no jump check.
+
+    A channel of unknown (NaN) or smaller noise than the median channel's gets the median's
+    (a one-sample estimate can be small by chance). None for ``jump_k <= 0`` and for frames
+    without measured noise: the median noise below :data:`MIN_MEASURED_NOISE` of the
+    reference's RMS (computed frames, or the same frame repeated).
+    """
+    if channel_noise_v is None or not jump_k > 0:
+        return None
+    sigma = np.asarray(channel_noise_v, dtype=np.float64)
+    positive = sigma[np.isfinite(sigma) & (sigma > 0)]
+    ref = np.asarray(reference_v, dtype=np.float64)
+    rms = float(np.sqrt(np.mean(ref[np.isfinite(ref)] ** 2))) if np.isfinite(ref).any() else 0.0
+    if not positive.size or not np.median(positive) >= MIN_MEASURED_NOISE * rms:
+        return None
+    return float(jump_k) * np.fmax(sigma, float(np.median(positive)))
+
+
+def unit_mismatch(reference_v: np.ndarray, frames_v: np.ndarray | None) -> str | None:
+    """Why ``frames_v`` ``[K, M]`` V cannot be imaged against ``reference_v`` ``[M]``, or None.
+
+    The median over channels of ``|v / v_ref|`` (each channel's median over the frames)
+    outside ``[1/K, K]``, ``K = CONDUCTANCE_RATIO_LIMIT``: no load changes every channel by
+    that factor, so the two are in different units (mV and V) or of different boards.
+    """
+    if frames_v is None or not len(frames_v):
+        return None
+    ref = np.asarray(reference_v, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.abs(np.asarray(frames_v, dtype=np.float64) / ref)
+    ratio = np.where(np.isfinite(ratio) & (ref != 0), ratio, np.nan)
+    per_channel = ratio[:, np.isfinite(ratio).any(axis=0)]
+    if not per_channel.size:
+        return None
+    typical = float(np.median(np.nanmedian(per_channel, axis=0)))
+    k = CONDUCTANCE_RATIO_LIMIT
+    if 1.0 / k <= typical <= k:
+        return None
+    return (
+        f"reference: the frames are {typical:.3g} times the reference (median of |v / v_ref| "
+        f"over channels, first {len(frames_v)} frames); no load scales every channel by more "
+        f"than {k:g}x: is the reference in another unit (V / mV) or from another board?"
+    )

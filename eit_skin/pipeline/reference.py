@@ -324,7 +324,7 @@ class ReferenceTracker:
         else:
             table = self.posture.at(self.angle_rad)
             target = np.divide(frame, table, out=self._base.copy(), where=table != 0)
-        finite = np.isfinite(target)
+        finite = np.isfinite(target) & np.isfinite(self._base)  # an Inf reference stays
         all_finite = bool(finite.all())
         if not all_finite and not finite.any():
             return

@@ -10,5 +10,7 @@ watching side of ``eit-skin run``), ``probe`` (a subscriber for tests and benchm
 ``parameters`` (every node parameter with its descriptor, rclpy-free), ``param_docs``
 (writes docs/nodes.md's parameter tables from them), ``rviz_config`` (an rviz2
 configuration generated from the launched patches' topics), ``entry`` (the nodes' console
-scripts: a Ctrl-C during their imports ends them quietly).
+scripts: a Ctrl-C during their imports ends them quietly), ``surface_fields`` (a contact's
+3-D point and normal on the placed surface, for the messages), ``qos`` (every topic's QoS,
+overridable by parameters).
 """

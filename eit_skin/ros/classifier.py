@@ -39,7 +39,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from eit_skin.calibration.online import MIN_CONFIDENCE
@@ -56,6 +56,8 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import CLASSIFIER
+from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
+from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import RECONSTRUCTION_NODE, patch_topics
 from eit_skin.touch.classifier import TouchClassifier, classifier_layers
 from eit_skin.touch.config import ClassifierConfig
@@ -126,32 +128,62 @@ class ClassifierNode(Node):
         #: subscribed image topic -> time.monotonic() of its last image (None: none yet)
         self.last_image: dict[str, float | None] = {topics.layers[layer.name].image: None}
         self.create_subscription(
-            Image, topics.layers[layer.name].image, self._on_pressure, qos_profile_sensor_data
+            Image,
+            topics.layers[layer.name].image,
+            self._on_pressure,
+            SENSOR_READER,
+            qos_overriding_options=OVERRIDABLE,
         )
         if self.has_stretch:
             self.last_image[topics.layers[stretch.name].image] = None
             self.create_subscription(
-                Image, topics.layers[stretch.name].image, self._on_stretch, qos_profile_sensor_data
+                Image,
+                topics.layers[stretch.name].image,
+                self._on_stretch,
+                SENSOR_READER,
+                qos_overriding_options=OVERRIDABLE,
             )
             self.create_timer(0.02, self._flush_unpaired)
         self.image_topics = list(self.last_image)
         from eit_skin_msgs.msg import EitFrame
 
         self.create_subscription(
-            EitFrame, topics.layers[layer.name].frames, self._on_frame, qos_profile_sensor_data
+            EitFrame,
+            topics.layers[layer.name].frames,
+            self._on_frame,
+            SENSOR_READER,
+            qos_overriding_options=OVERRIDABLE,
         )
         from eit_skin_msgs.msg import ContactArray, TouchEvent
 
         self._msgs = (TouchEvent, ContactArray)
         reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        self.events_pub = self.create_publisher(TouchEvent, topics.touch_events, reliable)
-        self.contacts_pub = self.create_publisher(ContactArray, topics.contacts, 10)
+        self.events_pub = self.create_publisher(
+            TouchEvent, topics.touch_events, reliable, qos_overriding_options=OVERRIDABLE
+        )
+        self.contacts_pub = self.create_publisher(
+            ContactArray, topics.contacts, 10, qos_overriding_options=OVERRIDABLE
+        )
         self._calibrated: dict[int, tuple[float, float]] = {}  # stamp ns -> press xy, m
-        self.create_subscription(ContactArray, topics.calibrated_contacts, self._on_calibrated, 10)
-        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        self.create_subscription(
+            ContactArray,
+            topics.calibrated_contacts,
+            self._on_calibrated,
+            10,
+            qos_overriding_options=OVERRIDABLE,
+        )
+        self.diagnostics = self.create_publisher(
+            DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
+        )
         # the reconstruction's faulty electrodes come with its diagnostics (1 Hz, like its
         # fault checks): no extra topic, nothing for a controller to wire up
-        self.create_subscription(DiagnosticArray, topics.diagnostics, self._on_diagnostics, 10)
+        self.create_subscription(
+            DiagnosticArray,
+            topics.diagnostics,
+            self._on_diagnostics,
+            10,
+            qos_overriding_options=OVERRIDABLE,
+        )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
@@ -265,6 +297,8 @@ class ClassifierNode(Node):
                 item.mean = float(c.mean)
                 item.depth_m = item.confidence = float("nan")
                 array.contacts.append(item)
+            points = [(c.centroid.x, c.centroid.y) for c in array.contacts]
+            place_on_surface(array.contacts, self.patch.placement, points)
             self.contacts_pub.publish(array)
         self._busy_s += time.perf_counter() - started
 
@@ -286,6 +320,7 @@ class ClassifierNode(Node):
             out.peak = float(event.peak_pa)
             duration_ns = max(0, round(event.duration_s * 1e9))
             out.duration.sec, out.duration.nanosec = divmod(duration_ns, 1_000_000_000)
+            place_on_surface([out], self.patch.placement, [(out.centroid.x, out.centroid.y)])
             self.events_pub.publish(out)
             self.counts["events"] += 1
 

@@ -28,7 +28,6 @@ from rclpy.qos import (
     DurabilityPolicy,
     QoSProfile,
     ReliabilityPolicy,
-    qos_profile_sensor_data,
 )
 from sensor_msgs.msg import JointState
 
@@ -50,6 +49,7 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import DRIVER
+from eit_skin.ros.qos import OVERRIDABLE, RAW_FRAMES
 from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.faults import parse_faults
 
@@ -81,13 +81,18 @@ class DriverNode(Node):
         topics = patch_topics(self.patch)
         self.frame_publishers = {
             name: self.create_publisher(
-                _msg_type(), topics.layers[name].frames, qos_profile_sensor_data
+                _msg_type(),
+                topics.layers[name].frames,
+                RAW_FRAMES,
+                qos_overriding_options=OVERRIDABLE,
             )
             for name in self.factories
         }
         #: recordings hold absolute topic names (the node's namespace resolved)
         self.record_topics = patch_topics(self.patch, self.get_namespace())
-        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        self.diagnostics = self.create_publisher(
+            DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
+        )
         # thread-safe, and flushed at least every 0.5 s: a killed driver leaves a readable file
         self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
         self.hardware_id = port or ("replay" if replay else "simulator")
@@ -107,7 +112,9 @@ class DriverNode(Node):
             self.joint_name = str(p["sim_joint_name"])
             self.joint_states = None
             if self.source.simulator.scenario.posture is not None:
-                self.joint_states = self.create_publisher(JointState, topics.joint_states, 10)
+                self.joint_states = self.create_publisher(
+                    JointState, topics.joint_states, 10, qos_overriding_options=OVERRIDABLE
+                )
             self.create_timer(
                 1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
             )
@@ -151,7 +158,9 @@ class DriverNode(Node):
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE,
         )
-        publisher = self.create_publisher(TFMessage, "/tf_static", latched)
+        publisher = self.create_publisher(
+            TFMessage, "/tf_static", latched, qos_overriding_options=OVERRIDABLE
+        )
         transform = TransformStamped()
         transform.header.stamp = self.get_clock().now().to_msg()
         transform.header.frame_id, transform.child_frame_id = parent, child

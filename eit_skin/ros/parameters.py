@@ -14,6 +14,7 @@ from eit_skin.pipeline.processor import (
     DEFAULT_CONTACT_K,
     DEFAULT_DRIFT_TIME_CONSTANT_S,
     DEFAULT_FAULT_CHECK_PERIOD_S,
+    DEFAULT_JUMP_K,
     FAULT_WINDOW_FRAMES,
 )
 from eit_skin.sim.faults import fault_help
@@ -130,6 +131,12 @@ RECONSTRUCTION: ParameterTable = [
         DEFAULT_FAULT_CHECK_PERIOD_S,
         f"frame time between checks of the last {FAULT_WINDOW_FRAMES} frames for faulty "
         "electrodes, s; 0: never",
+    ),
+    (
+        "jump_k",
+        DEFAULT_JUMP_K,
+        "a value that changed by more than jump_k x its channel's noise in one frame is left "
+        "out (FLAG_JUMP); 0: no such check",
     ),
     ("frame_timeout_s", 5.0, "no frame on a layer for this long: diagnostics ERROR, s; 0: off"),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),

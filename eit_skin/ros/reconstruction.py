@@ -16,7 +16,8 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
   calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
   located by the press calibration when the processor calls the frame touched, else empty
   (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
-* ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults.
+* ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults,
+  values left out (beyond the full scale, one-frame jumps).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, Header
 from std_srvs.srv import Trigger
@@ -61,14 +62,9 @@ from eit_skin.ros.node_runner import (
     run_node,
 )
 from eit_skin.ros.parameters import RECONSTRUCTION
+from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
+from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import patch_topics
-
-#: Raw frames: sensor-data QoS (best effort, volatile) with room for a short burst.
-FRAME_QOS = QoSProfile(
-    depth=20,
-    reliability=qos_profile_sensor_data.reliability,
-    durability=qos_profile_sensor_data.durability,
-)
 
 #: Seconds between looks at whether a viewer subscribes to a layer's colour image (a look
 #: is an rmw call; once per frame it cost 1.5 % of a frame's CPU at 50 patches).
@@ -152,10 +148,18 @@ class ReconstructionNode(Node):
                     posture,
                     float(p["fault_check_period_s"]),
                     fault_check_phase(self.patch.name, layer.name),
+                    jump_k=float(p["jump_k"]),
                 ),
                 quantity=quantity,
-                image_pub=self.create_publisher(Image, topic.image, qos_profile_sensor_data),
-                colour_pub=self.create_publisher(Image, topic.image_color, qos_profile_sensor_data),
+                image_pub=self.create_publisher(
+                    Image, topic.image, qos_profile_sensor_data, qos_overriding_options=OVERRIDABLE
+                ),
+                colour_pub=self.create_publisher(
+                    Image,
+                    topic.image_color,
+                    qos_profile_sensor_data,
+                    qos_overriding_options=OVERRIDABLE,
+                ),
                 scale=ColourScale.named(0.0, float(top)),
                 pattern=pattern_name(layer),
                 frames_topic=topic.frames,
@@ -165,8 +169,9 @@ class ReconstructionNode(Node):
                 _frame_type(),
                 topic.frames,
                 lambda data, name=layer.name: self._on_frame(name, data),
-                FRAME_QOS,
+                SENSOR_READER,
                 raw=True,
+                qos_overriding_options=OVERRIDABLE,
             )
         self.joint = joint
         self.calibrated_pub = None
@@ -174,7 +179,10 @@ class ReconstructionNode(Node):
             name = self.calibration.layer_name
             self.calibration.check_measurements(self.layers[name].imager.n_measurements)
             self.calibrated_pub = self.create_publisher(
-                _contact_types()[1], topics.calibrated_contacts, 10
+                _contact_types()[1],
+                topics.calibrated_contacts,
+                10,
+                qos_overriding_options=OVERRIDABLE,
             )
             self.get_logger().info(
                 f"layer {name}: calibrated contacts on {topics.calibrated_contacts} "
@@ -185,14 +193,25 @@ class ReconstructionNode(Node):
         self.joint_history = JointAngleHistory()
         self.posture_sync = PostureSync(self.joint_history, float(p["posture_wait_s"]))
         if joint:
-            self.create_subscription(JointState, topics.joint_states, self._on_joint_state, 10)
+            self.create_subscription(
+                JointState,
+                topics.joint_states,
+                self._on_joint_state,
+                10,
+                qos_overriding_options=OVERRIDABLE,
+            )
             self.create_timer(0.05, self._release_late_frames)
         self.create_service(Trigger, topics.rezero, self._on_rezero)
-        self.diagnostics = self.create_publisher(DiagnosticArray, topics.diagnostics, 10)
+        self._implausible_reported: dict[str, int] = {}  # values left out, last diagnostics
+        self.diagnostics = self.create_publisher(
+            DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
+        )
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         if float(p["marker_period_s"]) > 0:
             self.marker_pubs = {
-                name: self.create_publisher(Marker, state.marker_topic, 1)
+                name: self.create_publisher(
+                    Marker, state.marker_topic, 1, qos_overriding_options=OVERRIDABLE
+                )
                 for name, state in self.layers.items()
             }
             self._marker_geometry = {
@@ -313,6 +332,7 @@ class ReconstructionNode(Node):
             item.peak = float(np.nanmax(out.image, initial=-np.inf))
             item.depth_m = contact.depth_m
             item.confidence = contact.confidence
+            place_on_surface([item], self.patch.placement, [contact.xy_m])
             array.contacts.append(item)
         self.calibrated_pub.publish(array)
 
@@ -408,12 +428,15 @@ class ReconstructionNode(Node):
                 "reference_age_s": f"{processor.reference_age_s(now * 1e-9):.1f}",
                 "drift_updates": str(processor.drift_updates),
                 "faulty_electrodes": ",".join(str(e) for e in faulty),
+                "values_out_of_range": str(processor.values_out_of_range),
+                "values_jumped": str(processor.values_jumped),
                 "joint_angle_rad": f"{processor.angle_rad:.3f}",
                 "frames_waiting_for_joint": str(self.posture_sync.waiting),
                 "frames_joint_late": str(self.posture_sync.late),
             }
             report = processor.reference_report
             excluded = report.check.excluded.sum() if report is not None else 0
+            implausible = processor.values_out_of_range + processor.values_jumped
             silent_s = time.monotonic() - (state.last_arrival or self.started)
             values["last_frame_age_s"] = f"{silent_s:.1f}" if state.last_arrival else "never"
             if self.frame_timeout_s and silent_s > self.frame_timeout_s:
@@ -427,10 +450,20 @@ class ReconstructionNode(Node):
                 level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif implausible > self._implausible_reported.get(name, 0):
+                level, text = (
+                    1,
+                    (
+                        f"values left out as no measurement of the sheet: "
+                        f"{processor.values_out_of_range} beyond the full scale, "
+                        f"{processor.values_jumped} one-frame jumps"
+                    ),
+                )
             elif not processor.reference_ready:
                 level, text = 0, "capturing the no-load reference (do not touch)"
             else:
                 level, text = 0, f"{values['reconstruction_rate_hz']} images/s"
+            self._implausible_reported[name] = implausible  # WARN while the count grows
             msg.status.append(
                 diagnostic_status(
                     level,

@@ -27,7 +27,7 @@ voltages (stretch lowers the conductance).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -69,6 +69,14 @@ class AdcConfig:
             raise ValueError(f"gain: must be > 0, got {self.gain}")
         if not 0 < self.headroom <= 1:
             raise ValueError(f"headroom: must be in (0, 1], got {self.headroom}")
+
+    def with_full_scale(self, full_scale_v: float) -> AdcConfig:
+        """These settings with the gain that makes the full scale ``full_scale_v`` V.
+
+        ``full_scale_v = 2^(bits-1) lsb_adc / gain = vref_v / (2 gain)``: a patch layer's
+        stated ``full_scale_v`` is the simulated board's.
+        """
+        return replace(self, gain=self.vref_v / (2.0 * float(full_scale_v)))
 
 
 class AdcModel:

@@ -154,8 +154,8 @@ class SkinSimulator:
             layer.name: _LayerSim(layer, mesh_factor, knit_gauge_factor) for layer in patch.layers
         }
         self._adc = {
-            name: AdcModel(adc or AdcConfig(), sim.reference_v)
-            for name, sim in self._layers.items()
+            layer.name: AdcModel(_adc_config(adc, layer), self._layers[layer.name].reference_v)
+            for layer in patch.layers
         }
         for fault in self.faults:
             if fault.layer is not None and fault.layer not in self._layers:
@@ -360,3 +360,12 @@ class SkinSimulator:
             "faults": [str(f) for f in self.faults],
             "layers": layers,
         }
+
+
+def _adc_config(adc: AdcConfig | None, layer: Layer) -> AdcConfig:
+    """The given settings, else the default ones with the layer's ``full_scale_v`` if stated."""
+    if adc is not None:
+        return adc
+    if layer.full_scale_v is None:
+        return AdcConfig()
+    return AdcConfig().with_full_scale(layer.full_scale_v)
