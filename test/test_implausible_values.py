@@ -187,23 +187,32 @@ def test_the_node_leaves_the_1e6_volt_value_out_and_counts_it(pinch, cache, tmp_
     frames[30, 17] = 1e6
     probe = Probe("spike_probe")
     probe.subscribe(DiagnosticArray, "/diagnostics", 50)
-    probe.subscribe(Image, "/spike/pressure/image")
+    image_sub = probe.subscribe(Image, "/spike/pressure/image")
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     publisher = probe.node.create_publisher(EitFrame, "/spike/pressure/frames", reliable)
     log = tmp_path / "recon.log"
     params = {"patch_config": "arm", "diagnostics_period_s": 0.1, "frame_timeout_s": 0.0}
     node = start_node("eit_reconstruction", "/spike", params, log)
 
-    def jumped() -> int:
+    def jumped() -> int | None:
+        """The node's count of jumped values; None before its first diagnostics (not ready)."""
         for _, msg in reversed(probe.messages["/diagnostics"]):
             for status in msg.status:
                 if status.name.endswith("eit_reconstruction: pressure"):
                     return int({kv.key: kv.value for kv in status.values}["values_jumped"])
-        return 0
+        return None
 
     try:
-        assert probe.spin_until(
-            lambda: publisher.get_subscription_count() > 0 or node.poll() is not None, EVENT_S
+        assert probe.spin_until(  # both ways matched: the images are best effort
+            lambda: (
+                (
+                    publisher.get_subscription_count() > 0
+                    and image_sub.get_publisher_count() > 0
+                    and jumped() is not None  # matrices loaded: frames are not queued behind
+                )
+                or node.poll() is not None
+            ),
+            EVENT_S,
         ), log.read_text()
         for k, frame in enumerate(frames):
             publisher.publish(frame_msg(layer, k, frame, patch="arm", frame_id="arm_skin_link"))
@@ -211,7 +220,7 @@ def test_the_node_leaves_the_1e6_volt_value_out_and_counts_it(pinch, cache, tmp_
         last = stamp_ns(frame_msg(layer, len(frames) - 1, frames[-1]))
         images = probe.messages["/spike/pressure/image"]
         assert probe.spin_until(
-            lambda: images and stamp_ns(images[-1][1]) >= last and jumped() >= 1, EVENT_S
+            lambda: images and stamp_ns(images[-1][1]) >= last and (jumped() or 0) >= 1, EVENT_S
         ), log.read_text()
     finally:
         assert stop_node(node) == 0, log.read_text()
