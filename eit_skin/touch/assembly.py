@@ -13,11 +13,13 @@ on the evidence so far (:class:`~eit_skin.touch.events.TouchFeatures`).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from eit_skin.touch.config import ClassifierConfig
-from eit_skin.touch.contacts import Contact, ContactTracker
+from eit_skin.touch.contacts import Contact, ContactTracker, PooledDetector
 from eit_skin.touch.events import (
     SHAPE_DTYPE,
     OngoingTouch,
@@ -44,6 +46,7 @@ class EventAssembler:
 
     Attributes:
         change: this frame's whitened raw change ``[M]``, or None.
+        signal: this frame's averaged image minus baseline and offset ``[H, W]``, Pa, or None.
         strong: whether a contact of this frame stands out of the noise estimate.
         last_features: the features behind the latest event's label.
     """
@@ -73,6 +76,7 @@ class EventAssembler:
         self._run_shapes: list[np.ndarray] = []  # 0-d SHAPE_DTYPE records before a START
         self._run_changes: list[np.ndarray | None] = []  # beside _run_shapes
         self.change: np.ndarray | None = None
+        self.signal: np.ndarray | None = None
         self.strong = False
         self.last_features: TouchFeatures | None = None
 
@@ -119,8 +123,9 @@ class EventAssembler:
             detected: time of the first frame of a pooled detection (:class:`StartGates`),
                 or None.
 
-        Before, set :attr:`change` (this frame's whitened raw change or None) and
-        :attr:`strong` (a contact stands out of the noise estimate).
+        Before, set :attr:`change` (this frame's whitened raw change or None), :attr:`signal`
+        (this frame's averaged image minus baseline, Pa) and :attr:`strong` (a contact stands
+        out of the noise estimate).
         """
         if not contacts:  # a candidate's shapes are of consecutive frames with contacts
             self._run_shapes = []
@@ -168,7 +173,7 @@ class EventAssembler:
         else:  # the pooled detector saw it first: no contact segmented yet
             self.tracker.reset()
             touch.t_last_s = t_s
-            touch.detect_centroid_m = self.gates.seeing().peak_m(self.x, self.y)
+            touch.early = self._early_estimate()
         self._relabel(touch)
         return [self._event(touch, "start", t_s)]
 
@@ -184,7 +189,7 @@ class EventAssembler:
                 if seeing.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
                     touch.t_last_s = t_s
                     touch.missing = 0
-                    touch.detect_centroid_m = seeing.peak_m(self.x, self.y)
+                    touch.early = self._early_estimate()
                     return self._maybe_update(touch, t_s)
                 if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
                     return self._end(touch, t_s)
@@ -202,11 +207,13 @@ class EventAssembler:
             return []
         touch.missing = 0
         self.tracker.update(t_s, contacts)
+        firmed = not touch.counts  # the first segmented contact of a pooled START
         self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
-        return self._maybe_update(touch, t_s)
+        return self._maybe_update(touch, t_s, firmed)
 
-    def _maybe_update(self, touch: OngoingTouch, t_s: float) -> list[TouchEvent]:
-        if t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
+    def _maybe_update(self, touch: OngoingTouch, t_s: float, now: bool = False) -> list[TouchEvent]:
+        """UPDATE if ``update_period_s`` passed since the last event, or ``now``."""
+        if now or t_s - touch.t_last_update_s >= self.config.update_period_s - 1e-9:
             self._relabel(touch)
             touch.t_last_update_s = t_s
             return [self._event(touch, "update", t_s)]
@@ -285,29 +292,124 @@ class EventAssembler:
         self.last_features = features
         touch.label, touch.confidence = decide(features, self.config)
 
+    def _early_estimate(self) -> EarlyEstimate:
+        """Where, how large and how strong a touch is that no contact segmented yet.
+
+        From the evidence that fired it (:func:`early_estimate`): the raw frames' matched
+        filter map when there is one, else the pooled image's z-scores; this frame's
+        :attr:`signal` for area and peak; the detector that sees it for the confidence.
+        """
+        gates = self.gates
+        start = gates.start_detector
+        located = gates.detector.z if start is None else start.pooled
+        return early_estimate(
+            located,
+            self.signal,
+            gates.seeing(),
+            self._xx,
+            self._yy,
+            self.config.blob_fraction,
+            self.config.confidence_gain,
+        )
+
     def _event(self, touch: OngoingTouch, state: str, t_s: float) -> TouchEvent:
         contacts = touch.last_contacts
+        early = touch.early if not contacts else None
         if contacts:
             centroid = np.mean([c.centroid_m for c in contacts], axis=0)
         else:
-            centroid = np.asarray(touch.detect_centroid_m)
+            centroid = np.asarray(early.centroid_m if early is not None else (0.0, 0.0))
         shapes = touch.shapes.rows
         shapes = shapes[np.isfinite(shapes["x_m"]) & np.isfinite(shapes["y_m"])]
         if shapes.size:  # the blob centroid of the latest frame pressed at full strength
             strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()
             latest = shapes[np.flatnonzero(strong)[-1]]
             centroid = (latest["x_m"], latest["y_m"])
+        confidence = float(touch.confidence)
+        if early is not None:  # no contact yet: no surer than the evidence
+            confidence = min(confidence, early.confidence)
         return TouchEvent(
             touch_id=touch.id,
             state=state,
             label=touch.label,
-            confidence=float(touch.confidence)
+            confidence=confidence
             * (self.config.fault_confidence if self.near_fault(centroid) else 1.0),
             t_s=float(t_s),
             t_start_s=float(touch.t_start_s),
             t_end_s=float(touch.t_last_s if state == "end" else t_s),
             centroid_m=(float(centroid[0]), float(centroid[1])),
-            area_m2=float(sum(c.area_m2 for c in contacts)),
-            peak_pa=float(max((c.peak for c in contacts), default=0.0)),
+            area_m2=float(sum(c.area_m2 for c in contacts)) if early is None else early.area_m2,
+            peak_pa=float(max((c.peak for c in contacts), default=0.0))
+            if early is None
+            else early.peak_pa,
             n_contacts=len(contacts),
         )
+
+
+@dataclass(frozen=True)
+class EarlyEstimate:
+    """A touch seen by a START detector before any contact is segmented.
+
+    Attributes:
+        centroid_m: ``(x, y)`` m, patch frame.
+        area_m2: area of the peak region, m^2.
+        peak_pa: largest averaged-image change in the region, Pa.
+        confidence: 0..1, from how far the detector's z-score is above its threshold.
+    """
+
+    centroid_m: tuple[float, float]
+    area_m2: float
+    peak_pa: float
+    confidence: float
+
+
+def early_estimate(
+    located: np.ndarray,
+    signal: np.ndarray | None,
+    detector: PooledDetector,
+    xx: np.ndarray,
+    yy: np.ndarray,
+    fraction: float,
+    gain: float,
+) -> EarlyEstimate:
+    """Position, area, peak and confidence of a touch a pooled detector STARTed.
+
+    **Position**: the centroid of the connected region of ``located`` above ``fraction`` of
+    its largest value holding that value, weighed ``located - fraction * peak`` (as
+    :func:`~eit_skin.touch.shapes.blob_moments`). With the raw frames, ``located`` is the
+    matched filter's map (the best-matching fingertip positions); the pooled image's z-scores
+    otherwise. Neither the pooled image itself nor the averaged image: in the first frames of
+    a touch their peaks lie tens of mm off (docs/classifier.md, "START position").
+    **Peak**: the largest value of ``signal`` in that region, Pa; **area**: the region's
+    pixels with ``signal`` at or above half that peak, m^2 (0 without a positive peak).
+    **Confidence**: ``0.5 + 0.5 tanh(gain (z_max - k) / k)`` of the ``detector`` that fired
+    (0.5 on its threshold ``k``).
+
+    Args:
+        located: ``[H, W]`` map whose peak region is the touch (NaN off the sheet).
+        signal: ``[H, W]`` averaged image minus baseline, Pa (NaN off the sheet), or None.
+        detector: the detector that fired (its latest ``z`` ``[H, W]`` and ``k``).
+        xx: ``[H, W]`` pixel-centre x, m.
+        yy: ``[H, W]`` pixel-centre y, m.
+        fraction: blob weight fraction (``blob_fraction``).
+        gain: ``confidence_gain``.
+    """
+    values = np.where(np.isfinite(located), located, -np.inf)
+    i, j = np.unravel_index(int(np.argmax(values)), values.shape)
+    top = values[i, j]
+    parts, _ = ndimage.label(values > fraction * top) if top > 0 else (np.zeros(values.shape), 0)
+    region = parts == parts[i, j] if parts[i, j] > 0 else np.zeros(values.shape, dtype=bool)
+    region[i, j] = True
+    _, x, y, *_ = blob_moments(np.where(region, located, 0.0), xx, yy, fraction, region)
+    if not (np.isfinite(x) and np.isfinite(y)):
+        x, y = xx[i, j], yy[i, j]
+    peak, area = 0.0, 0.0
+    if signal is not None:
+        inside = np.where(region & np.isfinite(signal), signal, -np.inf)
+        peak = max(float(inside.max()), 0.0)
+        if peak > 0:
+            pixel_m2 = float(abs(xx[0, 1] - xx[0, 0]) * abs(yy[1, 0] - yy[0, 0]))
+            area = float(np.count_nonzero(inside >= 0.5 * peak)) * pixel_m2
+    z_max = float(np.max(detector.z))
+    confidence = 0.5 + 0.5 * math.tanh(gain * (z_max - detector.k) / detector.k)
+    return EarlyEstimate((float(x), float(y)), area, peak, confidence)

@@ -314,6 +314,7 @@ class TouchClassifier:
         signal = np.mean(self._recent, axis=0) - bg.baseline
         offset = bg.offset(signal)
         signal = signal - offset
+        self.events.signal = signal
         self.gates.push_image(pressure)
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
         detected = self.gates.detect(signal, self._times)  # first frame of a pooled detection

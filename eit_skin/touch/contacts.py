@@ -544,11 +544,6 @@ class PooledDetector:
         """Some pixel of the latest pooled image is above ``k`` noise sigmas."""
         return bool(self.run.max() > 0)
 
-    def peak_m(self, x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-        """``(x, y)`` of the largest pooled z-score of the latest image, m."""
-        i, j = np.unravel_index(int(np.argmax(self.z)), self.z.shape)
-        return float(x[j]), float(y[i])
-
     def follow_noise(self, alpha: float) -> None:
         """Learn the noise from the latest pooled image (nothing touching, :attr:`quiet`).
 

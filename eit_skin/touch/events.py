@@ -212,7 +212,7 @@ class OngoingTouch:
         self.missing = 0
         self.label = "push"
         self.confidence = 0.5
-        self.detect_centroid_m = (0.0, 0.0)
+        self.early = None  # EarlyEstimate while no contact is segmented (pooled START)
         self.changes: list[np.ndarray | None] = []  # whitened raw frame per shape record
 
     def count(self, min_frames: int) -> int:
