@@ -187,8 +187,10 @@ def main() -> None:
         f"1-min load average at the end {os.getloadavg()[0]:.1f}. Emulated boards on "
         "pseudo-terminals at their links' full rates (a pty has no baud rate: the emulators "
         "pace themselves); real eit_driver and eit_reconstruction processes over Fast DDS; "
-        "latency = image received minus its stamp (OpenEIT: the host time of the frame's last "
-        "byte; Sciospec: its clock mapped to host time, an upper bound).",
+        "latency = image received minus the time the frame's last byte was written to the pty "
+        "(the first 2 s of images left out); last column: image received minus its own stamp "
+        "(OpenEIT: the host time the driver read the last byte; Sciospec: its clock mapped to "
+        "host time).",
         "",
         "| board | frames/s (link) | images | median | p99 | max | stamp -> received (median) |",
         "|---|---|---:|---:|---:|---:|---:|",
