@@ -242,17 +242,22 @@ def cycle_bytes(protocol, pot, ms0, first_channel=3, groups=(1, 2)):
     return b"".join(out)
 
 
-def handshake(reader):
-    """Answer every setup command with an acknowledgement; the commands sent, in order."""
+def acknowledge_setup(reader, first_t: int = 0):
+    """Answer every setup command from now on with an acknowledgement; the commands sent."""
     sent = []
-    reader.reset()
-    for t in range(200):
+    for t in range(first_t, 200):
         command = reader.commands(float(t) * 0.01)
         if not command:
             break
         sent.append(command)
         reader.feed(ACK_BYTES)
     return sent
+
+
+def handshake(reader):
+    """A connect whose whole setup is acknowledged; the commands sent, in order."""
+    reader.reset()
+    return acknowledge_setup(reader)
 
 
 def test_sciospec_setup_one_command_per_acknowledgement(sciospec):
@@ -262,24 +267,13 @@ def test_sciospec_setup_one_command_per_acknowledgement(sciospec):
     first = reader.commands(0.0)
     assert first == STOP and reader.commands(0.1) == b""  # waits for the acknowledgement
     reader.feed(bytes((SYSTEM_TAG, 1, 0x81, SYSTEM_TAG)))  # nothing to stop: fine
-    sent = [first, *handshake_rest(reader)]
+    sent = [first, *acknowledge_setup(reader, first_t=1)]
     want = [raw for _, raw in setup_commands(protocol, layer.device, layer.current_a)]
     assert sent == want and sent[-1] == START and reader.acknowledged
     # injection k drives channels (k + 3, k + 4): electrode 0 on channel 3
     assert message(0xB0, bytes((6, 3, 4))) in sent and message(0xB0, bytes((6, 18, 3))) in sent
     assert message(0xB0, b"\x05" + struct.pack(">d", layer.current_a)) in sent
     assert reader.farewell() == STOP
-
-
-def handshake_rest(reader):
-    sent = []
-    for t in range(1, 200):
-        command = reader.commands(float(t) * 0.01)
-        if not command:
-            break
-        sent.append(command)
-        reader.feed(ACK_BYTES)
-    return sent
 
 
 def test_sciospec_frames_are_the_protocols_differences_at_any_split(sciospec):

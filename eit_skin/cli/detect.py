@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from eit_skin.hardware.detect import SCIOSPEC_PROBE, is_sciospec_answer, recognise
-    from eit_skin.patch.device import PROFILES
+    from eit_skin.patch.device import PROFILES, DeviceSpec
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
     from eit_skin.resources import config_path
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     except (PatchError, KeyError, FileNotFoundError) as error:
         print(f"eit-skin detect: {error}", file=sys.stderr)
         return 2
-    bauds = sorted({opts[0].default for opts in PROFILES.values() if opts[0].name == "baud"})
+    bauds = sorted({DeviceSpec(profile).baud for profile in PROFILES} - {0})
     found = None
     for baud in bauds:
         data = _read(args.port, baud, args.listen)
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
             break
         print(f"{args.port} at {baud} bit/s: {len(data)} bytes, no known format", flush=True)
     if found is None:
-        answer = _read(args.port, PROFILES["sciospec"][0].default, 1.0, SCIOSPEC_PROBE)
+        answer = _read(args.port, DeviceSpec("sciospec").baud, 1.0, SCIOSPEC_PROBE)
         if answer is not None and is_sciospec_answer(answer):
             print(f"{args.port}: a Sciospec device answered (profile sciospec)")
             return _sciospec(args, patches, chosen)
@@ -67,9 +67,15 @@ def run(args: argparse.Namespace) -> int:
         f"{args.port}: profile {found.profile} at {baud} bit/s, {found.frames_per_s:.2f} "
         f"frames/s, {found.values_per_frame} numbers per frame ({found.detail})"
     )
-    fits = fitting_layers(patches, found.profile, found.values_per_frame)
-    print("fits: " + (", ".join(fits) if fits else "no layer of " + _names(patches)))
-    layer = chosen or _first_fit(patches, found.values_per_frame)
+    fits = fitting_layers(patches, found.values_per_frame)
+    print(
+        "fits: "
+        + (
+            ", ".join(_fit_name(p, la, found.profile) for p, la in fits)
+            or ("no layer of " + _names(patches))
+        )
+    )
+    layer = chosen or (fits[0][1] if fits else None)
     if layer is not None:
         r = model_correlation(layer, np.asarray(found.last_frame))
         print(_verdict(layer.name, r))
@@ -97,11 +103,10 @@ def _names(patches) -> str:
     return ", ".join(p.name for p in patches)
 
 
-def fitting_layers(patches, profile: str, values_per_frame: int) -> list[str]:
-    """``patch/layer`` names whose protocol takes ``values_per_frame`` numbers per frame.
+def fitting_layers(patches, values_per_frame: int) -> list:
+    """``(patch, layer)`` of the layers that take ``values_per_frame`` numbers per frame.
 
-    A layer fits when the count is its device frame size or its measurement count; its
-    board profile is named when it is not ``profile`` (its ``device`` section needs it).
+    A layer takes its device frame size or its measurement count.
     """
     from eit_skin.patch.protocol import build_protocol
 
@@ -109,26 +114,19 @@ def fitting_layers(patches, profile: str, values_per_frame: int) -> list[str]:
     for patch in patches:
         for layer in patch.layers:
             protocol = build_protocol(layer.protocol, layer.n_electrodes)
-            if values_per_frame not in (protocol.frame_size, protocol.n_measurements):
-                continue
-            note = (
-                ""
-                if layer.device.profile == profile
-                else f" (needs device: {{profile: {profile}}}; it says {layer.device.profile})"
-            )
-            out.append(f"{patch.name}/{layer.name}{note}")
+            if values_per_frame in (protocol.frame_size, protocol.n_measurements):
+                out.append((patch, layer))
     return out
 
 
-def _first_fit(patches, values_per_frame: int):
-    from eit_skin.patch.protocol import build_protocol
-
-    for patch in patches:
-        for layer in patch.layers:
-            protocol = build_protocol(layer.protocol, layer.n_electrodes)
-            if values_per_frame in (protocol.frame_size, protocol.n_measurements):
-                return layer
-    return None
+def _fit_name(patch, layer, profile: str) -> str:
+    """``patch/layer``, naming the board profile its ``device`` section needs if another."""
+    if layer.device.profile == profile:
+        return f"{patch.name}/{layer.name}"
+    return (
+        f"{patch.name}/{layer.name} (needs device: {{profile: {profile}}}; "
+        f"it says {layer.device.profile})"
+    )
 
 
 def model_correlation(layer, numbers) -> float:

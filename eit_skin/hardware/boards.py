@@ -218,7 +218,8 @@ class WireReader(BoardReader):
 
 
 _LINE_END = re.compile(rb"\r\n|\r|\n")
-_LABEL = re.compile(r"^\s*[A-Za-z_][\w .-]*:")
+LINE_LABEL = re.compile(r"^\s*[A-Za-z_][\w .-]*:")
+"""A ``label:`` before a line's numbers (a word, then a colon)."""
 
 
 class TextLineReader(BoardReader):
@@ -244,8 +245,10 @@ class TextLineReader(BoardReader):
         separators: str,
         prefix: str,
         volts_per_unit: float,
+        start_command: str = "",
     ) -> None:
         super().__init__(protocol, device, layer)
+        self.start_command = start_command
         self.expected = int(expected)
         self.prefix = prefix
         self.volts_per_unit = float(volts_per_unit)
@@ -257,6 +260,10 @@ class TextLineReader(BoardReader):
         self._fresh = True
         self._skipping = False
         self.EXPECTING = f"lines of {self.expected} numbers"
+
+    def greeting(self) -> bytes:
+        """The board's start line (``start_command`` + newline), or nothing."""
+        return (self.start_command + "\n").encode() if self.start_command else b""
 
     def reset(self) -> None:
         super().reset()
@@ -344,7 +351,7 @@ class TextLineReader(BoardReader):
                 )
                 return None
             return text[len(self.prefix) :]
-        label = _LABEL.match(text)
+        label = LINE_LABEL.match(text)
         return text[label.end() :] if label else text
 
     def _bad(self, reason: str, message: str, line: bytes, size: int) -> None:
@@ -412,20 +419,12 @@ class OpenEITReader(TextLineReader):
         return super()._body(text, offset, size)
 
 
-class StartCommandLineReader(TextLineReader):
-    """A line-printing board that needs a start line on connect (``start_command``)."""
-
-    def greeting(self) -> bytes:
-        return (str(self.device.get("start_command")) + "\n").encode()
-
-
 def lines_reader(protocol: Protocol, device: DeviceSpec, layer: str) -> TextLineReader:
     """The ``lines`` profile's reader with the patch's options."""
     count = int(device.get("values"))
     if count == 0:
         count = protocol.n_measurements if device.get("drop_zeros") else protocol.frame_size
-    cls = StartCommandLineReader if device.get("start_command") else TextLineReader
-    return cls(
+    return TextLineReader(
         protocol,
         device,
         layer,
@@ -433,4 +432,5 @@ def lines_reader(protocol: Protocol, device: DeviceSpec, layer: str) -> TextLine
         separators=str(device.get("separators")),
         prefix=str(device.get("prefix")),
         volts_per_unit=float(device.get("volts_per_unit")),
+        start_command=str(device.get("start_command")),
     )

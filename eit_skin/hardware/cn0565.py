@@ -20,15 +20,11 @@ from typing import Any
 import numpy as np
 
 from eit_skin.hardware.source_status import RateMeter, SourceStatus
-from eit_skin.patch.protocol import build_protocol
+from eit_skin.patch.protocol import build_protocol, pattern_offset
 
 PACKAGE = "pyadi-iio"
 DEFAULT_BAUD = 230_400
 """The CN0565's serial IIO link rate (pyadi-iio's examples)."""
-
-
-def _offset(pattern: str, skip: int, n: int) -> int:
-    return {"adjacent": 1, "opposite": n // 2}.get(pattern, skip + 1)
 
 
 def open_board(layer: Any, port: str) -> Any:
@@ -50,8 +46,8 @@ def open_board(layer: Any, port: str) -> Any:
     board = adi.cn0565(uri=uri)
     board.excitation_frequency = float(device.get("excitation_hz"))
     board.electrode_count = layer.n_electrodes
-    board.force_distance = _offset(spec.drive, spec.drive_skip, layer.n_electrodes)
-    board.sense_distance = _offset(spec.measure, spec.measure_skip, layer.n_electrodes)
+    board.force_distance = pattern_offset(spec.drive, spec.drive_skip, layer.n_electrodes)
+    board.sense_distance = pattern_offset(spec.measure, spec.measure_skip, layer.n_electrodes)
     return board
 
 

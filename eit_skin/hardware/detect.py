@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eit_skin.hardware.boards import LINE_LABEL
 from eit_skin.hardware.sciospec import STOP, SYSTEM_TAG
 from eit_skin.hardware.wire import FrameParser
 from eit_skin.patch.device import OPENEIT_ELECTRODES
@@ -78,7 +79,7 @@ def recognise(data: bytes, seconds: float) -> Recognised | None:
     numeric = []
     for line in lines:
         text = line.decode("latin-1")
-        label = re.match(r"^\s*[A-Za-z_][\w .-]*:", text)
+        label = LINE_LABEL.match(text)
         values = _numbers(text[label.end() :] if label else text)
         if values is not None and len(values) > 1:
             numeric.append((values, label.group(0) if label else "", text))

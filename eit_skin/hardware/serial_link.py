@@ -277,10 +277,10 @@ class SerialLink:
         if self._thread is not None:
             self._thread.join()
             self._thread = None
-        farewell = getattr(self.parser, "farewell", None)
-        if farewell is not None and self._serial is not None and farewell():
+        farewell = getattr(self.parser, "farewell", lambda: b"")()
+        if farewell and self._serial is not None:
             with contextlib.suppress(Exception):  # a dead port cannot be told anything
-                self._serial.write(farewell())
+                self._serial.write(farewell)
                 self._serial.flush()
         self.close()
 

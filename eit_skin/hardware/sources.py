@@ -182,8 +182,8 @@ def board_reader(
 class SerialSource:
     """One board on a serial port, serving one layer, in the layer's board profile.
 
-    The layer's ``device`` section picks the reader (:func:`eit_skin.hardware.boards.
-    board_reader`: eit_skin's wire protocol, OpenEIT, a line-printing board, Sciospec); the
+    The layer's ``device`` section picks the reader (:func:`board_reader`: eit_skin's wire
+    protocol, OpenEIT, a line-printing board, Sciospec); the
     link writes the host commands the reader asks for (on every connect, again when the
     board does not answer) and its farewell on :meth:`stop`. Frames are delivered from the
     link's reader thread to ``sink`` as soon as their last byte is parsed (lowest latency);
@@ -242,14 +242,10 @@ class SerialSource:
 
     def _on_frames(self, received: list[ReceivedFrame]) -> None:
         timed = [item for item in received if item.frame.device_time_us is not None]
-        stamps = dict(
-            zip(
-                map(id, timed),
-                self.clock.update_batch(
-                    [item.frame.device_time_us for item in timed],
-                    [item.host_time_ns for item in timed],
-                ),
-                strict=True,
+        board_stamps = iter(
+            self.clock.update_batch(
+                [item.frame.device_time_us for item in timed],
+                [item.host_time_ns for item in timed],
             )
         )
         for item in received:
@@ -260,7 +256,8 @@ class SerialSource:
             self._host_sequence = sequence + 1
             # frames read in one chunk share its host time: each later one 1 us after the
             # one before, so stamps stay unique and increasing
-            stamp = max(stamps.get(id(item), item.host_time_ns), self._last_stamp + 1000)
+            acquired = item.host_time_ns if frame.device_time_us is None else next(board_stamps)
+            stamp = max(acquired, self._last_stamp + 1000)
             self._last_stamp = stamp
             record = self.factory.device_record(
                 stamp,
@@ -309,7 +306,6 @@ class SerialSource:
                 crc_errors=str(wire.stats.crc_errors),
                 truncated=str(wire.stats.truncated),
                 resyncs=str(wire.stats.resyncs),
-                discarded_bytes=str(wire.stats.discarded_bytes),
             )
         where = f"{link.port} ({self.profile})"
         if link.state is LinkState.DISCONNECTED:

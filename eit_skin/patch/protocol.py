@@ -215,7 +215,7 @@ class ProtocolSpec:
                     f"around to skip {skip % n}); use 0..{n - 2}"
                 )
             if pattern != "explicit":
-                offset = _offset(pattern, skip, n)
+                offset = pattern_offset(pattern, skip, n)
                 if offset % n == 0:
                     raise ValueError(
                         f"{name}_skip: skipping {skip} of {n} electrodes joins an electrode "
@@ -292,7 +292,8 @@ def trigonometric_currents(n: int) -> np.ndarray:
     return rows
 
 
-def _offset(pattern: str, skip: int, n: int) -> int:
+def pattern_offset(pattern: str, skip: int, n: int) -> int:
+    """Electrodes from the first to the second of a pair pattern's pairs (``n`` electrodes)."""
     if pattern == "adjacent":
         return 1
     if pattern == "opposite":
@@ -520,7 +521,7 @@ def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
         inj = np.stack([currents.argmax(axis=1), currents.argmin(axis=1)], axis=1)
     else:
         k = np.arange(n)
-        inj = np.stack([k, (k + _offset(spec.drive, spec.drive_skip, n)) % n], axis=1)
+        inj = np.stack([k, (k + pattern_offset(spec.drive, spec.drive_skip, n)) % n], axis=1)
     carrying = (
         currents != 0 if currents is not None else np.eye(n, dtype=bool)[inj].any(axis=1)
     )  # [n_inj, n] electrodes carrying current
@@ -539,7 +540,7 @@ def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
                     "measure_driven is false"
                 )
     else:
-        d = _offset(spec.measure, spec.measure_skip, n)
+        d = pattern_offset(spec.measure, spec.measure_skip, n)
         rows, used = [], []
         for i, (_src, snk) in enumerate(inj):
             start = (snk + 1) % n if spec.order == "rotated" else 0
