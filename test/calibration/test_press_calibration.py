@@ -24,9 +24,9 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.sim.press_session import simulate_press_session
-from test.patch_copies import shipped_patch_data, write_patch
+from test.support.patch_copies import shipped_patch_data, write_patch
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 HYDROGEL = REPO / "data" / "real" / "hydrogel_ohmc16.npz"
 HYDROGEL_PATCH = REPO / "data" / "real" / "hydrogel_ohmc16.yaml"
 

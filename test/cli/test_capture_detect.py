@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 import yaml
 
-from test.patience import EVENT_S
-from test.test_boards import openeit_line
+from test.hardware.test_boards import openeit_line
+from test.support.patience import EVENT_S
 
 HYDROGEL = "data/real/hydrogel_ohmc16.yaml"
 

@@ -8,7 +8,7 @@ import yaml
 
 from eit_skin.cli.main import main
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
 def test_summary_of_shipped_patch(capsys):

@@ -23,7 +23,7 @@ from eit_skin.design.session import DesignSession
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.accuracy_map import predict_accuracy
 from eit_skin.resources import config_path
-from test.cdp_browser import Browser, chromium_path
+from test.support.cdp_browser import Browser, chromium_path
 
 SHIPPED = ("arm", "face", "elbow")
 
@@ -177,7 +177,7 @@ def test_design_command_prints_its_local_address_and_stops_on_ctrl_c(workdir):
     import sys
     import threading
 
-    from test.patience import EVENT_S
+    from test.support.patience import EVENT_S
 
     command = ["-m", "eit_skin.cli.main", "design", str(workdir / "elbow.yaml"), "--no-browser"]
     proc = subprocess.Popen(

@@ -12,7 +12,7 @@ from eit_skin.patch import geometry
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.model import Layer
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 LAYERS = [
     (name, layer.name)
     for name in ("arm", "face", "elbow")

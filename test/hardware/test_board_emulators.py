@@ -34,9 +34,9 @@ from eit_skin.hardware.board_emulators import (
 from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def real(name: str):

@@ -16,7 +16,7 @@ from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.hardware.serial_link import SerialLink
 from eit_skin.hardware.wire import ValueEncoding
 from eit_skin.io.npz import save_frames_npz
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 
 def source(i: int) -> np.ndarray:

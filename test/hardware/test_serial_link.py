@@ -13,7 +13,7 @@ import pytest
 
 from eit_skin.hardware.serial_link import LinkState, SerialLink
 from eit_skin.hardware.wire import DeviceFrame, PatternId, encode_frame
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 
 def frame(seq: int) -> DeviceFrame:

@@ -22,7 +22,7 @@ from eit_skin.hardware.wire import (
     frame_size,
 )
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "wire-protocol.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "wire-protocol.md"
 SCALE = float(np.float32(3.3 / 4096 / 1000))
 
 

@@ -34,7 +34,7 @@ from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

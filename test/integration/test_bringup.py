@@ -17,7 +17,7 @@ from eit_skin.ros.bringup import find_executable
 from eit_skin.ros.node_graph import patch_nodes
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -154,7 +154,7 @@ def test_frames_import_of_a_yaml_file_says_it_is_no_npz(tmp_path, capsys):
 def test_full_scale_v_is_read_refused_when_bad_and_is_the_simulated_boards():
     from eit_skin.patch.loading import patch_from_dict
     from eit_skin.patch.model import PatchError
-    from test.patch_copies import shipped_patch_data
+    from test.support.patch_copies import shipped_patch_data
 
     data = shipped_patch_data("elbow")
     base_hash = patch_from_dict(data).content_hash
@@ -179,7 +179,7 @@ def test_the_node_leaves_the_1e6_volt_value_out_and_counts_it(pinch, cache, tmp_
     from sensor_msgs.msg import Image
 
     from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
-    from test.patience import EVENT_S
+    from test.support.patience import EVENT_S
 
     layer = load_patch(config_path("arm")).layers[0]
     with np.load(pinch / "ok" / "pressure.npz") as data:

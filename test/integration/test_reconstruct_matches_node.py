@@ -29,7 +29,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.sim.simulator import DriftModel, SkinSimulator
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

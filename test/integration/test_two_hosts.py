@@ -1,7 +1,7 @@
 """Issue 38, point 4: one skin across two hosts, emulated by two Linux network namespaces.
 
 Host A (10.38.0.1) runs the elbow's driver and classifier, host B (10.38.0.2) its
-reconstruction and an observer (test/two_host_observer.py); a veth pair is the link. DDS
+reconstruction and an observer (test/support/two_host_observer.py); a veth pair is the link. DDS
 discovers across it by ``ROS_STATIC_PEERS`` (UDP only: shared memory would bypass the link),
 so frames cross A -> B, images B -> A and touch events A -> B. Then the link is pulled
 (``ip link set down``) until the observer has heard nothing for 2 s, and restored: frames
@@ -26,7 +26,7 @@ import pytest
 
 from eit_skin.ros.bringup import find_executable, ros_arguments
 from eit_skin.ros.node_graph import NodeSpec
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
@@ -130,7 +130,11 @@ def test_frames_images_and_events_cross_two_hosts_and_survive_a_pulled_link(host
         _node(a, peer_b, "eit_classifier", {}, tmp_path / "a_classifier.log"),
         _node(b, peer_a, "eit_reconstruction", {}, tmp_path / "b_reconstruction.log"),
     ]
-    observer_cmd = [sys.executable, str(Path(__file__).with_name("two_host_observer.py")), "/elbow"]
+    observer_cmd = [
+        sys.executable,
+        str(Path(__file__).parents[1] / "support" / "two_host_observer.py"),
+        "/elbow",
+    ]
     env = dict(
         os.environ,
         ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",

@@ -27,7 +27,7 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
-from test.reconstruction_phantoms import (
+from test.support.reconstruction_phantoms import (
     CONTACT_OHM_M,
     RADIUS_M,
     Setup,

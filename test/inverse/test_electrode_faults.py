@@ -18,7 +18,7 @@ from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push, peak_hertz_pressure
-from test.patch_copies import small_disc_patch
+from test.support.patch_copies import small_disc_patch
 
 pytestmark = pytest.mark.filterwarnings("error")
 PROTOCOL = build_protocol(ProtocolSpec(), 16)

@@ -12,7 +12,7 @@ from eit_skin.inverse.gauss_newton import (
 )
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.inverse.priors import make_prior
-from test.reconstruction_phantoms import RADIUS_M, phantom, setup
+from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M

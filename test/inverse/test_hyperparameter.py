@@ -22,7 +22,7 @@ from eit_skin.inverse.hyperparameter import (
 )
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
-from test.patch_copies import small_disc_patch
+from test.support.patch_copies import small_disc_patch
 
 SMALL = small_disc_patch("{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16}")
 

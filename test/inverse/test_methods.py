@@ -13,7 +13,7 @@ from eit_skin.inverse.hyperparameter import noise_figure
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
 from eit_skin.inverse.priors import make_prior
-from test.reconstruction_phantoms import RADIUS_M, phantom, setup
+from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M

@@ -13,7 +13,7 @@ from eit_skin.inverse.one_step import (
     relative_difference,
 )
 from eit_skin.inverse.priors import element_adjacency, laplace_matrix, make_prior
-from test.test_image_grid import square_with_hole
+from test.fem.test_image_grid import square_with_hole
 
 pytestmark = pytest.mark.filterwarnings("error")
 

@@ -7,6 +7,7 @@ import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -96,7 +97,7 @@ def test_mcap_schema_and_ros2_decoder(tmp_path):
 
 def test_msgdef_is_the_rosbag2_concatenation():
     text = eit_frame_msgdef()
-    with open(__file__.replace("test/test_recording.py", "msg/EitFrame.msg")) as f:
+    with open(Path(__file__).resolve().parents[2] / "msg" / "EitFrame.msg") as f:
         assert text.startswith(f.read().rstrip("\n"))
     sep = "=" * 80
     assert f"\n{sep}\nMSG: std_msgs/Header\n" in text

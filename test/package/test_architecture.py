@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "eit_skin"
 #: Modules that sit directly in eit_skin/ (everything else lives in a subpackage).
 TOP_LEVEL = {"__init__", "frames", "resources"}
@@ -182,7 +182,7 @@ def test_a_schema_that_imports_a_solver_is_a_violation():
 
 
 def python_files() -> list[Path]:
-    return [*PACKAGE.rglob("*.py"), *(ROOT / "test").glob("*.py"), *(ROOT / "bench").glob("*.py")]
+    return [*PACKAGE.rglob("*.py"), *(ROOT / "test").rglob("*.py"), *(ROOT / "bench").rglob("*.py")]
 
 
 def test_no_private_name_is_imported_from_another_module():
@@ -197,7 +197,7 @@ def test_no_private_name_is_imported_from_another_module():
 
 def test_benchmarks_import_only_the_package():
     offenders = []
-    for path in sorted((ROOT / "bench").glob("*.py")):
+    for path in sorted((ROOT / "bench").rglob("*.py")):
         text = path.read_text()
         tree = ast.parse(text)
         for node in ast.walk(tree):
@@ -256,3 +256,35 @@ def test_re_exported_names_resolve(init):
     package = importlib.import_module(module_name(init))
     for name in getattr(package, "__all__", []):
         assert getattr(package, name) is not None, f"{package.__name__}.{name}"
+
+
+#: Folders of test/ that are not a subpackage of eit_skin (test/README.md): the repository as
+#: a whole, several nodes or commands at once, and the shared helpers.
+TEST_FOLDERS = {"package", "integration", "support"}
+
+
+def test_tests_are_laid_out_like_the_package():
+    """test/<subpackage>/test_<module>*.py for a module of eit_skin/<subpackage>/; directly in
+    test/ only the tests of eit_skin/'s top-level modules; every folder a package (no clash
+    between equal basenames in two folders)."""
+    tests = ROOT / "test"
+    folders = {
+        p.name for p in tests.iterdir() if p.is_dir() and p.name not in {"data", "__pycache__"}
+    }
+    assert folders - TEST_FOLDERS <= set(LAYERS), (
+        f"test/ folders for no subpackage: {folders - TEST_FOLDERS - set(LAYERS)}"
+    )
+    missing_init = [f for f in sorted(folders) if not (tests / f / "__init__.py").exists()]
+    assert not missing_init, f"test/ folders without __init__.py: {missing_init}"
+    stray = [
+        p.name
+        for p in sorted(tests.glob("test_*.py"))
+        if p.stem.removeprefix("test_") not in TOP_LEVEL
+    ]
+    assert not stray, f"test files to place in test/<subpackage>/ (test/README.md): {stray}"
+    helpers = [
+        p.relative_to(ROOT)
+        for p in tests.rglob("*.py")
+        if p.parent.name != "support" and not p.name.startswith(("test_", "__init__", "conftest"))
+    ]
+    assert not helpers, f"shared helpers belong in test/support/: {helpers}"

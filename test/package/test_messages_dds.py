@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 
-PEER = Path(__file__).with_name("dds_peer.py")
+PEER = Path(__file__).parents[1] / "support" / "dds_peer.py"
 
 
 def test_frame_and_event_cross_process_boundary() -> None:

@@ -20,7 +20,7 @@ from eit_skin.patch.placement import CylinderPlacement, HeightmapPlacement, Plan
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.patch.yaml_reader import read_yaml
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 RADIUS = 0.04
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from eit_skin.patch import PatchError, load_patch
 
-ARM = Path(__file__).resolve().parents[1] / "config" / "arm.yaml"
+ARM = Path(__file__).resolve().parents[2] / "config" / "arm.yaml"
 
 
 def arm_with_solver(tmp_path: Path, solver: str) -> Path:

@@ -15,8 +15,8 @@ from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.pipeline.builder import LayerImager
-from test.patch_copies import small_disc_patch
-from test.reconstruction_phantoms import RADIUS_M, phantom, setup
+from test.support.patch_copies import small_disc_patch
+from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 R = RADIUS_M
 

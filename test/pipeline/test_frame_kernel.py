@@ -17,7 +17,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.frame_kernel import FrameKernel, compiled_step_status
 from eit_skin.pipeline.processor import LayerProcessor
-from test.patch_copies import small_disc_patch
+from test.support.patch_copies import small_disc_patch
 
 pytest.importorskip("numba")  # a declared dependency; without it the numpy path is all
 

@@ -26,8 +26,8 @@ from eit_skin.pipeline.model_choice import (
     ladder,
     phantom_set,
 )
-from test.patch_copies import small_disc_patch
-from test.patience import EVENT_S
+from test.support.patch_copies import small_disc_patch
+from test.support.patience import EVENT_S
 
 LOOSE, STRICT = 6.0, 1.5  # percent of R
 

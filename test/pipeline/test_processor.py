@@ -15,7 +15,7 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase, stamp_to_s
 from eit_skin.pipeline.reference import PostureReferences
-from test.patch_copies import small_disc_patch
+from test.support.patch_copies import small_disc_patch
 
 SMALL = small_disc_patch(
     "{method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16, "

@@ -28,7 +28,7 @@ import pytest
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "data" / "real"
 
 

@@ -19,7 +19,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import simulate_press_session
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -24,8 +24,8 @@ from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.touch.pairing import StampPairer
 from eit_skin.touch.shapes import layer_image_grid
-from test.patch_copies import shipped_patch_data, write_patch
-from test.patience import EVENT_S
+from test.support.patch_copies import shipped_patch_data, write_patch
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -18,9 +18,9 @@ from eit_skin.patch.placement import rotation_from_rpy
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 from eit_skin.touch.shapes import layer_image_grid
-from test.patch_copies import shipped_patch_data, write_patch
-from test.patience import EVENT_S
-from test.test_classifier_node import image_msg, preroll, wait_for_contacts
+from test.ros.test_classifier_node import image_msg, preroll, wait_for_contacts
+from test.support.patch_copies import shipped_patch_data, write_patch
+from test.support.patience import EVENT_S
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed")
 pytestmark = pytest.mark.ros

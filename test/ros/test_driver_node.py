@@ -20,7 +20,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.faults import FAULT_KINDS, Fault, parse_faults
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -15,7 +15,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.node_graph import ROBOT_PATCHES, patch_nodes
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -12,7 +12,7 @@ from rclpy.qos import ReliabilityPolicy
 
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.qos import RAW_FRAMES_DEPTH
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

@@ -25,7 +25,7 @@ from eit_skin.ros.node_runner import REJECT_LOG_PERIOD_S
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 from eit_skin.sim.scripts import resolve_scenario
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
 

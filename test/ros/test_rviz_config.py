@@ -14,7 +14,7 @@ from eit_skin.ros.node_graph import ROBOT_PATCHES
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.rviz_config import write_rviz_config
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
-from test.patch_copies import shipped_patch_data, write_patch
+from test.support.patch_copies import shipped_patch_data, write_patch
 
 STARTUP_S = 300.0
 """Ceiling of the wait for the node (returns as soon as it reports)."""

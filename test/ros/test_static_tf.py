@@ -12,8 +12,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from eit_skin.ros.driver import quaternion_from_rpy
 from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS
-from test.patch_copies import shipped_patch_data, write_patch
-from test.patience import EVENT_S
+from test.support.patch_copies import shipped_patch_data, write_patch
+from test.support.patience import EVENT_S
 
 tf2_msgs = pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs not installed")
 pytestmark = pytest.mark.ros

@@ -11,9 +11,9 @@ from eit_skin.frames import is_frames_topic
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.resources import config_path
 from eit_skin.ros.topics import frames_topic, patch_topics
-from test.patch_copies import shipped_patch_data
+from test.support.patch_copies import shipped_patch_data
 
-PACKAGE = Path(__file__).resolve().parents[1] / "eit_skin"
+PACKAGE = Path(__file__).resolve().parents[2] / "eit_skin"
 
 
 def test_arm_names_relative_and_in_its_namespace() -> None:

@@ -19,7 +19,7 @@ import threading
 import time
 from typing import Any
 
-from test.patience import EVENT_S
+from test.support.patience import EVENT_S
 
 #: Flags that work in a container as root without a display or network.
 FLAGS = (

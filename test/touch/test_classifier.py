@@ -25,8 +25,8 @@ from eit_skin.touch.shapes import (
     layer_image_grid,
     single_contact_spread,
 )
-from test.patch_copies import shipped_patch_data
-from test.synthetic_touches import (
+from test.support.patch_copies import shipped_patch_data
+from test.support.synthetic_touches import (
     INSIDE,
     SIGMA_PA,
     WIDTH_M,
@@ -524,7 +524,7 @@ def test_a_real_devices_noise_wanders_in_time_and_counts_fewer_samples() -> None
     # data/real/sciospec_adjacent: 20 object-free frames of a real tank, imaged by the node's
     # chain, averaged over 2 frames and pooled as the START detector does: their noise is
     # correlated in time well beyond the running mean's own sharing
-    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    real = Path(__file__).resolve().parents[2] / "data" / "real"
     with np.load(real / "sciospec_adjacent.npz") as data:
         reference, repeated, frames = data["reference"], data["reference_frames"], data["frames"]
     imager = LayerImager.build(

@@ -14,7 +14,7 @@ from eit_skin.touch.contacts import (
     estimate_noise,
     estimate_noise_map,
 )
-from test.synthetic_touches import INSIDE, SIGMA_PA, XX, YY, X, Y, blobs
+from test.support.synthetic_touches import INSIDE, SIGMA_PA, XX, YY, X, Y, blobs
 
 PIXEL_M = X[1] - X[0]
 

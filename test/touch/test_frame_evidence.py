@@ -25,11 +25,11 @@ from eit_skin.touch.frame_evidence import (
 )
 from eit_skin.touch.shapes import fingertip_discs, raw_patterns
 from eit_skin.touch.start_gates import ELECTRODE_FLICKER
-from test.synthetic_touches import INSIDE, X, Y, envelope, sequence
+from test.support.synthetic_touches import INSIDE, X, Y, envelope, sequence
 
 M = 208
 RATE_HZ = 50.0
-DATA = Path(__file__).resolve().parents[1] / "data" / "real"
+DATA = Path(__file__).resolve().parents[2] / "data" / "real"
 
 
 def unit(v: np.ndarray) -> np.ndarray:

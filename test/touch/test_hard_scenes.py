@@ -19,8 +19,8 @@ from eit_skin.touch.classifier import TouchClassifier, classify_stream
 from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
-from test.patch_copies import small_disc_patch
-from test.synthetic_touches import INSIDE, SIGMA_PA, X, Y, blobs, envelope, sequence
+from test.support.patch_copies import small_disc_patch
+from test.support.synthetic_touches import INSIDE, SIGMA_PA, X, Y, blobs, envelope, sequence
 
 ELECTRODES = 0.04 * np.column_stack(
     [np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)]

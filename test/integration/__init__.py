@@ -1,0 +1,1 @@
+"""Several nodes or commands at once: the whole graph, launch files, hosts, shutdown."""

@@ -1,0 +1,1 @@
+"""Tests of eit_skin.pipeline."""
