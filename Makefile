@@ -101,8 +101,10 @@ $(VENV)/.stamp-chromium: | $(BIN)/python
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
+# The standing benchmarks (bench/REPORT.md), one after another, as modules of the bench package.
 bench: setup
-	@for script in bench/bench_*.py; do echo "== $$script"; $(BIN)/python $$script; done
+	@for script in bench/standing/bench_*.py; do module=$${script%.py}; module=$${module//\//.}; \
+	  echo "== $$module"; $(BIN)/python -m $$module; done
 
 # Build both packages the way a robot does (into build/colcon, not the venv).
 colcon: setup

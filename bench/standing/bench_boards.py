@@ -11,14 +11,13 @@ last byte, the image's own stamp gives the same figure from the driver's side. T
 after the first image are left out (the backlog of frames that came while the reference was
 captured).
 
-    .venv/bin/python bench/bench_boards.py [--seconds 20]     (writes bench/boards.md)
+    .venv/bin/python -m bench.standing.bench_boards [--seconds 20]  (writes boards.md)
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -34,6 +33,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
+from bench.header import run_header
 from eit_skin.hardware.board_emulators import OpenEITEmulator, SciospecEmulator
 from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
@@ -42,7 +42,7 @@ from eit_skin.pipeline.builder import LayerImager, forward_model
 from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import patch_topics
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def disc32(tmp: Path) -> Path:
@@ -180,11 +180,9 @@ def main() -> None:
     )
 
     lines = [
-        "# Board profiles: last byte -> image (`bench/bench_boards.py`)",
+        "# Board profiles: last byte -> image (`bench/standing/bench_boards.py`)",
         "",
-        f"`python bench/bench_boards.py --seconds {args.seconds:g}` on {platform.node()}: "
-        f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}; "
-        f"1-min load average at the end {os.getloadavg()[0]:.1f}. Emulated boards on "
+        f"{run_header()} Emulated boards on "
         "pseudo-terminals at their links' full rates (a pty has no baud rate: the emulators "
         "pace themselves); real eit_driver and eit_reconstruction processes over Fast DDS; "
         "latency = image received minus the time the frame's last byte was written to the pty "

@@ -6,7 +6,7 @@ with the patch's imager (whatever ``solver.prior`` the config says), classified 
 noise only) for the false-event rate; for the elbow also touches with the joint held bent
 (reference = the no-touch frames at that posture, i.e. posture-compensated), and on every patch
 one run with a dead electrode (fault-tolerant reconstruction). Prints the tables and writes
-``bench/classifier.md``.
+``bench/standing/classifier.md``.
 
 Seeds: TUNING (used while choosing features and thresholds) and EVALUATION (never looked at
 while tuning) are disjoint; ``--set tuning`` scores the tuning seeds.
@@ -14,7 +14,8 @@ while tuning) are disjoint; ``--set tuning`` scores the tuning seeds.
 MEASURED IN SIMULATION ONLY: published EIT-skin and social-touch classifiers reach 60-80 % on
 real people.
 
-    .venv/bin/python bench/bench_classifier.py [--set eval|tuning] [--patches arm face elbow]
+    .venv/bin/python -m bench.standing.bench_classifier [--set eval|tuning]
+        [--patches arm face elbow]
 
 Simulated images are cached in ``--data-dir`` (default /tmp/eit_skin_classifier_data) keyed by
 the layer config's content hash, the seed and the length, so a config change re-simulates.
@@ -30,8 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from touch_scoring import balanced_accuracy, confusion, score
 
+from bench.header import run_header
+from bench.standing.touch_scoring import balanced_accuracy, confusion, score
 from eit_skin.frames import flagged_as_nan
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
@@ -195,7 +197,9 @@ def main() -> None:
     parser.add_argument("--idle-seconds", type=float, default=IDLE_SECONDS)
     parser.add_argument("--data-dir", type=Path, default=Path("/tmp/eit_skin_classifier_data"))
     parser.add_argument("--cache-dir", type=Path, default=Path("/tmp/eit_skin_classifier_cache"))
-    parser.add_argument("--out", type=Path, default=None, help="report (eval: bench/classifier.md)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="report (eval: bench/standing/classifier.md)"
+    )
     args = parser.parse_args()
     if args.out is None and args.set == "eval":
         args.out = Path(__file__).with_name("classifier.md")
@@ -298,7 +302,7 @@ def main() -> None:
         "real drift. They only show that the features separate the four labels as the simulator",
         "models them.",
         "",
-        "Produced by `.venv/bin/python bench/bench_classifier.py` (this file). Data: simulator",
+        f"{run_header()} Data: simulator",
         f"`random` scripts ({args.seconds:g} s each, 50 Hz frames, random positions, speeds,",
         "forces, contact radii, ADC noise and quantisation, random sigma0 drift), every layer",
         "reconstructed with the patch's imager as configured (solver prior per layer: "

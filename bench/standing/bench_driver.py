@@ -6,14 +6,13 @@ reception time of every frame with the time its last byte was written (same host
 The figure includes DDS delivery to the subscriber, so it is an upper bound of "last byte
 -> publish". Writes bench/driver.md.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_driver.py [--seconds 10]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_driver [--seconds 10]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import tempfile
 import threading
@@ -29,6 +28,7 @@ os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
 from eit_skin_msgs.msg import EitFrame
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from bench.header import run_header
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.hardware.wire import encode_frame
 from eit_skin.patch.loading import load_patch
@@ -224,10 +224,9 @@ def main() -> None:
     lines = [
         "# Driver latency (last byte written to the pty -> EitFrame received)",
         "",
-        f"`{' '.join(['python', *sys.argv])}` on {platform.node()}: {os.cpu_count()} cores, "
-        f"{platform.processor() or platform.machine()}, Python {platform.python_version()}; "
-        f"{args.seconds:g} s per rate, first second skipped. Includes DDS delivery to a "
-        "subscriber in another process, so it bounds last byte -> publish from above.",
+        f"{run_header()} {args.seconds:g} s per rate, first second skipped. Includes DDS "
+        "delivery to a subscriber in another process, so it bounds last byte -> publish from "
+        "above.",
         "",
         "| rate | frames written | received | median | p99 | max | DDS alone: median | p99 "
         "| driver share (median difference) | last byte -> publish(): median | p99 |",

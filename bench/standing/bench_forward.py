@@ -1,6 +1,6 @@
 """Forward-model speed and conditioning: prints a table (markdown), optionally writes it.
 
-Usage: ``.venv/bin/python bench/bench_forward.py [--out report.md]``
+Usage: ``.venv/bin/python -m bench.standing.bench_forward [--out report.md]``
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def best_of(fn, repeats: int = 5) -> float:

@@ -8,21 +8,19 @@ differences between the stages are what each part costs in that process (caches 
 K patches, DDS threads included).
 
 Writes bench/frame_cost.md. Run:
-``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_frame_cost.py`` (about 4 minutes).
+``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_frame_cost`` (about 4 minutes).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-import bench_skin
 import numpy as np
+
+from bench.header import run_header
+from bench.standing import bench_skin
 
 #: What each stage adds to the one before (report rows).
 ADDS = {
@@ -64,18 +62,14 @@ def main() -> None:
     lines = [
         "# Where a frame's CPU goes: one process, many patches",
         "",
-        f"`python bench/bench_frame_cost.py{''.join(' ' + a for a in sys.argv[1:])}` on "
-        f"{platform.node()}: {os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"OPENBLAS_NUM_THREADS=1, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (the bench's own three "
-        "processes included).",
+        f"{run_header()}",
         "",
         f"{k} face patches at 100 Hz in one worker process on one core, fed and drained by "
-        "two other processes on the other core, as in `bench/skin.md`. Each stage is the "
+        "two other processes on the other core, as in `bench/standing/skin.md`. Each stage is the "
         "node cut after that part of its per-frame work (`bench_skin.staged_node`); the "
         "worker's CPU per frame (all its threads) over a window of "
         f"{args.seconds:.0f} s, {args.runs} runs per stage, interleaved. Latencies are in "
-        "`bench/skin.md`: a cut node's are not a node's.",
+        "`bench/standing/skin.md`: a cut node's are not a node's.",
         "",
         "| stage | adds | worker CPU per frame, each run | adds (median) |",
         "|---|---|---|---|",
@@ -85,7 +79,8 @@ def main() -> None:
         f"imaging: {100 * io / median['full']:.0f} % of the shipped node's "
         f"{median['full']:.3f} ms. Issue 16 asks for a p99 under 5 ms at 50 patches; the "
         "machine runs the same code up to 1.5-1.85x slower for up to a few hundred "
-        "milliseconds (`bench/skin.md`), and a worker only stays ahead of its frames through "
+        "milliseconds (`bench/standing/skin.md`), and a worker only stays ahead of its frames "
+        "through "
         "such a stretch while 50 x 100 x (CPU per frame) x slowdown stays under 1000 ms: "
         "0.108-0.133 ms per frame. What that leaves for the imaging itself is "
         f"{0.108 - io:.3f}-{0.133 - io:.3f} ms against the "

@@ -13,11 +13,12 @@ Frames are imaged by the reconstruction node's per-frame pipeline
 Reports per-class recall, confusion, false events per minute of no-touch time (idle scenes,
 plus unmatched events of touch scenes over their no-touch time), events lasting longer than
 their touch + 0.5 s, and START latency. TUNING seeds were looked at while choosing the
-method; REPORT seeds only for the report (``--set report`` writes bench/hard_scenes.md).
+method; REPORT seeds only for the report (``--set report`` writes bench/standing/hard_scenes.md).
 
 MEASURED IN SIMULATION ONLY.
 
-    .venv/bin/python bench/bench_hard_scenes.py [--set report|tuning] [--patches arm face elbow]
+    .venv/bin/python -m bench.standing.bench_hard_scenes [--set report|tuning]
+        [--patches arm face elbow]
 """
 
 from __future__ import annotations
@@ -25,15 +26,15 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import touch_learned
-from touch_scoring import balanced_accuracy, confusion, match, recalls, score
 
+from bench.header import load_average, run_header
+from bench.standing import touch_learned
+from bench.standing.touch_scoring import balanced_accuracy, confusion, match, recalls, score
 from eit_skin.frames import flagged_as_nan
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
@@ -367,7 +368,7 @@ def main() -> None:
         "within 100 ms |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    load = os.getloadavg()[0]
+    load = load_average()
     details, held_out, train = [], {}, []
     for name in args.patches:
         t0 = time.time()
@@ -423,16 +424,13 @@ def main() -> None:
     report = [
         "# Touch classifier on hard scenes (simulation only)",
         "",
-        "Produced by `.venv/bin/python bench/bench_hard_scenes.py` (see its docstring for the",
-        f"scenes). {args.seconds:g} s per scene, one scene per category and patch, seeds "
+        f"{run_header(load)} See its docstring for the scenes.",
+        f"{args.seconds:g} s per scene, one scene per category and patch, seeds "
         f"{list(seeds)} (tuning seeds {list(SEEDS['tuning'])} were looked at while choosing the",
         "method; these were not). Frames imaged by LayerProcessor (the reconstruction node's",
         "pipeline), its faulty electrodes passed to the classifier every frame.",
         "",
-        f"Run on {time.strftime('%Y-%m-%d', time.gmtime())}; machine **loaded** (2 cores shared by",
-        f"several engineers, load average {load:.1f} at the start): the wall times printed while",
-        "it runs mean little; every figure here is in simulated frame time and does not depend on",
-        "load.",
+        "Every figure here is in simulated frame time and does not depend on the machine's load.",
         "",
         *table,
         "",
@@ -443,7 +441,7 @@ def main() -> None:
         "",
         "## Rules or a learned classifier?",
         "",
-        "Softmax regression (`bench/touch_learned.py`, numpy only) on the rules' features",
+        "Softmax regression (`bench/standing/touch_learned.py`, numpy only) on the rules' features",
         f"({', '.join(touch_learned.FEATURES)}), trained on the tuning seeds' touches of every",
         "patch, against the rules, on these held-out seeds' touches (the same segmented touches;",
         "only the decision differs). The rules are kept unless the model wins on held-out",

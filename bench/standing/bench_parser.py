@@ -1,18 +1,18 @@
 """Parser throughput (frames/s, one core): the wire protocol and every board profile's reader.
 
-Run: .venv/bin/python bench/bench_parser.py   (prints the tables, writes bench/parser.md)
+Run: .venv/bin/python -m bench.standing.bench_parser  (prints the tables, writes parser.md)
 Targets: wire protocol >= 20,000 frames/s (issue 5); each board profile's reader >= 20x the
 fastest frame rate its link can carry (issue 34).
 """
 
 from __future__ import annotations
 
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
+from bench.header import run_header
 from eit_skin.frames import FrameRecord
 from eit_skin.hardware.device_clock import DeviceClock
 from eit_skin.hardware.sciospec import message
@@ -170,11 +170,10 @@ def main() -> None:
 
     frame_bytes = len(encode_frame(DeviceFrame(0, 0, 16, 0, 0.0, np.zeros(M))))
     lines = [
-        "# Parser benchmark (`bench/bench_parser.py`)",
+        "# Parser benchmark (`bench/standing/bench_parser.py`)",
         "",
-        f"{N_FRAMES} frames of {M} values ({frame_bytes} bytes each), best of 3, one core;"
-        f" {platform.machine()},"
-        f" Python {platform.python_version()}, numpy {np.__version__}. Target >= 20,000 frames/s.",
+        f"{run_header()} {N_FRAMES} frames of {M} values ({frame_bytes} bytes each), best of"
+        " 3, one core. Target >= 20,000 frames/s.",
         "",
         "| encoding | stream | feed size | frames/s |",
         "|---|---|---|---:|",

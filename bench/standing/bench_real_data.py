@@ -1,8 +1,8 @@
 """Real measurements: eit_skin's shipped defaults against pyEIT JAC on five real-device recordings.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_real_data.py`` (about 40 s of CPU,
-one core, with a warm matrix cache; the first run builds every candidate); writes
-``bench/real_data.md`` and one figure per set in ``bench/real_data/``.
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_real_data`` (about 40 s
+of CPU, one core, with a warm matrix cache; the first run builds every candidate); writes
+``bench/standing/real_data.md`` and one figure per set in ``bench/standing/real_data/``.
 
 * Data: every ``data/real/<set>.npz`` with its patch file ``data/real/<set>.yaml``
   (``data/real/README.md``: devices, truth, licences).
@@ -26,8 +26,8 @@ one core, with a warm matrix cache; the first run builds every candidate); write
   Its images are conductivity changes with eit_skin's sign convention (checked once: a
   conductive inclusion in its own forward model images positive; its homogeneous forward
   voltages correlate with eit_skin's model voltages, asserted on every run).
-* Scores: ``bench/real_data_scoring.py`` (the same module the regression test uses): blob of
-  the expected sign at half of each image's extreme, position error against the documented
+* Scores: ``bench/standing/real_data_scoring.py`` (the same module the regression test uses):
+  blob of the expected sign at half of each image's extreme, position error against the documented
   targets, track direction consistency and circle residual where only a track is known.
 * Device calibration (``eit-skin fit-device``, :func:`eit_skin.fem.device_fit.fit_device`):
   sheet conductance and contact impedance fitted to each set's reference on the patch's
@@ -42,7 +42,6 @@ one core, with a warm matrix cache; the first run builds every candidate); write
 from __future__ import annotations
 
 import os
-import platform
 import re
 import time
 from dataclasses import dataclass, replace
@@ -51,8 +50,9 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
-import real_data_scoring as scoring
 
+from bench.header import run_header
+from bench.standing import real_data_scoring as scoring
 from eit_skin.fem.device_fit import DeviceFit, fit_device
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
@@ -68,7 +68,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
+REPO = HERE.parents[1]
 DATA = REPO / "data" / "real"
 REPORT = HERE / "real_data.md"
 FIGURES = HERE / "real_data"
@@ -664,14 +664,9 @@ def write_report(
     lines = [
         "# Real measurements: eit_skin against pyEIT JAC",
         "",
-        f"Run {started}; machine: {platform.machine()}, {os.cpu_count()} CPUs shared with "
-        f"other jobs (1-min load average {load_start:.1f} at the start, "
-        f"{os.getloadavg()[0]:.1f} at the end); Python {platform.python_version()}, numpy "
-        f"{np.__version__}, pyEIT {pyeit_version}, OPENBLAS_NUM_THREADS="
-        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}. Command: "
-        "`OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_real_data.py`.",
+        f"{run_header(load_start)} Started {started}; pyEIT {pyeit_version}.",
         "",
-        "Data: the five recordings of [data/real/](../data/real/README.md) (real devices, "
+        "Data: the five recordings of [data/real/](../../data/real/README.md) (real devices, "
         "other groups' phantoms and skins). eit_skin: each patch file as shipped, device "
         f"facts only, so the package default solver ({label(PACKAGE_DEFAULT)}: the "
         "hyperparameter is the larger of the one for the noise figure on the measured noise "
@@ -684,7 +679,7 @@ def write_report(
         "data), electrodes at the patch's electrode centres, the set's own measurement list; "
         "both imaged on the same pixel grid (the patch's, 64 pixels across). Scoring "
         "([real_data_scoring.py](real_data_scoring.py), shared with "
-        "`test/test_real_data.py`): in each image the pixels at or above half of the "
+        "`test/pipeline/test_real_data.py`): in each image the pixels at or above half of the "
         "extreme of the expected sign (every set: an insulating target, so negative) form "
         "8-connected blobs placed at their amplitude-weighted centroids; each documented "
         "target is matched one-to-one to the strongest blobs (smallest total distance; "

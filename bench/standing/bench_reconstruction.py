@@ -1,8 +1,8 @@
 """Reconstruction speed against error: eit_skin vs pyEIT JAC on the same disk meshes and data.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py [--quick]
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_reconstruction [--quick]
 [--gn-only | --gn-node | --online-only | --frame-only] [--json OUT.json]``;
-writes ``bench/REPORT.md`` and ``bench/reconstruction.png``.
+writes ``bench/standing/reconstruction.md`` and ``bench/standing/reconstruction.png``.
 
 * Data: simulated once on a finer mesh (h = 1.2 mm, ~23k triangles) than any reconstruction
   mesh; 30 targets (radius 5 % R, conductivity x2) at 0..0.9 R, three angles each; noise 1 %
@@ -40,13 +40,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from bench.header import run_header
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
@@ -96,11 +95,6 @@ ONLINE_CONFIGS = [
     ("warm, quasi-Newton 1.0, step test 0.03", True, 0.03, 1.0, 5),
     ("warm, fixed Jacobian, 1 step per frame", True, 0.0, 1e9, 1),
 ]
-
-
-def loaded() -> bool:
-    """Whether other jobs load the machine: 1-min load average above half the CPUs."""
-    return hasattr(os, "getloadavg") and os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1)
 
 
 def median_time(fn, n):
@@ -323,15 +317,12 @@ def gn_case(fwd, large, v0):
 
 def gn_section(gn_rows) -> list[str]:
     """Markdown lines of the Gauss-Newton section of the report."""
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Gauss-Newton",
         "",
-        f"5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R target at (-0.3, 0.4) R; "
-        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; median of "
-        f"{GN_REPEATS} runs; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
-        "end of the run (this benchmark included; wall times grow with other load, CPU time "
-        "less so). One-off: `gauss_newton_difference` with the unknowns on the "
+        f"{run_header()} 5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R target at "
+        f"(-0.3, 0.4) R; median of {GN_REPEATS} runs (wall times grow with other load, CPU "
+        "time less so). One-off: `gauss_newton_difference` with the unknowns on the "
         "forward mesh (builds everything per call). Solver: `GaussNewtonSolver` built once "
         "(setup column), unknowns on the coarse parameter mesh, then `difference()` per frame; "
         "the per-iteration split is wall time of the forward solves (factorisation + "
@@ -436,25 +427,21 @@ def gn_node_case(patch_name: str, rate_hz: float) -> list[dict]:
 
 def gn_node_section(rows, cpu: int | None, rate_hz: float) -> list[str]:
     """Markdown lines of the Gauss-Newton-in-the-node section of the report."""
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Gauss-Newton in the node",
         "",
-        "Sustained rate of the reconstruction node's per-frame path with every layer of the "
-        "shipped patches switched to `method: gauss_newton` (`pipeline.builder.with_method`: "
-        "Laplace prior, `h` chosen for the method's default noise figure on the first "
-        "linearised step, `max_iterations` 5, tolerance 1e-3 of the measured change): "
-        "`LayerImager.relative_change(frame, reference, flags)` for every frame of the "
+        f"{run_header()} Sustained rate of the reconstruction node's per-frame path with "
+        "every layer of the shipped patches switched to `method: gauss_newton` "
+        "(`pipeline.builder.with_method`: Laplace prior, `h` chosen for the method's default "
+        "noise figure on the first linearised step, `max_iterations` 5, tolerance 1e-3 of the "
+        "measured change): `LayerImager.relative_change(frame, reference, flags)` for every "
+        "frame of the "
         f"simulator's demo scenario at {rate_hz:g} Hz (touches, holds, quiet frames, drift, "
         "ADC noise; pre-touch reference), one call per frame as the node makes it. "
-        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, process "
-        f"pinned to CPU {cpu}; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
-        "end (this benchmark included; other jobs shared the machine, so wall time is an upper "
-        "bound and CPU time the better figure). Per patch: frames of every layer imaged in "
+        f"Process pinned to CPU {cpu} (on a shared machine wall time is an upper bound and CPU "
+        "time the better figure). Per patch: frames of every layer imaged in "
         "turn on the one core, `frames / sum of the layers' total time`. Not included: "
-        "reference tracking, conversion to images and publishing (one-step-sized costs). "
-        "Command: `OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_reconstruction.py "
-        "--gn-node`.",
+        "reference tracking, conversion to images and publishing (one-step-sized costs).",
         "",
         "| patch | layer | forward triangles | parameter triangles | h | frames | setup s "
         "(wall / CPU) | per frame ms: median / p95 (wall) | mean iterations (share at max) "
@@ -587,24 +574,20 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
 
 def online_section(rows) -> list[str]:
     """Markdown lines of the online Gauss-Newton section (accuracy per millisecond)."""
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Online Gauss-Newton: accuracy per millisecond",
         "",
-        f"A press sequence at {ONLINE_RATE_HZ:g} Hz ({ONLINE_FRAMES} frames: a 0.2 R disk "
-        "pressed in over 0.1 s to x20 while it slides 0.5 R in 0.4 s, 1 % noise, data mesh as "
-        "above) imaged frame by frame by `GaussNewtonSolver.difference` of the reconstructor "
-        "(`GaussNewtonReconstructor.build`: Laplace prior, `h` for the default noise figure "
-        "0.3, 416-triangle parameter mesh) in each configuration. Errors are against five cold "
-        "Gauss-Newton iterations on the same frame (what the reconstructor did per frame "
-        "before): peak = relative error of the largest value, centre = distance of the "
-        "quarter-max centre of gravity, fraction of R; max over the frames. Times per frame, "
-        "wall (mean / median / p95) and CPU (mean), median of two passes; solves = forward "
+        f"{run_header()} A press sequence at {ONLINE_RATE_HZ:g} Hz ({ONLINE_FRAMES} frames: "
+        "a 0.2 R disk pressed in over 0.1 s to x20 while it slides 0.5 R in 0.4 s, 1 % noise, "
+        "data mesh as above) imaged frame by frame by `GaussNewtonSolver.difference` of the "
+        "reconstructor (`GaussNewtonReconstructor.build`: Laplace prior, `h` for the default "
+        "noise figure 0.3, 416-triangle parameter mesh) in each configuration. Errors are against"
+        " five cold Gauss-Newton iterations on the same frame (what the reconstructor did per "
+        "frame before): peak = relative error of the largest value, centre = distance of the "
+        "quarter-max centre of gravity, fraction of R; max over the frames. Times per frame, wall"
+        " (mean / median / p95) and CPU (mean), median of two passes; solves = forward "
         "factorisations, linearisations = Jacobians + normal matrices per frame (the one at "
-        f"sigma0 is precomputed). OPENBLAS_NUM_THREADS="
-        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; 1-min load average {load:.1f} "
-        f"on {os.cpu_count()} cores when written (loaded: other jobs shared the machine, wall "
-        "times are upper bounds). The reconstructor's default (warm start, step test 0.01, "
+        "sigma0 is precomputed). The reconstructor's default (warm start, step test 0.01, "
         "linearisation kept within |d ln sigma| <= 0.5) is marked.",
         "",
         "| forward triangles | configuration | ms/frame wall: mean / median / p95 | CPU ms "
@@ -643,12 +626,12 @@ def main() -> None:
         "--frame-only",
         action="store_true",
         help="only the per-mesh frame table (no Gauss-Newton, sweep or plot): rewrites that "
-        "section of REPORT.md",
+        "section of reconstruction.md",
     )
     args = ap.parse_args()
     if args.gn_node:
         rows, cpu = gn_node_rows(GN_NODE_RATE_HZ)
-        replace_section(OUT / "REPORT.md", gn_node_section(rows, cpu, GN_NODE_RATE_HZ))
+        replace_section(OUT / "reconstruction.md", gn_node_section(rows, cpu, GN_NODE_RATE_HZ))
         return
     protocol = build_protocol(ProtocolSpec(), 16)
     fine = ForwardModel(disk_mesh(R, h_m=0.0012), protocol, 1e-4)
@@ -660,13 +643,13 @@ def main() -> None:
         online = []
         for h in sizes:
             online += online_gn_case(ForwardModel(disk_mesh(R, h_m=h), protocol, 1e-4), press, v0)
-        replace_section(OUT / "REPORT.md", online_section(online))
+        replace_section(OUT / "reconstruction.md", online_section(online))
         return
     if args.gn_only:
         gn_rows = []
         for h in SIZES[:3] if args.quick else SIZES:
             gn_rows += gn_case(ForwardModel(disk_mesh(R, h_m=h), protocol, 1e-4), large, v0)
-        replace_section(OUT / "REPORT.md", gn_section(gn_rows))
+        replace_section(OUT / "reconstruction.md", gn_section(gn_rows))
         return
     centres = disc_centres(R)
     sim = simulate_discs(fine, centres, 0.05 * R, 2.0, 0.01, np.random.default_rng(0))
@@ -740,7 +723,7 @@ def main() -> None:
         if args.json is not None:
             write_json(args.json, records)
         replace_section(
-            OUT / "REPORT.md",
+            OUT / "reconstruction.md",
             frame_section(rows, args.quick, fine.mesh.n_triangles, bandwidth, frame_only=True),
         )
         return
@@ -819,19 +802,10 @@ def frame_section(
 ) -> list[str]:
     """The report's first section: machine, method and the per-mesh frame table."""
     only = " (this section only; the sections below are from an earlier run)"
-    flags = "".join(f" {a}" for a in sys.argv[1:] if a.startswith("--") and a != "--json")
     lines = [
         "# Reconstruction benchmark",
         "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
-        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
-        f"Python {platform.python_version()}, numpy "
-        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
-        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
-        f".venv/bin/python bench/bench_reconstruction.py{flags}`"
-        f"{only if frame_only else ''}"
-        f", {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        f"{run_header()} Mode: {'--quick' if quick else 'full'}{only if frame_only else ''}.",
         "",
         f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
         "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
@@ -931,7 +905,7 @@ def write_report(rows, sweep, gn_rows, online, node, sweep_fwd, data_n, quick, b
         )
     lines += ["", *gn_section(gn_rows), "", *online_section(online), "", *gn_node_section(*node)]
     lines += ["", "![speed and error](reconstruction.png)", ""]
-    (OUT / "REPORT.md").write_text("\n".join(lines))
+    (OUT / "reconstruction.md").write_text("\n".join(lines))
 
 
 if __name__ == "__main__":

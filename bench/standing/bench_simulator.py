@@ -3,10 +3,10 @@ bench/simulator_report.md. Run with OPENBLAS_NUM_THREADS=1 on a shared machine."
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
+from bench.header import run_header
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
@@ -48,14 +48,12 @@ def main() -> None:
             f"first frame {1e3 * (t2 - t1):6.1f} ms  all {t3 - t1:6.2f} s  "
             f"({1e3 * (t3 - t1) / len(rec.t):5.2f} ms/frame)  {solves}"
         )
-    threads = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     lines = [
         "# Simulator benchmark",
         "",
-        f"20 s at {RATE_HZ:g} Hz per patch (all layers), seed 0, default settings "
-        f"(sim mesh 0.6 x max_edge). OPENBLAS_NUM_THREADS={threads}, "
-        f"{os.cpu_count()} CPUs. Solves per layer: d = direct sparse solve, u = low-rank "
-        "(Woodbury) update, c = identical field reused.",
+        f"{run_header()} 20 s at {RATE_HZ:g} Hz per patch (all layers), seed 0, default "
+        "settings (sim mesh 0.6 x max_edge). Solves per layer: d = direct sparse solve, "
+        "u = low-rank (Woodbury) update, c = identical field reused.",
         "",
         "| patch | scenario | frames | setup s | first frame ms | all s | ms/frame | solves |",
         "|---|---|---|---|---|---|---|---|",
@@ -63,7 +61,7 @@ def main() -> None:
     for p, s, n, setup, first, total, per, solves in rows:
         cells = (p, s, n, f"{setup:.2f}", f"{1e3 * first:.1f}", f"{total:.2f}", f"{per:.2f}")
         lines.append("| " + " | ".join(str(c) for c in cells) + f" | {solves} |")
-    out = Path(__file__).with_name("simulator_report.md")
+    out = Path(__file__).with_name("simulator.md")
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 

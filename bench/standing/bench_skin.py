@@ -9,7 +9,7 @@
 * memory: one reconstruction process fed at 1 kHz for ``--memory-seconds``; its resident
   set size sampled every 10 s (growth = last - first after warm-up).
 
-Writes bench/skin.md. Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_skin.py``
+Writes bench/skin.md. Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_skin``
 (``--quick`` for a short run).
 """
 
@@ -21,7 +21,6 @@ import contextlib
 import json
 import math
 import os
-import platform
 import struct
 import subprocess
 import sys
@@ -32,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
@@ -43,6 +42,7 @@ from eit_skin_msgs.msg import EitFrame  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
+from bench.header import load_average, run_header  # noqa: E402
 from eit_skin.patch.loading import load_patch  # noqa: E402
 from eit_skin.pipeline.builder import LayerImager  # noqa: E402
 from eit_skin.resources import config_path  # noqa: E402
@@ -320,11 +320,11 @@ def sink(k: int, out: str) -> None:
 
 
 def _start(args: list[str], log: Path) -> subprocess.Popen:
-    """This script in a child process (``--worker``/``--sink``), after its ``ready`` line."""
+    """This module in a child process (``--worker``/``--sink``), after its ``ready`` line."""
     profile = os.environ.get("EIT_SKIN_BENCH_PROFILE")  # cProfile output of the children
     prefix = ["-m", "cProfile", "-o", f"{profile}.{'.'.join(args)}"] if profile else []
     proc = subprocess.Popen(
-        [sys.executable, *prefix, __file__, *args],
+        [sys.executable, *prefix, "-m", __spec__.name, *args],
         stdout=subprocess.PIPE, stderr=log.open("w"), text=True,
     )  # fmt: skip
     if proc.stdout.readline().strip() != "ready":
@@ -578,7 +578,7 @@ def main() -> None:
     if args.steadiness:
         print(json.dumps(steadiness(args.steadiness)), flush=True)
         return
-    load = os.getloadavg()[0]  # the machine's, before this bench's own processes run
+    load = load_average()  # the machine's, before this bench's own processes run
     workdir = Path(tempfile.mkdtemp(prefix="eit_bench_skin_"))
     cache = workdir / "cache"
     build_cache(cache, ["arm", "face"])
@@ -588,7 +588,7 @@ def main() -> None:
     steady_s = 20.0 if args.quick else 120.0
     machine = json.loads(
         subprocess.run(
-            [sys.executable, __file__, "--steadiness", str(steady_s)],
+            [sys.executable, "-m", __spec__.name, "--steadiness", str(steady_s)],
             capture_output=True, text=True, check=True,
         ).stdout.splitlines()[-1]
     )  # fmt: skip
@@ -620,19 +620,10 @@ def main() -> None:
     warm = [rss for t, rss in mem if t >= 30.0] or [mem[-1][1]]
     at_50 = [r["cpu_ms"] for k, r in results if k == 50]
     busy = 50 * 100 * float(np.median(at_50)) / 1000 if at_50 else float("nan")
-    loaded_note = (
-        " (LOADED: 2 cores shared with other engineers' jobs, wall-clock figures are upper bounds)"
-    )
     lines = [
         "# Running skin: latency, throughput, memory",
         "",
-        f"`python bench/bench_skin.py{''.join(' ' + a for a in sys.argv[1:])}` on "
-        f"{platform.node()}: "
-        f"{os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"OPENBLAS_NUM_THREADS=1, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
-        f"1-min load average {load:.1f} before the runs"
-        f"{loaded_note if load > 0.5 * (os.cpu_count() or 1) else ' (idle machine)'}. "
-        "Numbers are one run; a patch count listed twice was run twice.",
+        f"{run_header(load)} Numbers are one run; a patch count listed twice was run twice.",
         "",
         "## End-to-end latency (arm, 2 layers, 100 Hz): frame publish -> pressure image received",
         "",

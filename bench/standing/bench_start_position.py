@@ -1,14 +1,16 @@
 """START position, area and peak against the simulator's truth, and the UPDATEs after it.
 
 For every patch (default arm, face, elbow): the evaluation seeds' ``random`` touch scripts of
-``bench/bench_classifier.py`` (same simulation and cache), classified with the raw frames as
-the node does. Each true touch is matched to its END as in ``touch_scoring.match``; its START
-is compared with the true contact centroid (the script's track, linearly interpolated) at the
-START event's frame time: error in mm. Reported per patch and START source (contacts
-segmented at START, or a pooled / matched-filter START before any contact): median, p90, the
-share within 8 mm, and START area / peak; plus how many UPDATEs follow a START before END.
+``bench/standing/bench_classifier.py`` (same simulation and cache), classified with the raw
+frames as the node does. Each true touch is matched to its END as in ``touch_scoring.match``;
+its START is compared with the true contact centroid (the script's track, linearly
+interpolated) at the START event's frame time: error in mm. Reported per patch and START source
+(contacts segmented at START, or a pooled / matched-filter START before any contact): median,
+p90, the share within 8 mm, and START area / peak; plus how many UPDATEs follow a START before
+END.
 
-    .venv/bin/python bench/bench_start_position.py [--patches arm face elbow] [--seeds 301 302]
+    .venv/bin/python -m bench.standing.bench_start_position [--patches arm face elbow]
+        [--seeds 301 302]
 
 Writes nothing by itself; the table printed is copied into bench/start_position.md.
 """
@@ -20,9 +22,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_classifier import EVAL_SEEDS, RATE_HZ, SECONDS, simulate
-from touch_scoring import match
 
+from bench.standing.bench_classifier import EVAL_SEEDS, RATE_HZ, SECONDS, simulate
+from bench.standing.touch_scoring import match
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path

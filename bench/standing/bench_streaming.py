@@ -5,7 +5,7 @@ this script stays small too) is reconstructed by ``eit-skin reconstruct`` in a c
 its peak resident memory comes from ``os.wait4`` (ru_maxrss of that child alone), its
 throughput from the wall time. Writes bench/streaming.md.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_streaming.py [--frames 1e4 1e5 3e5]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_streaming [--frames 1e4 1e5 3e5]
         [--work-dir build/bench_streaming]
 
 At 1e6 frames the input takes ~1.7 GB and the output ~18 GB of disk in the work folder
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.header import run_header
 from eit_skin.io.npz import NpzStreamWriter
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
@@ -87,9 +87,7 @@ def main() -> None:
     lines = [
         "# Offline streaming: `eit-skin reconstruct` memory against file length",
         "",
-        f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_streaming.py --frames "
-        f"{' '.join(f'{x:g}' for x in args.frames)}` on {platform.node()} "
-        f"({os.cpu_count()} cores, shared with other work; Python {platform.python_version()}).",
+        run_header(),
         "",
         "Elbow pressure layer (M = 208), default block of 4096 frames, method and cache of the "
         "patch (matrix cached before the first run). Peak RSS: ru_maxrss of the reconstruct "

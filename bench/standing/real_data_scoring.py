@@ -1,7 +1,7 @@
 """Scores of reconstructed images of the real-device recordings in ``data/real/``.
 
-One place for the rules, shared by ``bench/bench_real_data.py`` (which imports it as a
-sibling module) and ``test/test_real_data.py`` (which loads this file with ``importlib``),
+One place for the rules, shared by ``bench/standing/bench_real_data.py`` (which imports it as a
+sibling module) and ``test/pipeline/test_real_data.py`` (which loads this file with ``importlib``),
 so that the benchmark's table and the regression test measure the same thing. It depends on
 numpy and scipy only, never on a reconstruction package: every tool is scored by the same
 rules from its images ``[T, H, W]`` on pixel centres ``x [W]``, ``y [H]`` (metres).

@@ -1,6 +1,6 @@
 """A tiny learned alternative to the touch rules: softmax regression on the rules' features.
 
-Used by ``bench/bench_hard_scenes.py`` to compare, on held-out (report) seeds, the rules of
+Used by ``bench/standing/bench_hard_scenes.py`` to compare, on held-out (report) seeds, the rules of
 :func:`~eit_skin.touch.events.decide` with a model trained on the tuning seeds' scenes.
 Both label the same segmented touches (the classifier's END events matched to the truth),
 so only the decision differs. numpy only; the model is a ``[F + 1, 4]`` weight matrix.

@@ -1,7 +1,7 @@
 """Scores of touch events against simulated truth, shared by the classifier benchmarks.
 
-One place for the matching rules, imported as a sibling module by ``bench/bench_classifier.py``
-(easy random scenes) and ``bench/bench_hard_scenes.py`` (hard scenes), so both tables count
+One place for the matching rules, imported by ``bench/standing/bench_classifier.py`` (easy
+random scenes) and ``bench/standing/bench_hard_scenes.py`` (hard scenes), so both tables count
 the same thing. Depends on numpy and the package's label list only.
 
 Matching: every true touch (``{"label", "t_start", "t_end"}``, s) takes the not yet used END

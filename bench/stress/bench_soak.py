@@ -6,14 +6,13 @@ node process's resident memory and CPU time from /proc every ``--period`` second
 nodes after ``--minutes`` by itself (SIGINT, then SIGKILL after 10 s) and writes a table and
 the memory growth per minute (least-squares slope after ``--warmup`` seconds) to bench/soak.md.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_soak.py [--minutes 10]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.stress.bench_soak [--minutes 10]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_bench_log_"))
 
+from bench.header import run_header
 from eit_skin.ros.bringup import start, stop
 from eit_skin.ros.node_graph import robot_nodes
 
@@ -82,8 +82,7 @@ def write_report(args, labels, times, rows, codes) -> None:
     lines = [
         "# Soak: the whole simulated robot at full rate",
         "",
-        f"`OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/bench_soak.py --minutes {args.minutes:g}`"
-        f" on {platform.node()} ({os.cpu_count()} cores, shared; {platform.python_version()}).",
+        run_header(),
         "",
         "Nodes: driver (simulator, looping its touch script at 50 Hz), reconstruction and "
         "classifier of arm, face and elbow (`robot_nodes`, started by `ros/bringup.py`). "

@@ -1,6 +1,6 @@
 """Patches across a link between two emulated hosts: lost frames, latency, recovery from a cut.
 
-``sudo python bench/bench_two_hosts.py --patches 10 --rate 100 --seconds 300 --cut 5``
+``sudo python -m bench.stress.bench_two_hosts --patches 10 --rate 100 --seconds 300 --cut 5``
 
 Host A (network namespace, 10.39.0.1) runs ``--patches`` simulated drivers (the face patch,
 no touch, ``--rate`` Hz, namespaces ``/p0``, ``/p1``, ...); host B (10.39.0.2), joined by a
@@ -124,8 +124,8 @@ def main() -> int:
             )
         out = work / "observed.json"
         observer = subprocess.Popen(
-            ["ip", "netns", "exec", b, sys.executable, __file__, "--patches", str(args.patches),
-             "--observe", ",".join(namespaces), "--out", str(out)],
+            ["ip", "netns", "exec", b, sys.executable, "-m", __spec__.name,
+             "--patches", str(args.patches), "--observe", ",".join(namespaces), "--out", str(out)],
             env={**base, "ROS_STATIC_PEERS": f"{SUBNET}.1"},  # the same venv: no PYTHONPATH
         )  # fmt: skip
         time.sleep(args.seconds)  # a benchmark: the window is the measurement

@@ -1,8 +1,8 @@
 """Shutdown stress: face graphs signalled at random moments, hung or crashed nodes reported.
 
-Usage: `.venv/bin/python bench/stress_shutdown.py ROUNDS BATCH OUTDIR` (environment as for the
-tests: AMENT_PREFIX_PATH, ROS_LOG_DIR, ROS_DOMAIN_ID, EIT_SKIN_CACHE). Prints "bad N bounded M"
-at the end (M: stops whose DDS teardown was cut by the native exit timer, exit 0).
+Usage: `.venv/bin/python -m bench.stress.stress_shutdown ROUNDS BATCH OUTDIR` (environment as
+for the tests: AMENT_PREFIX_PATH, ROS_LOG_DIR, ROS_DOMAIN_ID, EIT_SKIN_CACHE). Prints "bad N
+bounded M" at the end (M: stops whose DDS teardown was cut by the native exit timer, exit 0).
 
 On a process alive EXIT_S after its signal: SIGUSR1 (faulthandler Python stacks) then gdb
 C stacks into the log dir; on a negative exit code: its log is printed.

@@ -7,7 +7,7 @@ voltages, Jacobian, relative Jacobian), and the peak resident memory they add. E
 runs in a fresh process (``ru_maxrss`` is a high-water mark). The constants of
 :mod:`eit_skin.patch.mesh_budget` come from this table (docs/patch-schema.md).
 
-Usage: ``.venv/bin/python bench/bench_mesh_budget.py [--out report.md]``
+Usage: ``.venv/bin/python -m bench.studies.bench_mesh_budget [--out report.md]``
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def main() -> int:
     ]
     for n_el, h in CASES:
         out = subprocess.run(
-            [sys.executable, __file__, "--case", str(n_el), repr(h)],
+            [sys.executable, "-m", __spec__.name, "--case", str(n_el), repr(h)],
             check=True,
             capture_output=True,
             text=True,

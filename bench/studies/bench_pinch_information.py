@@ -30,7 +30,7 @@ asks whether the information is there at all. For every pinch of the REPORT seed
 
 MEASURED IN SIMULATION ONLY; no time is measured.
 
-    .venv/bin/python bench/bench_pinch_information.py [--patches face] [--out F]
+    .venv/bin/python -m bench.studies.bench_pinch_information [--patches face] [--out F]
 """
 
 from __future__ import annotations
@@ -39,10 +39,11 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-import bench_hard_scenes as scenes
 import numpy as np
-from touch_scoring import match
 
+from bench.header import run_header
+from bench.standing import bench_hard_scenes as scenes
+from bench.standing.touch_scoring import match
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
@@ -182,7 +183,7 @@ def main() -> None:
     text = [
         "# How much of a close pinch the frames carry, and the images keep",
         "",
-        f"Produced by `.venv/bin/python bench/bench_pinch_information.py` (seed {SEED}, the",
+        f"{run_header()} Seed {SEED} (the",
         "hard-scene benchmark's report seed; its docstring defines every column). Simulation",
         "only: the bound uses the simulator's own noise-free model, so it is what an ideal",
         "detector could reach, not what a real one does.",

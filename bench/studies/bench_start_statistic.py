@@ -45,21 +45,20 @@ the tanks and the hydrogel):
 
 No time is measured.
 
-    .venv/bin/python bench/bench_start_statistic.py [--out bench/start_statistic.md]
+    .venv/bin/python -m bench.studies.bench_start_statistic [--out bench/studies/start_statistic.md]
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import bench_hard_scenes as scenes
 import numpy as np
-import real_data_scoring as scoring
 
+from bench.header import load_average, run_header
+from bench.standing import bench_hard_scenes as scenes
+from bench.standing import real_data_scoring as scoring
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
@@ -70,7 +69,7 @@ from eit_skin.touch.contacts import PooledDetector
 from eit_skin.touch.frame_evidence import TouchFilter
 from eit_skin.touch.shapes import FINGER_RADIUS_M, raw_patterns, single_contact_spread
 
-REAL = Path(__file__).resolve().parents[1] / "data" / "real"
+REAL = Path(__file__).resolve().parents[2] / "data" / "real"
 THRESHOLDS = (4.0, 5.5, 7.0)
 SEED = scenes.SEEDS["report"][0]
 QUIET_MARGIN_S = 0.5
@@ -237,7 +236,7 @@ def main() -> None:
     parser.add_argument("--cache-dir", type=Path, default=Path("/tmp/eit_skin_classifier_cache"))
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("start_statistic.md"))
     args = parser.parse_args()
-    load = os.getloadavg()[0]
+    load = load_average()
     head = " | ".join(f"fire at k = {k:g}: no-touch / touch" for k in THRESHOLDS)
     lines = [
         f"| set | statistic | maps no-touch / touch | no-touch max-z median / p99 / max | "
@@ -258,9 +257,7 @@ def main() -> None:
     report = [
         "# START statistic: pooled image against matched filters on the raw frames",
         "",
-        "Produced by `.venv/bin/python bench/bench_start_statistic.py` (its docstring has the",
-        f"method) on {time.strftime('%Y-%m-%d', time.gmtime())}, load average {load:.1f};"
-        " no time is measured.",
+        f"{run_header(load)} Its docstring has the method; no time is measured.",
         f"Simulated sets: the REPORT seed ({SEED}) of `bench_hard_scenes`' "
         f"{' and '.join(f'`{s}`' for s in SIM_SCENES)}; real",
         "sets: `data/real/` (other groups' devices).",

@@ -1,6 +1,6 @@
 """Is a tank's depth enough to move a 2-D image's blobs outwards? A 3-D check for real_data.md.
 
-Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/real_data_3d_check.py [SET] [H ...]``
+Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.studies.real_data_3d_check [SET] [H ...]``
 (default ``ottawa_ph1`` and half-heights 0.02 0.06 0.15 m; the 0.15 m tank takes about two
 minutes and 2 GB for its factorisations). Prints, per tank, where eit_skin's shipped chain
 (the set's patch file, 2-D, the set's own reference and noise weighting as in
@@ -23,12 +23,12 @@ import sys
 import time
 
 import numpy as np
-import real_data_scoring as scoring
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
-from bench_real_data import DATA, sheet_radius
 from scipy.spatial import Delaunay
 
+from bench.standing import real_data_scoring as scoring
+from bench.standing.bench_real_data import DATA, sheet_radius
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 

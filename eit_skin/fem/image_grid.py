@@ -200,7 +200,8 @@ class ImageGrid:
 #: Two input columns of a folded matrix whose columns are proportional to within this fraction
 #: of the column's norm share one column (:func:`proportional_columns`). Far below float32
 #: rounding (6e-8), so merging changes an image by less than storing the matrix in float32
-#: does; the reciprocal columns of a least-squares matrix agree to ~1e-10 (bench/REPORT.md).
+#: does; the reciprocal columns of a least-squares matrix agree to ~1e-10
+#: (bench/standing/reconstruction.md).
 MERGE_TOLERANCE = 1e-8
 
 
@@ -266,7 +267,7 @@ class PixelMatrix:
 
     The matrix is stored column-major (Fortran order): the matrix-vector product then runs
     as ``P`` contiguous column updates, which OpenBLAS does 20-30 % faster than ``K`` row dot
-    products of length ``P`` (bench/REPORT.md); the batched product reads it as the
+    products of length ``P`` (bench/standing/reconstruction.md); the batched product reads it as the
     C-contiguous ``[P, K]`` transpose.
 
     Attributes:

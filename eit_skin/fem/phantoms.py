@@ -78,7 +78,8 @@ def simulate_discs(
 
 
 #: Target centres of the reconstruction benchmark on a disc of radius R: ten radii
-#: 0..0.9 R, three angles (rad) at each (bench/bench_reconstruction.py, bench/REPORT.md).
+#: 0..0.9 R, three angles (rad) at each (bench/standing/bench_reconstruction.py,
+#: bench/standing/reconstruction.md).
 DISC_RADII_R = tuple(float(r) for r in np.linspace(0.0, 0.9, 10))
 DISC_ANGLES_RAD = (0.2, 1.3, 2.9)
 

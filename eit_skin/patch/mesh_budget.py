@@ -10,7 +10,7 @@ from the sheet area and ``max_edge`` plus the refinement along boundary pieces f
 
 and the cost of meshing plus the first forward assembly (forward model, voltages, Jacobian
 ``[M, N]`` and its relative copy) from per-triangle costs measured by
-``bench/bench_mesh_budget.py`` (docs/patch-schema.md, *Mesh budget*)::
+``bench/studies/bench_mesh_budget.py`` (docs/patch-schema.md, *Mesh budget*)::
 
     peak memory ~ N * (BYTES_PER_TRIANGLE + BYTES_PER_TRIANGLE_AND_MEASUREMENT * M)
     CPU time    ~ N * (SECONDS_PER_TRIANGLE + SECONDS_PER_TRIANGLE_AND_MEASUREMENT * M)

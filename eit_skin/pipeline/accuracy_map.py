@@ -4,8 +4,9 @@
 (:meth:`~eit_skin.pipeline.builder.LayerImager.build`, the layer's method and noise figure),
 simulates the package's phantom set (:func:`~eit_skin.fem.phantoms.simulate_discs`: discs
 of radius :data:`TARGET_RADIUS_R` R, conductance x :data:`TARGET_CONTRAST`,
-:data:`NOISE` of the RMS difference signal, the figures of ``bench/bench_reconstruction.py``)
-on a *data mesh* finer than and different from the imaging mesh (no inverse crime), and
+:data:`NOISE` of the RMS difference signal, the figures of
+``bench/standing/bench_reconstruction.py``) on a *data mesh* finer than and different from the
+imaging mesh (no inverse crime), and
 measures at every target the GREIT position error, resolution and amplitude response
 (:mod:`eit_skin.inverse.figures_of_merit`). Target centres: a hexagonal lattice of about
 ``lattice`` points over the sheet plus a ring :data:`EDGE_CLEARANCE` target radii inside the

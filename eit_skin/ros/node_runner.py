@@ -140,10 +140,11 @@ def freeze_start_up_heap() -> None:
     What a process builds before it spins (imported modules, meshes, matrices, rclpy
     entities) lives as long as the process, yet Python's full collection walks every tracked
     object: with 50 reconstruction nodes in one process that walk took 30-50 ms, a stall that
-    every patch's frames queued behind (bench/skin.md). ``gc.freeze`` moves them to a
+    every patch's frames queued behind (bench/standing/skin.md). ``gc.freeze`` moves them to a
     generation the collector never scans; reference counting still frees what is dropped,
     and garbage made while spinning is collected as ever. The price: a start-up object that
-    later ends up in an unreachable reference cycle is never freed (bench/soak.md: no growth).
+    later ends up in an unreachable reference cycle is never freed (bench/stress/soak.md: no
+    growth).
     """
     gc.collect()
     gc.freeze()

@@ -301,8 +301,8 @@ class ReconstructionNode(Node):
         Stamped and framed like the frame ``msg``. The float image goes out as CDR bytes
         kept per layer and refilled (:class:`~eit_skin.io.cdr.Float32ImageCdr`): rclpy then
         neither converts a Python message nor serialises it (publishing went from 0.027 to
-        0.015 ms of a frame at 50 patches, bench/frame_cost.md); subscribers get an ordinary
-        ``sensor_msgs/Image``.
+        0.015 ms of a frame at 50 patches, bench/standing/frame_cost.md); subscribers get an
+        ordinary ``sensor_msgs/Image``.
         """
         height, width = physical.shape
         image = state.image_cdr

@@ -3,7 +3,7 @@
 A close pinch (two fingers 15 mm apart closing to 5 mm) changes its reconstructed blob by a
 few per cent of a finger spread, below the frame-to-frame scatter of the image shape on a
 large patch, yet its boundary voltages change in a pattern that no still push makes
-(bench/pinch_information.md: 8-84 noise standard units on the face patch against at most
+(bench/studies/pinch_information.md: 8-84 noise standard units on the face patch against at most
 4.4 for every push). The reconstruction keeps only a smoothed part of the 208 channels; this
 module looks at the channels themselves.
 

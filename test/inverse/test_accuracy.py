@@ -1,8 +1,9 @@
 """Accuracy and stability on simulated data (fine forward mesh, coarse reconstruction mesh).
 
 The matrix under test is the shipped default: GREIT-trained (``method: greit``) at the shipped
-noise figure. Resolution is compared with pyEIT JAC in ``bench/bench_reconstruction.py`` (same
-meshes and data); here it is bounded by the value pyEIT reaches there (0.248).
+noise figure. Resolution is compared with pyEIT JAC in
+``bench/standing/bench_reconstruction.py`` (same meshes and data); here it is bounded by the
+value pyEIT reaches there (0.248).
 
 Inverse mesh: chosen the way docs/reconstruction.md chooses the coarsest sufficient model.
 Candidate inverse meshes (edge 0.16 R .. 0.11 R, the range of the bench's inverse-mesh sweep)
@@ -39,7 +40,7 @@ from test.support.reconstruction_phantoms import (
 pytestmark = pytest.mark.filterwarnings("error")
 R = RADIUS_M
 NOISE_FIGURE = 0.13  # the shipped configs' solver.noise_figure with method: greit
-PYEIT_JAC_RESOLUTION = 0.248  # bench/REPORT.md, every mesh size
+PYEIT_JAC_RESOLUTION = 0.248  # bench/standing/reconstruction.md, every mesh size
 
 
 PE_TARGET = 0.02  # the issue's position error bound, fraction of R, within 0.9 R at 1 % noise

@@ -1,4 +1,4 @@
-"""``bench/bench_reconstruction.py --json``: the schema of its rows, from a tiny real run.
+"""``bench/standing/bench_reconstruction.py --json``: the schema of its rows, from a tiny real run.
 
 The benchmark module is loaded from its file with ``importlib`` (nothing is added to
 ``sys.path``); one tiny mesh is measured with the benchmark's own function and written with
@@ -28,7 +28,7 @@ def _load_bench():
     name = "eit_skin_bench_reconstruction"
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(
-            name, REPO / "bench" / "bench_reconstruction.py"
+            name, REPO / "bench" / "standing" / "bench_reconstruction.py"
         )
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module

@@ -77,7 +77,9 @@ def test_prediction_agrees_with_the_benchmark_data_on_its_targets():
     worst_predicted, worst_measured = predicted.position_error_m.max(), measured.max()
     assert worst_predicted == pytest.approx(worst_measured, rel=0.10)
     assert np.median(predicted.position_error_m) == pytest.approx(np.median(measured), rel=0.25)
-    assert 0.005 * R < worst_predicted < 0.05 * R  # bench/REPORT.md: 1.1-1.6 % R on disc meshes
+    assert (
+        0.005 * R < worst_predicted < 0.05 * R
+    )  # bench/standing/reconstruction.md: 1.1-1.6 % R on disc meshes
 
 
 def test_electrodes_crowded_into_one_half_leave_the_other_half_worse():

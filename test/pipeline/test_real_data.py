@@ -5,11 +5,11 @@ reconstruction node's chain, with the reference check, measured channel noise an
 rule of ``LayerImager.use_reference``) must keep imaging every set about as well as they do
 now, never produce a non-finite pixel, and keep their images clean: few blobs of either sign
 beyond the targets and little image energy away from them (issue 35). The bounds are the
-figures of ``bench/real_data.md`` with a margin, so that method work can improve them freely
-while a broken chain (wrong sign, order, scale, geometry) or a return to noise-dominated
+figures of ``bench/standing/real_data.md`` with a margin, so that method work can improve them
+freely while a broken chain (wrong sign, order, scale, geometry) or a return to noise-dominated
 images fails. The figures are deterministic: no noise is drawn here.
 
-The scores come from ``bench/real_data_scoring.py``, the module the benchmark uses, loaded
+The scores come from ``bench/standing/real_data_scoring.py``, the module the benchmark uses, loaded
 from its file with ``importlib`` (the benchmark imports it as a sibling; neither side
 imports the other's folder as a package and nothing is added to ``sys.path``).
 """
@@ -35,7 +35,9 @@ DATA = REPO / "data" / "real"
 def _load_scoring():
     name = "eit_skin_bench_real_data_scoring"
     if name not in sys.modules:  # dataclasses look their module up in sys.modules
-        spec = importlib.util.spec_from_file_location(name, REPO / "bench" / "real_data_scoring.py")
+        spec = importlib.util.spec_from_file_location(
+            name, REPO / "bench" / "standing" / "real_data_scoring.py"
+        )
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)
@@ -44,7 +46,7 @@ def _load_scoring():
 
 scoring = _load_scoring()
 
-# Position sets: bound on the median position error, metres. Measured (bench/real_data.md):
+# Position sets: bound on the median position error, metres. Measured (bench/standing/real_data.md):
 # ottawa_ph1 / ottawa_ph3 16.8 / 16.5 mm with GREIT at NF 0.13 (run 2026-11-24), 17.6 / 17.2
 # mm with the package default (run 2026-11-27) -> 19.0 mm, which the defaults before
 # 2026-11-24 (19.5 / 19.8 mm, unweighted, fixed h) fail; the images are deterministic, the
@@ -60,7 +62,7 @@ MEDIAN_BOUND_M = {"ottawa_ph1": 0.0190, "ottawa_ph3": 0.0190, "hydrogel_ohmc16":
 TRACK_BOUND = {"iirc_rotate": (0.975, 0.0059), "sciospec_adjacent": (0.68, 0.0056)}
 SETS = (*MEDIAN_BOUND_M, *TRACK_BOUND)
 # Image quality (issue 35): (largest mean spurious blobs per frame, largest median artefact
-# energy). Measured with the package default (bench/real_data.md, run 2026-11-27): spurious
+# energy). Measured with the package default (bench/standing/real_data.md, run 2026-11-27): spurious
 # 0 on the four tanks, 2.75 on hydrogel_ohmc16 (pyEIT 5.50); artefact energy ottawa_ph1 0.23,
 # ottawa_ph3 0.29, iirc_rotate 0.09, sciospec_adjacent 0.13, hydrogel_ohmc16 0.80 (pyEIT 0.25,
 # 0.28, 0.10, 0.12, 0.88). Bounds: about pyEIT's level plus a margin. Noise-dominated images
