@@ -179,7 +179,8 @@ def _predict(patch, args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     """``patch import OUTLINE --out PATCH.yaml``: drawing -> validated patch file."""
-    from eit_skin.patch.cad_import import CadError, describe, patch_data, read_drawing
+    from eit_skin.patch.cad_import import CadError, describe, read_drawing
+    from eit_skin.patch.cad_patch import patch_data
     from eit_skin.patch.loading import patch_from_dict
     from eit_skin.patch.model import PatchError
     from eit_skin.patch.yaml_reader import read_yaml, read_yaml_text

@@ -53,7 +53,8 @@ class DesignSession:
 
         A drawing is imported with 16 electrodes spread evenly unless it marks them.
         """
-        from eit_skin.patch.cad_import import patch_data, read_drawing
+        from eit_skin.patch.cad_import import read_drawing
+        from eit_skin.patch.cad_patch import patch_data
 
         path = Path(source)
         if path.suffix.lower() in DRAWING_SUFFIXES:

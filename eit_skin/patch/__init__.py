@@ -8,7 +8,8 @@ to build), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
 pressure/stretch), ``device`` (the board a layer is read from: profile names and
 options), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
 (drive and measurement pattern: the one place that knows the measurement order),
-``cad_import`` (DXF / SVG drawings -> outline, holes, electrode marks -> patch data),
+``cad_import`` (DXF / SVG drawings -> outline, holes, electrode marks), ``cad_patch`` (a
+drawing -> a patch file's data),
 ``yaml_writer`` (writing patch files, keeping the comments of an edited one).
 """
 

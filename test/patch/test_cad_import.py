@@ -17,7 +17,8 @@ import pytest
 from eit_skin.cli.main import main
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch import geometry
-from eit_skin.patch.cad_import import CadError, area_m2, patch_data, read_drawing
+from eit_skin.patch.cad_import import CadError, area_m2, read_drawing
+from eit_skin.patch.cad_patch import patch_data
 from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.resources import config_path
 
