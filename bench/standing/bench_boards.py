@@ -34,7 +34,8 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from bench.header import run_header
-from eit_skin.hardware.board_emulators import OpenEITEmulator, SciospecEmulator
+from eit_skin.hardware.board_emulators import OpenEITEmulator
+from eit_skin.hardware.sciospec_emulator import SciospecEmulator
 from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol

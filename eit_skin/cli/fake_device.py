@@ -228,7 +228,7 @@ def _wire_pattern(layer) -> dict:
 
 def _board(args: argparse.Namespace):
     """An emulated OpenEIT, line-printing or Sciospec board speaking the layer's protocol."""
-    from eit_skin.hardware import board_emulators
+    from eit_skin.hardware import board_emulators, sciospec_emulator
 
     if args.frames:
         _, layer, protocol = _layer_protocol(args)
@@ -260,7 +260,7 @@ def _board(args: argparse.Namespace):
         first = args.first_channel or (
             int(layer.device.get("first_channel")) if layer.device.profile == "sciospec" else 1
         )  # default: the wiring the patch's device section states
-        device = board_emulators.SciospecEmulator(
+        device = sciospec_emulator.SciospecEmulator(
             measurements,
             protocol,
             args.rate,

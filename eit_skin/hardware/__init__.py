@@ -1,6 +1,7 @@
 """Skin boards: wire protocol, serial link, device clock, emulated boards, frame sources.
 
-``board_emulators``: OpenEIT, line-printing and Sciospec boards, byte for byte on a pty.
+``board_emulators``: OpenEIT and line-printing boards, byte for byte on a pty;
+``sciospec_emulator``: the Sciospec board.
 
 Modules: ``wire`` (binary framing and the resynchronising parser), ``serial_link``
 (reconnecting serial port), ``device_clock`` (board clock -> host time), ``fake_device`` (a

@@ -147,7 +147,7 @@ def test_capture_with_no_board_writes_nothing(repo, tmp_path):
 
 def test_detect_finds_a_sciospec_runs_its_setup_checks_a_frame_and_stops_it(repo):
     """A Sciospec says nothing until started: detect asks, sets it up, and stops it again."""
-    from eit_skin.hardware.board_emulators import SciospecEmulator
+    from eit_skin.hardware.sciospec_emulator import SciospecEmulator
     from eit_skin.io.npz import load_frames_npz
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.protocol import build_protocol

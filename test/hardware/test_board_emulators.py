@@ -20,15 +20,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from eit_skin.hardware.board_emulators import (
+from eit_skin.hardware.board_emulators import LinesEmulator, OpenEITEmulator, arduino_print_float
+from eit_skin.hardware.sciospec_emulator import (
     SCIOSPEC_ACK,
     SCIOSPEC_NACK_NOT_EXECUTED,
     SCIOSPEC_NACK_UNKNOWN,
     SCIOSPEC_TIMEOUT,
-    LinesEmulator,
-    OpenEITEmulator,
     SciospecEmulator,
-    arduino_print_float,
     potentials_from_differences,
 )
 from eit_skin.io.npz import load_frames_npz

@@ -26,7 +26,8 @@ from eit_skin_msgs.msg import EitFrame
 from sensor_msgs.msg import Image
 
 from eit_skin.cli.main import main
-from eit_skin.hardware.board_emulators import LinesEmulator, OpenEITEmulator, SciospecEmulator
+from eit_skin.hardware.board_emulators import LinesEmulator, OpenEITEmulator
+from eit_skin.hardware.sciospec_emulator import SciospecEmulator
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
