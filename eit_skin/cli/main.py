@@ -52,7 +52,7 @@ DEPRECATED: dict[str, str] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def argument_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eit-skin", description="EIT robot skin: patches, reconstruction, simulator, bring-up."
     )
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         new = DEPRECATED[argv[0]]
         print(f"eit-skin: '{argv[0]}' is deprecated, use '{new}'", file=sys.stderr)
         argv[0] = new
-    args = build_parser().parse_args(argv)
+    args = argument_parser().parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:

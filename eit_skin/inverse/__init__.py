@@ -1,7 +1,7 @@
 """Reconstruction: relative voltage changes -> relative conductivity change per element.
 
 Modules: ``methods`` (the list of methods, their defaults and their :class:`Reconstructor`
-interface), ``build`` (:func:`build_method`: set up a method by name), ``one_step``
+interface), ``dispatch`` (:func:`make_reconstructor`: a method set up by name), ``one_step``
 (:class:`ReconstructionMatrix`, the precomputed difference-imaging matrix of methods one_step
 and greit), ``priors`` (Tikhonov, Laplace, NOSER), ``greit`` (training the GREIT-style matrix),
 ``gauss_newton`` (iterative regularised Gauss-Newton for large contrasts), ``dual_form``
@@ -25,11 +25,12 @@ _EXPORTS: dict[str, str] = {
     "GaussNewtonSolver": "gauss_newton",
     "ReconstructionMatrix": "one_step",
     "Reconstructor": "methods",
-    "build_method": "build",
+    "build_method": "dispatch",
     "choose_by_noise_figure": "hyperparameter",
     "faulty_electrodes": "electrode_faults",
     "figures_of_merit": "figures_of_merit",
     "imaging_jacobian": "one_step",
+    "make_reconstructor": "dispatch",
     "lambda_squared": "dual_form",
     "noise_figure": "hyperparameter",
     "reference_scale": "one_step",
@@ -49,6 +50,7 @@ __all__ = [
     "figures_of_merit",
     "imaging_jacobian",
     "lambda_squared",
+    "make_reconstructor",
     "noise_figure",
     "reference_scale",
     "regularised_inverse",
@@ -56,7 +58,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from eit_skin.inverse.build import build_method
+    from eit_skin.inverse.dispatch import build_method, make_reconstructor
     from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
     from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor, faulty_electrodes
     from eit_skin.inverse.figures_of_merit import figures_of_merit

@@ -8,7 +8,7 @@
   (:mod:`eit_skin.inverse.gauss_newton`), with a prior.
 
 Interface (the shape of pyEIT's ``setup()`` / ``solve()``, without its faults): every method is
-set up once by :func:`eit_skin.inverse.build.build_method`, which returns a ready
+set up once by :func:`eit_skin.inverse.dispatch.make_reconstructor`, which returns a ready
 :class:`Reconstructor` (no half-initialised object that must be ``setup()`` before use, no
 keyword arguments silently ignored by one method), and then images any number of frames with
 ``reconstruct(frames, reference, excluded)``: volts in, ``delta sigma / sigma0`` per element

@@ -240,6 +240,6 @@ def make_prior(
     if kind == "greit":
         raise ValueError(
             "'greit' is a method, not a prior: ReconstructionMatrix.greit or "
-            "eit_skin.inverse.build.build_method('greit', ...)"
+            "eit_skin.inverse.dispatch.make_reconstructor('greit', ...)"
         )
     raise ValueError(f"unknown prior {kind!r}; expected one of {', '.join(PRIOR_KINDS)}")

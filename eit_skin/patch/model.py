@@ -146,7 +146,7 @@ class AccuracyTarget:
 
 METHODS: tuple[str, ...] = ("one_step", "greit", "gauss_newton")
 """Names ``solver.method`` may take; :mod:`eit_skin.inverse` implements each of them
-(:func:`eit_skin.inverse.build.build_method`)."""
+(:func:`eit_skin.inverse.dispatch.make_reconstructor`)."""
 
 METHODS_WITH_PRIOR: tuple[str, ...] = ("one_step", "gauss_newton")
 """Methods that use ``solver.prior``."""

@@ -1,7 +1,7 @@
 """From a patch layer to its reconstruction: the one place the chain is built.
 
 layer -> protocol -> mesh(es) -> forward model -> the layer's method
-(:func:`eit_skin.inverse.build.build_method`: ``one_step``, ``greit`` or
+(:func:`eit_skin.inverse.dispatch.make_reconstructor`: ``one_step``, ``greit`` or
 ``gauss_newton``) -> image grid. :class:`LayerImager` puts the pieces together so that the
 reconstruction node and the offline commands do exactly the same thing; :func:`forward_model`
 is the layer's physics for everything that simulates it (the simulator, ``eit-skin tune``).
@@ -29,13 +29,13 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
 from eit_skin.frames import excluded_channels
-from eit_skin.inverse.build import build_method
 from eit_skin.inverse.channel_noise import (
     ReferenceCheck,
     channel_scale,
     check_reference,
     estimate_channel_noise,
 )
+from eit_skin.inverse.dispatch import make_reconstructor
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
 from eit_skin.inverse.hyperparameter import (
@@ -529,9 +529,9 @@ def _method(
     jacobian: np.ndarray | None,
     hyperparameter: float | None,
 ) -> Reconstructor:
-    """The layer's ``solver`` as :func:`~eit_skin.inverse.build.build_method` arguments."""
+    """The layer's ``solver`` as :func:`~eit_skin.inverse.dispatch.make_reconstructor` arguments."""
     solver = layer.solver
-    return build_method(
+    return make_reconstructor(
         solver.method,
         forward,
         jacobian=jacobian,

@@ -1,4 +1,4 @@
-"""One interface for every reconstruction method: build_method and Reconstructor."""
+"""One interface for every reconstruction method: make_reconstructor and Reconstructor."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from eit_skin.fem.disk import disk_mesh
-from eit_skin.inverse.build import build_method
+from eit_skin.inverse.dispatch import build_method, make_reconstructor
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
 from eit_skin.inverse.hyperparameter import noise_figure
@@ -36,7 +36,7 @@ def jacobian(s, mesh):
 
 @pytest.fixture(scope="module")
 def built(s, mesh, jacobian):
-    return {m: build_method(m, s.coarse, mesh=mesh, jacobian=jacobian) for m in METHODS}
+    return {m: make_reconstructor(m, s.coarse, mesh=mesh, jacobian=jacobian) for m in METHODS}
 
 
 def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built):
@@ -54,7 +54,7 @@ def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built
         assert (rec.n_channels, rec.n_elements) == (s.coarse.n_measurements, mesh.n_triangles)
         assert noise_figure(rec.linearised) == pytest.approx(DEFAULT_NOISE_FIGURE[method], 1e-6)
     # without a Jacobian the forward model gives the same one
-    again = build_method("greit", s.coarse, mesh=mesh)
+    again = make_reconstructor("greit", s.coarse, mesh=mesh)
     np.testing.assert_allclose(again.matrix, greit.matrix, rtol=1e-9, atol=1e-12)
 
 
@@ -118,14 +118,24 @@ def test_fault_tolerance_works_for_gauss_newton(s, built):
 
 def test_arguments_a_method_does_not_take_are_refused(s, jacobian, mesh):
     with pytest.raises(ValueError, match="unknown 'jac'"):
-        build_method("jac", s.coarse)
+        make_reconstructor("jac", s.coarse)
     with pytest.raises(ValueError, match="'greit' takes no prior"):
-        build_method("greit", s.coarse, prior="laplace")
+        make_reconstructor("greit", s.coarse, prior="laplace")
     with pytest.raises(ValueError, match="'one_step' does not iterate"):
-        build_method("one_step", s.coarse, max_iterations=3)
+        make_reconstructor("one_step", s.coarse, max_iterations=3)
     with pytest.raises(ValueError, match="needs a forward model"):
-        build_method("gauss_newton", jacobian=jacobian, mesh=mesh)
+        make_reconstructor("gauss_newton", jacobian=jacobian, mesh=mesh)
     with pytest.raises(ValueError, match="expected \\[208, "):
-        build_method("gauss_newton", s.coarse, mesh=mesh, jacobian=jacobian[:10])
+        make_reconstructor("gauss_newton", s.coarse, mesh=mesh, jacobian=jacobian[:10])
     # a linear method needs no forward model once the Jacobian is known
-    assert build_method("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1).mesh is mesh
+    assert (
+        make_reconstructor("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1).mesh
+        is mesh
+    )
+
+
+def test_the_old_name_build_method_still_works_and_says_it_is_deprecated(mesh, jacobian):
+    with pytest.warns(DeprecationWarning, match="make_reconstructor"):
+        old = build_method("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1)
+    new = make_reconstructor("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1)
+    assert type(old) is type(new) and old.mesh is new.mesh

@@ -1,4 +1,4 @@
-"""Set up a reconstruction method by name: the one dispatch over the names of ``METHODS``.
+"""A reconstructor made by method name: the one dispatch over the names of ``METHODS``.
 
 Kept apart from :mod:`eit_skin.inverse.methods` (the names, defaults and interface), because it
 imports every implementation while the implementations import those names.
@@ -6,6 +6,7 @@ imports every implementation while the implementations import those names.
 
 from __future__ import annotations
 
+import warnings
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
     from eit_skin.inverse.priors import Prior
 
 
-def build_method(
+def make_reconstructor(
     method: str,
     forward: Any | None = None,
     *,
@@ -37,7 +38,7 @@ def build_method(
     sigma0: np.ndarray | float = 1.0,
     max_iterations: int | None = None,
 ) -> Reconstructor:
-    """Set up ``method`` for difference imaging: the one dispatch over :data:`METHODS`.
+    """``method`` set up for difference imaging: the one dispatch over :data:`METHODS`.
 
     Args:
         method: one of :data:`METHODS`.
@@ -90,3 +91,17 @@ def build_method(
         hyperparameter,
         noise_figure=noise_figure,
     )
+
+
+def build_method(*args: Any, **kwargs: Any) -> Reconstructor:
+    """Deprecated name of :func:`make_reconstructor`.
+
+    ``build`` now only names computing an object from its inputs (docs/architecture.md, "One
+    word per idea"); ``make_`` names choosing an implementation by name.
+    """
+    warnings.warn(
+        "eit_skin.inverse.build_method is deprecated: use make_reconstructor",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return make_reconstructor(*args, **kwargs)
