@@ -288,3 +288,57 @@ def test_tests_are_laid_out_like_the_package():
         if p.parent.name != "support" and not p.name.startswith(("test_", "__init__", "conftest"))
     ]
     assert not helpers, f"shared helpers belong in test/support/: {helpers}"
+
+
+#: Issue 36's size goals: no module over 600 lines, no function over 80 lines except a
+#: documented kernel, at most 25 functions with more than 5 parameters (self and cls not
+#: counted, keyword-only ones counted).
+MODULE_LINES, FUNCTION_LINES, PARAMETERS = 600, 80, 5
+#: Modules over the limit that the one-frame-path work (issue 36 item 1) is splitting;
+#: remove a name when its module is under the limit.
+MODULES_BEING_SPLIT = {"eit_skin/inverse/one_step.py", "eit_skin/inverse/gauss_newton.py"}
+#: Today's counts: the tests fail when a change adds to them (lower them as they fall).
+MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 15, 50
+
+
+def code_sizes() -> dict[str, list[str]]:
+    """Modules over :data:`MODULE_LINES` lines, functions over :data:`FUNCTION_LINES` lines
+    and functions with more than :data:`PARAMETERS` parameters in eit_skin/, as
+    ``path[:line name] (count)`` strings."""
+    sizes: dict[str, list[str]] = {"modules": [], "long functions": [], "wide functions": []}
+    for path in MODULES.values():
+        text = path.read_text()
+        where = str(path.relative_to(ROOT))
+        if len(text.splitlines()) > MODULE_LINES:
+            sizes["modules"].append(f"{where} ({len(text.splitlines())})")
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            a = node.args
+            names = [p.arg for p in [*a.posonlyargs, *a.args, *a.kwonlyargs]]
+            n_parameters = len([n for n in names if n not in ("self", "cls")])
+            n_lines = node.end_lineno - node.lineno + 1
+            if n_lines > FUNCTION_LINES:
+                sizes["long functions"].append(f"{where}:{node.lineno} {node.name} ({n_lines})")
+            if n_parameters > PARAMETERS:
+                sizes["wide functions"].append(
+                    f"{where}:{node.lineno} {node.name} ({n_parameters})"
+                )
+    return sizes
+
+
+def test_no_module_over_600_lines():
+    over = [m for m in code_sizes()["modules"] if m.split(" ")[0] not in MODULES_BEING_SPLIT]
+    assert not over, f"modules over {MODULE_LINES} lines: {over}"
+
+
+def test_long_and_wide_functions_do_not_grow_in_number():
+    sizes = code_sizes()
+    long, wide = sizes["long functions"], sizes["wide functions"]
+    assert len(long) <= MOST_LONG_FUNCTIONS, "\n".join(long)
+    assert len(wide) <= MOST_WIDE_FUNCTIONS, "\n".join(wide)
+
+
+if __name__ == "__main__":  # python -m test.package.test_architecture: the counts, listed
+    for kind, found in code_sizes().items():
+        print(f"{kind}: {len(found)}", *found, sep="\n  ")
