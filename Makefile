@@ -80,9 +80,12 @@ demo: setup
 # pytest workers: each test file on one worker so its module fixtures are built once; every
 # worker claims its own DDS domain (test/conftest.py). Two workers use both cores of our
 # machines (one process left one half idle); TEST_WORKERS=1 gives one process.
+# Every test has a time budget (pytest.ini: 60 s, longer ones marked on the test); TEST_TIMEOUT
+# changes the default for this run.
 TEST_WORKERS ?= 2
+TEST_TIMEOUT ?=
 test: setup $(VENV)/.stamp-chromium
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile $(if $(TEST_TIMEOUT),--timeout $(TEST_TIMEOUT))
 
 # The designer's browser tests drive a real headless Chromium: the Debian package, installed
 # here (as root, where apt-get exists) when it is missing; elsewhere those tests skip and
