@@ -44,6 +44,53 @@ os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 os.environ.setdefault("EIT_SKIN_CACHE", tempfile.mkdtemp(prefix="eit_skin_cache_"))
 
 
+#: Most a test's time budget is stretched on a loaded machine.
+MOST_SLOWDOWN = 5.0
+
+
+def _machine_slowdown() -> float:
+    """How much slower than idle this machine runs the suite: the 1-min load average per
+    core before the suite starts (its own workers not yet counted), at least 1, at most
+    :data:`MOST_SLOWDOWN`. Measured once by the first pytest process; its xdist workers
+    inherit it through the environment."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    return min(max(1.0, load / (os.cpu_count() or 1)), MOST_SLOWDOWN)
+
+
+os.environ.setdefault("EIT_SKIN_TEST_SLOWDOWN", f"{_machine_slowdown():.2f}")
+SLOWDOWN = float(os.environ["EIT_SKIN_TEST_SLOWDOWN"])
+
+
+def _budget_s(item: pytest.Item) -> float | None:
+    """The test's own budget: its ``timeout`` mark, else the run's default (pytest.ini or
+    ``--timeout``); None when it has none."""
+    mark = item.get_closest_marker("timeout")
+    if mark is not None:
+        return float(mark.args[0] if mark.args else mark.kwargs["timeout"])
+    default = item.config.getoption("timeout", None) or item.config.getini("timeout")
+    return float(default) if default else None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Time budgets are for an idle machine: on a loaded one each is stretched by
+    :data:`SLOWDOWN`, so that a healthy test on a busy machine is not cut off while a hang
+    still names itself (within a minute when idle)."""
+    if SLOWDOWN == 1.0:
+        return
+    for item in items:
+        budget = _budget_s(item)
+        if budget:  # prepended: nearer than the test's own mark
+            item.add_marker(pytest.mark.timeout(budget * SLOWDOWN), append=False)
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    default = config.getoption("timeout", None) or config.getini("timeout")
+    return (
+        f"time budget per test: {default} s (longer where marked) x {SLOWDOWN:g} for this "
+        f"machine's load ({os.cpu_count()} cores)"
+    )
+
+
 @pytest.fixture(scope="session")
 def repo() -> Path:
     """The repository root."""
