@@ -141,8 +141,8 @@ def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
         else f"{z[0]:.{DIGITS}g}"
     )
     text = path.read_text(encoding="utf-8")
-    text = set_layer_entry(text, layer_name, "material", "sheet_conductance", sigma_text, str(path))
-    text = set_layer_entry(text, layer_name, "electrodes", "contact_impedance", z_text, str(path))
+    text = set_layer_entry(text, layer_name, "material.sheet_conductance", sigma_text, str(path))
+    text = set_layer_entry(text, layer_name, "electrodes.contact_impedance", z_text, str(path))
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".yaml", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:

@@ -351,16 +351,17 @@ def set_solver_hyperparameter(
         ValueError: the text has no ``layers`` sequence or no such layer.
     """
     number = f"{float(value):.{DIGITS}g}"
-    return set_layer_entry(text, layer_name, "solver", "hyperparameter", number, source)
+    return set_layer_entry(text, layer_name, "solver.hyperparameter", number, source)
 
 
 def set_layer_entry(
-    text: str, layer_name: str, section: str, key: str, value_text: str, source: str = "<text>"
+    text: str, layer_name: str, entry: str, value_text: str, source: str = "<text>"
 ) -> str:
-    """``text`` (patch YAML) with ``layers[name == layer_name].<section>.<key>: value_text``.
+    """``text`` (patch YAML) with ``layers[name == layer_name].<entry>: value_text``.
 
-    Only that entry's text changes (added to the section, or the section added to the layer,
-    when missing), so comments and formatting elsewhere are kept.
+    ``entry`` is ``"<section>.<key>"``, e.g. ``"solver.hyperparameter"``. Only that entry's
+    text changes (added to the section, or the section added to the layer, when missing), so
+    comments and formatting elsewhere are kept.
 
     Raises:
         ValueError: the text has no ``layers`` sequence, no such layer, or the section is
@@ -368,6 +369,7 @@ def set_layer_entry(
     """
     import yaml
 
+    section, key = entry.split(".")
     root = yaml.compose(text, Loader=yaml.SafeLoader)
     layers = _get(root, "layers")
     if not isinstance(layers, yaml.SequenceNode):

@@ -298,7 +298,7 @@ MODULE_LINES, FUNCTION_LINES, PARAMETERS = 600, 80, 5
 #: remove a name when its module is under the limit.
 MODULES_BEING_SPLIT = {"eit_skin/inverse/one_step.py", "eit_skin/inverse/gauss_newton.py"}
 #: Today's counts: the tests fail when a change adds to them (lower them as they fall).
-MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 15, 50
+MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 15, 49
 
 
 def code_sizes() -> dict[str, list[str]]:
