@@ -95,6 +95,9 @@ def test_the_choice_meets_its_target_on_held_out_phantoms(choices):
     assert again.max_position_error <= STRICT / 100, again
 
 
+# measures every rung of the model ladder before finding none meets the target: ~30 s idle
+# (123 s at load 15 on 2 cores)
+@pytest.mark.timeout(120)
 def test_a_target_nothing_meets_names_the_file_and_key(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("EIT_SKIN_CACHE", str(tmp_path / "cache"))
     path = target_patch(tmp_path, greit_target(0.3))

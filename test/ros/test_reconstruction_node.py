@@ -306,6 +306,8 @@ def test_mismatched_frames_are_rejected_and_node_survives_restart(tmp_path, cach
         probe.close()
 
 
+# a posture sweep, then a touch, through real nodes: ~30 s idle (121 s at load 15 on 2 cores)
+@pytest.mark.timeout(120)
 def test_bent_elbow_reads_no_touch_and_touch_is_still_found(tmp_path, cache_dir) -> None:
     """Posture compensation: references recorded over a joint sweep, then elbow_bend."""
     patch = load_patch(config_path("elbow"))
