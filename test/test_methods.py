@@ -10,9 +10,8 @@ from eit_skin.inverse.build import build_method
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
 from eit_skin.inverse.hyperparameter import noise_figure
-from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, DEFAULT_PRIOR, METHODS
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
-from eit_skin.inverse.priors import make_prior
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 pytestmark = pytest.mark.filterwarnings("error")
@@ -40,15 +39,20 @@ def built(s, mesh, jacobian):
 
 
 def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built):
-    one = ReconstructionMatrix.from_jacobian(jacobian, mesh, "laplace", noise_figure=0.3)
+    one = ReconstructionMatrix.from_jacobian(
+        jacobian, mesh, DEFAULT_PRIOR, noise_figure=DEFAULT_NOISE_FIGURE["one_step"]
+    )
     np.testing.assert_array_equal(built["one_step"].matrix, one.matrix)
     greit = ReconstructionMatrix.greit(jacobian, mesh, noise_figure=0.13)
     np.testing.assert_array_equal(built["greit"].matrix, greit.matrix)
     gn = built["gauss_newton"]
     assert isinstance(gn, GaussNewtonReconstructor)
     # h by the same noise-figure rule on the first linearised step (the one-step matrix)
-    assert gn.hyperparameter == one.hyperparameter == gn.linearised.hyperparameter
-    np.testing.assert_array_equal(gn.linearised.matrix, one.matrix)
+    first = ReconstructionMatrix.from_jacobian(
+        jacobian, mesh, DEFAULT_PRIOR, noise_figure=DEFAULT_NOISE_FIGURE["gauss_newton"]
+    )
+    assert gn.hyperparameter == first.hyperparameter == gn.linearised.hyperparameter
+    np.testing.assert_array_equal(gn.linearised.matrix, first.matrix)
     for method, rec in built.items():
         assert rec.method == method and rec.mesh is mesh
         assert (rec.n_channels, rec.n_elements) == (s.coarse.n_measurements, mesh.n_triangles)
@@ -84,7 +88,7 @@ def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
     gn = built["gauss_newton"]
     gn.reset()
     solver = GaussNewtonSolver(
-        s.coarse, 1.0, make_prior("laplace", mesh), gn.hyperparameter, parameter_mesh=mesh
+        s.coarse, 1.0, gn.solver.prior, gn.hyperparameter, parameter_mesh=mesh
     )
     frames = np.stack([phantom(s, [(-0.4 * R, 0.1 * R, 0.2 * R, c)]) for c in (5.0, 0.3)])
     x = gn.reconstruct(frames, s.v0)

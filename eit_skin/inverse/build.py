@@ -14,6 +14,7 @@ from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
 from eit_skin.inverse.methods import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_NOISE_FIGURE,
+    DEFAULT_PRIOR,
     METHODS,
     METHODS_WITH_PRIOR,
     Reconstructor,
@@ -46,7 +47,8 @@ def build_method(
         jacobian: ``[M, N]`` relative Jacobian on the imaging mesh at ``sigma0``
             (:func:`~eit_skin.inverse.one_step.imaging_jacobian`), when already known.
         mesh: the imaging mesh (``N`` elements); default ``forward.mesh``.
-        prior: ``one_step`` and ``gauss_newton`` only (default ``"laplace"``).
+        prior: ``one_step`` and ``gauss_newton`` only (default :data:`DEFAULT_PRIOR`, the
+            patch schema's).
         hyperparameter: dimensionless ``h``; ``None`` chooses it for ``noise_figure``
             (``gauss_newton``: on its first linearised step).
         noise_figure: default :data:`DEFAULT_NOISE_FIGURE` of the method.
@@ -72,7 +74,7 @@ def build_method(
         return GaussNewtonReconstructor.build(
             forward,
             sigma0,
-            "laplace" if prior is None else prior,
+            DEFAULT_PRIOR if prior is None else prior,
             hyperparameter,
             noise_figure,
             parameter_mesh=None if mesh is forward.mesh else mesh,
@@ -86,7 +88,7 @@ def build_method(
     return ReconstructionMatrix.from_jacobian(
         jacobian,
         mesh,
-        "laplace" if prior is None else prior,
+        DEFAULT_PRIOR if prior is None else prior,
         hyperparameter,
         noise_figure=noise_figure,
     )
