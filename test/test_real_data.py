@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import itertools
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -25,7 +26,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from eit_skin.inverse.hyperparameter import MODEL_ERROR_SHARE
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.model import SolverSpec
 from eit_skin.pipeline.builder import LayerImager
 
 REPO = Path(__file__).resolve().parents[1]
@@ -176,6 +180,26 @@ def test_bound_fails_for_a_broken_chain(name: str) -> None:
     else:
         broken = -images
     assert not within_bounds(name, scores(name, broken))
+
+
+def test_the_package_default_is_the_one_the_leave_one_set_out_table_chose() -> None:
+    """bench/real_data.md chooses the default on five sets for every sixth; what a patch
+    without a solver section gets must be that choice in every fold (issue 35), so a
+    default changed without rerunning the benchmark, or a benchmark whose choice was not
+    shipped, fails here."""
+    method, prior = SolverSpec().method, SolverSpec().prior
+    names = {"noser": "NOSER", "laplace": "Laplace", "tikhonov": "Tikhonov"}  # the bench's
+    shipped = (
+        f"one-step {names[prior]} NF {DEFAULT_NOISE_FIGURE[method]:g}, "
+        f"model error 1/{1 / MODEL_ERROR_SHARE:.0f}"
+    )
+    report = (REPO / "bench" / "real_data.md").read_text().splitlines()
+    header = next(i for i, line in enumerate(report) if line.startswith("| set left out |"))
+    rows = [line.split("|")[1:-1] for line in report[header + 2 :] if line.startswith("| ")]
+    rows = list(itertools.takewhile(lambda cells: len(cells) == 4, rows))
+    assert len(rows) == 6, report[header : header + 8]
+    assert method == "one_step"
+    assert {cells[1].strip() for cells in rows} == {shipped}, rows
 
 
 # --- the scoring rules themselves (synthetic images, exact answers) ---------------------------
