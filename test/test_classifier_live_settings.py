@@ -97,6 +97,6 @@ def test_a_setting_fixed_by_calibration_is_refused_by_name() -> None:
 
 def test_every_live_setting_is_declared_and_a_writable_node_parameter() -> None:
     declared = {s.name for s in declared_settings(ClassifierConfig) if s.node}
-    assert LIVE_SETTINGS <= declared
-    assert LIVE_SETTINGS <= set(WRITABLE["eit_classifier"])
+    assert declared >= LIVE_SETTINGS
+    assert set(WRITABLE["eit_classifier"]) >= LIVE_SETTINGS
     assert "calibration_s" not in WRITABLE["eit_classifier"]
