@@ -137,8 +137,8 @@ def test_classifier_thresholds_set_while_running_stop_events_from_the_next_frame
         for _ in range(5):
             stamp = stamp_ns(send(k, touch))
             if probe.spin_until(
-                lambda: bool(contacts) and stamp_ns(contacts[-1][1]) >= stamp,
-                1.0,  # noqa: B023
+                lambda stamp=stamp: bool(contacts) and stamp_ns(contacts[-1][1]) >= stamp,
+                1.0,
             ):
                 return
         raise AssertionError(f"no contacts for image {k}\n{log.read_text()}")
