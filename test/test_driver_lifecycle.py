@@ -1,18 +1,15 @@
 """eit_driver as a lifecycle node over real DDS, its transitions driven from the `ros2` CLI.
 
-`ros2 lifecycle set <node> <transition>` where ros2lifecycle is installed (a ROS install);
-the venv's ros2cli from ../shared/ros2-tools has no ros2lifecycle, so there the same request
-goes to the same service with `ros2 service call <node>/change_state` (what `ros2 lifecycle
-set` sends). Publishing stops on deactivate and resumes on activate; a board's port stays
-open while inactive and is closed by cleanup; ``managed:=false`` has no lifecycle services.
+`ros2 lifecycle set <node> <transition>` where ros2lifecycle is installed, else the same
+request with `ros2 service call` (:func:`eit_skin.ros.probe.lifecycle_set`). Publishing
+stops on deactivate and resumes on activate; a board's port stays open while inactive and
+is closed by cleanup; ``managed:=false`` has no lifecycle services.
 """
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
-from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +22,7 @@ from lifecycle_msgs.srv import ChangeState
 from eit_skin.hardware.fake_device import FakeDevice
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, stamp_ns, start_node, stop_node
+from eit_skin.ros.probe import Probe, lifecycle_set, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from test.patience import EVENT_S
 
@@ -34,34 +31,6 @@ pytestmark = [
     pytest.mark.ros,
     pytest.mark.skipif(not ROS2.is_file(), reason="ros2 CLI not installed (../shared/ros2-tools)"),
 ]
-HAS_LIFECYCLE_VERB = "lifecycle" in {e.name for e in entry_points(group="ros2cli.command")}
-CLI_TIMEOUT_S = 120.0
-
-
-def lifecycle_set(node: str, transition: str) -> str:
-    """``ros2 lifecycle set NODE TRANSITION`` (or its service call); the CLI's output.
-
-    Raises:
-        AssertionError: the CLI failed or the transition was refused.
-    """
-    if HAS_LIFECYCLE_VERB:
-        command = [str(ROS2), "lifecycle", "set", node, transition]
-        ok = "Transitioning successful"
-    else:
-        request = f"{{transition: {{label: {transition}}}}}"
-        command = [
-            str(ROS2),
-            "service",
-            "call",
-            f"{node}/change_state",
-            "lifecycle_msgs/srv/ChangeState",
-            request,
-        ]
-        ok = "success=True"
-    result = subprocess.run(command, capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
-    output = result.stdout + result.stderr
-    assert result.returncode == 0 and ok in output, output
-    return output
 
 
 def driver_states(probe: Probe) -> list[dict[str, str]]:
