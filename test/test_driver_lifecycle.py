@@ -177,3 +177,24 @@ def test_unmanaged_driver_publishes_at_once_without_lifecycle_services(tmp_path)
     finally:
         assert stop_node(node) == 0, log.read_text()
         probe.close()
+
+
+def test_a_failed_configure_stays_unconfigured_and_says_why(tmp_path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nframe_id: f\nlayers: []\n")
+    namespace, log = "/lc_bad", tmp_path / "driver.log"
+    probe = Probe("lifecycle_bad_probe")
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 50)
+    params = {"patch_config": str(bad), "autostart": False, "diagnostics_period_s": 0.1}
+    node = start_node("eit_driver", namespace, params, log)
+    name = f"{namespace}/eit_driver"
+    try:
+        assert not change_state(probe, name, Transition.TRANSITION_CONFIGURE)
+        since = len(driver_states(probe))
+        wait_for_state(probe, "unconfigured", 1, since)
+        assert node.poll() is None  # the manager may fix the file and configure again
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+    text = log.read_text()
+    assert "configure failed" in text and str(bad) in text and "layers" in text, text

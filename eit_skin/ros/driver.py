@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import sys
+import traceback
 
 import rclpy
 import rclpy.time
@@ -119,6 +120,11 @@ class DriverNode(LifecycleNodeMixin, Node):
             if self._constructed:  # a manager's request: say why it failed
                 self.get_logger().error(f"configure failed: {error}")
             return TransitionCallbackReturn.FAILURE
+        except Exception as error:  # rclpy would swallow it without a word
+            self._release()
+            self.configure_error = error
+            self.get_logger().error(f"configure failed: {traceback.format_exc()}")
+            return TransitionCallbackReturn.ERROR
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
