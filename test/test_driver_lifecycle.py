@@ -1,7 +1,9 @@
-"""eit_driver as a lifecycle node over real DDS, its transitions driven from the `ros2` CLI.
+"""eit_driver as a lifecycle node over real DDS, driven from the `ros2` CLI and a manager.
 
-`ros2 lifecycle set <node> <transition>` where ros2lifecycle is installed, else the same
-request with `ros2 service call` (:func:`eit_skin.ros.probe.lifecycle_set`). Publishing
+Some transitions with `ros2 lifecycle set <node> <transition>` where ros2lifecycle is
+installed, else the same request with `ros2 service call`
+(:func:`eit_skin.ros.probe.lifecycle_set`), the others with the ChangeState service from
+this process, as a lifecycle manager node sends them (quicker than a CLI start). Publishing
 stops on deactivate and resumes on activate; a board's port stays open while inactive and
 is closed by cleanup; ``managed:=false`` has no lifecycle services.
 """
@@ -81,7 +83,7 @@ def test_simulator_transitions_from_the_cli_stop_and_resume_publishing(tmp_path)
         wait_for_state(probe, "inactive")
         assert not frames  # configured is not publishing
 
-        lifecycle_set(name, "activate")
+        assert change_state(probe, name, Transition.TRANSITION_ACTIVATE)
         assert probe.spin_until(lambda: len(frames) >= 10, EVENT_S), log.read_text()
 
         lifecycle_set(name, "deactivate")
@@ -90,7 +92,7 @@ def test_simulator_transitions_from_the_cli_stop_and_resume_publishing(tmp_path)
         quiet = wait_for_state(probe, "inactive", 5, since)
         assert len({v["frames_published"] for v in quiet}) == 1  # the script paused
         activating_ns = time.time_ns()
-        lifecycle_set(name, "activate")
+        assert change_state(probe, name, Transition.TRANSITION_ACTIVATE)
         assert probe.spin_until(lambda: stamp_ns(frames[-1][1]) > activating_ns, EVENT_S)
         # a loaded probe may still be taking older frames: judge by acquisition stamps
         stamps = np.array([stamp_ns(m) for _, m in frames])
@@ -98,7 +100,7 @@ def test_simulator_transitions_from_the_cli_stop_and_resume_publishing(tmp_path)
         sequences = [m.sequence for _, m in frames]
         assert sequences == sorted(sequences)
 
-        lifecycle_set(name, "deactivate")
+        assert change_state(probe, name, Transition.TRANSITION_DEACTIVATE)
         lifecycle_set(name, "cleanup")
         since = len(driver_states(probe))
         (cleaned,) = wait_for_state(probe, "unconfigured", 1, since)[:1]
@@ -134,7 +136,7 @@ def test_deactivated_board_keeps_its_port_and_cleanup_closes_it(tmp_path) -> Non
     frames = probe.messages[topic]
     try:
         assert probe.spin_until(lambda: len(frames) >= 10, EVENT_S), log.read_text()
-        lifecycle_set(name, "deactivate")
+        assert change_state(probe, name, Transition.TRANSITION_DEACTIVATE)
         deactivated_ns = time.time_ns()
         since = len(driver_states(probe))
         inactive = wait_for_state(probe, "inactive", 5, since)

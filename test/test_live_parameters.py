@@ -91,8 +91,11 @@ def test_colour_scale_set_with_ros2_param_set_colours_the_next_images(tmp_path) 
         assert probe.spin_until(lambda: len(pairs(after_ns)) >= 1, EVENT_S)
         assert coloured_with(0.5, *pairs(after_ns)[-1])  # unchanged
 
-        read_only = ros2("param", "set", name, "jump_k", "3.0")
-        assert "Setting parameter failed" in read_only and "read-only" in read_only, read_only
+        client = AsyncParameterClient(probe.node, name)  # quicker than another CLI start
+        future = client.set_parameters([Parameter("jump_k", value=3.0)])
+        assert probe.spin_until(future.done, EVENT_S)
+        (result,) = future.result().results
+        assert not result.successful and "read-only parameter: jump_k" in result.reason
         described = ros2("param", "describe", name, "jump_k", "pressure_range_pa")
         assert "[read-only: read once at start]" in described, described
         assert "[writable while running" in described and "> 0" in described, described
