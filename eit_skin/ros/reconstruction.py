@@ -56,12 +56,13 @@ from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, Po
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     REJECT_LOG_PERIOD_S,
+    LiveParameters,
     ThrottledLog,
-    declare_read_only,
+    declare_parameters,
     diagnostic_status,
     run_node,
 )
-from eit_skin.ros.parameters import RECONSTRUCTION
+from eit_skin.ros.parameters import RECONSTRUCTION, WRITABLE
 from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
 from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import patch_topics
@@ -108,7 +109,7 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_reconstruction", **kwargs)
-        p = declare_read_only(self, RECONSTRUCTION)
+        p = declare_parameters(self, RECONSTRUCTION, "eit_reconstruction")
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)
         # refused (CalibrationError, a ValueError) before any matrix is built
@@ -136,7 +137,7 @@ class ReconstructionNode(Node):
                 joint = joint or posture.joint
             quantity = layer.material.quantity
             topic = topics.layers[layer.name]
-            top = p["pressure_range_pa"] if quantity == "pressure" else p["stretch_range"]
+            top = p[_range_parameter(quantity)]
             self.layers[layer.name] = LayerState(
                 layer=layer,
                 imager=imager,
@@ -206,7 +207,10 @@ class ReconstructionNode(Node):
         self.diagnostics = self.create_publisher(
             DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
         )
-        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.diagnostics_timer = self.create_timer(
+            float(p["diagnostics_period_s"]), self._publish_diagnostics
+        )
+        self.live = LiveParameters(self, WRITABLE["eit_reconstruction"], self._apply_parameters)
         if float(p["marker_period_s"]) > 0:
             self.marker_pubs = {
                 name: self.create_publisher(
@@ -223,6 +227,25 @@ class ReconstructionNode(Node):
             f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}; "
             f"per-frame step {compiled_step_status()}"
         )
+
+    # ------------------------------------------------------------------ live tuning
+    def _apply_parameters(self, values: dict[str, object]) -> None:
+        """Writable parameters set while running: in effect from the next frame."""
+        for state in self.layers.values():
+            top = values.get(_range_parameter(state.quantity))
+            if top is not None:
+                state.scale = ColourScale.named(0.0, float(top))
+            tracker = state.processor.tracker  # read on every frame
+            if "drift_time_constant_s" in values:
+                tracker.drift_time_constant_s = float(values["drift_time_constant_s"])
+            if "contact_k" in values:
+                tracker.contact_k = float(values["contact_k"])
+        if "frame_timeout_s" in values:
+            self.frame_timeout_s = float(values["frame_timeout_s"])
+        if "diagnostics_period_s" in values:
+            self.diagnostics_timer.timer_period_ns = round(
+                float(values["diagnostics_period_s"]) * 1e9
+            )
 
     # ------------------------------------------------------------------ frames
     def _reject(self, state: LayerState, reason: str) -> None:
@@ -474,6 +497,11 @@ class ReconstructionNode(Node):
                 )
             )
         self.diagnostics.publish(msg)
+
+
+def _range_parameter(quantity: str) -> str:
+    """The parameter with the top of a layer's colour scale, by its quantity."""
+    return "pressure_range_pa" if quantity == "pressure" else "stretch_range"
 
 
 def _stamped(header: Header, msg: EitFrameFields) -> Header:
