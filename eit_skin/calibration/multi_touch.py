@@ -36,6 +36,7 @@ training presses do not explain, scores low.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -124,6 +125,11 @@ class MultiTouchModel:
         residuals = np.sort([f.near_residual for f in fits])
         return cls(x, xy, float(min_separation_m), threshold, float(false_split_rate), residuals)
 
+    @cached_property
+    def basis(self) -> PairBasis:
+        """The pair fits of the training responses (built once, on first use)."""
+        return PairBasis(self.responses, self.press_xy, self.min_separation_m)
+
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         return {
             f"{prefix}_responses": self.responses,
@@ -152,7 +158,7 @@ class MultiTouchModel:
         x = np.asarray(x, dtype=np.float64)
         if max_touches == 1 or not np.any(x):
             return None
-        basis = PairBasis(self.responses, self.press_xy, self.min_separation_m)
+        basis = self.basis
         pair = basis.fit(x)
         if not pair.split < self.threshold:
             return None
