@@ -12,7 +12,10 @@ from eit_skin.calibration.localiser import CalibrationError, PressLocaliser
 from eit_skin.calibration.multi_touch import electrode_pitch
 from eit_skin.calibration.online import OnlineLocaliser
 from eit_skin.calibration.session import PressSession
+from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
+from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.sim.multi_press import simulate_simultaneous_presses
 from eit_skin.sim.press_session import simulate_press_session
 
@@ -138,3 +141,26 @@ def test_real_single_presses_stay_single(real):
         for k in range(400, 500)
     ]
     assert counts.count(2) <= 10, counts
+
+
+def test_online_contacts_of_a_two_probe_frame(simulated, hydrogel, tmp_path):
+    """`eit-skin calibrate --max-touches 2` -> the online localiser gives the processor's
+    touched two-probe frame two contacts, each with its own confidence, the right distance
+    apart; a one-touch limit gives one."""
+    session, _, frames, baselines, separation = simulated
+    session.subset(np.arange(N_TRAIN)).save(tmp_path / "presses.npz")
+    argv = ["calibrate", "--patch", str(HYDROGEL_PATCH), "--presses", str(tmp_path / "presses.npz")]
+    assert main([*argv, "--max-touches", "0", "--out", str(tmp_path / "c.npz")]) == 2
+    assert not (tmp_path / "c.npz").exists()
+    assert main([*argv, "--max-touches", "2", "--out", str(tmp_path / "c.npz")]) == 0
+    two = OnlineLocaliser.load(tmp_path / "c.npz", hydrogel, max_touches=2)
+    one = OnlineLocaliser.load(tmp_path / "c.npz", hydrogel)
+    processor = LayerProcessor(LayerImager.build(hydrogel.layers[0]), drift_time_constant_s=0.0)
+    k = int(np.argmax(separation))
+    processor.set_reference(baselines[k], 0.0)  # no noise frames: every frame counts touched
+    images = processor.step(frames[k], 0.1)
+    contacts = two.contacts(frames[k], None, images, processor)
+    assert len(contacts) == 2 and len(one.contacts(frames[k], None, images, processor)) == 1
+    assert all(0.0 <= c.confidence <= 1.0 and np.isfinite(c.depth_m) for c in contacts)
+    apart = np.linalg.norm(contacts[0].xy_m - contacts[1].xy_m)
+    assert abs(apart - separation[k]) < 0.01
