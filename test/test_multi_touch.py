@@ -164,3 +164,24 @@ def test_online_contacts_of_a_two_probe_frame(simulated, hydrogel, tmp_path):
     assert all(0.0 <= c.confidence <= 1.0 and np.isfinite(c.depth_m) for c in contacts)
     apart = np.linalg.norm(contacts[0].xy_m - contacts[1].xy_m)
     assert abs(apart - separation[k]) < 0.01
+
+
+def test_locate_command_reports_several_touches(simulated, tmp_path):
+    """`eit-skin locate --max-touches 2`: count, then NaN-padded xy / confidence / depth."""
+    _, model, frames, baselines, _ = simulated
+    model.save(tmp_path / "c.npz")
+    np.savez(tmp_path / "f.npz", reference=baselines[0], frames=frames, references=baselines)
+    argv = ["locate", "--patch", str(HYDROGEL_PATCH), "--calibration", str(tmp_path / "c.npz")]
+    argv += ["--frames", str(tmp_path / "f.npz"), "--out", str(tmp_path / "o.npz")]
+    assert main([*argv, "--max-touches", "2"]) == 0
+    with np.load(tmp_path / "o.npz") as out:
+        count, xy, confidence = out["count"], out["xy"], out["confidence"]
+        assert xy.shape == (10, 2, 2) and out["depth"].shape == (10, 2)
+    expected = [
+        len(model.locate_touches(f, b, 2).xy) for f, b in zip(frames, baselines, strict=True)
+    ]
+    assert count.tolist() == expected and (count == 2).sum() >= 8
+    assert np.isnan(xy[count == 1, 1]).all() and np.isfinite(confidence[count == 2]).all()
+    assert main(argv) == 0  # K = 1: today's output
+    with np.load(tmp_path / "o.npz") as out:
+        assert out["xy"].shape == (10, 2) and "count" not in out
