@@ -185,3 +185,27 @@ def test_locate_command_reports_several_touches(simulated, tmp_path):
     assert main(argv) == 0  # K = 1: today's output
     with np.load(tmp_path / "o.npz") as out:
         assert out["xy"].shape == (10, 2) and "count" not in out
+
+
+def test_three_simultaneous_presses(simulated, hydrogel):
+    """K = 3 from the same single-press calibration: three probes on a 35-50 mm circle
+    (60-87 mm apart) count three, each near a probe; two probes stay two."""
+    _, model, _, _, _ = simulated
+    rng = np.random.default_rng(9)
+    start, radius = rng.uniform(0.0, 2.0 * np.pi, 10), rng.uniform(0.035, 0.05, 10)
+    angle = start[:, None] + np.arange(3)[None, :] * 2.0 * np.pi / 3.0  # [10, 3]
+    points = np.stack([np.cos(angle), np.sin(angle)], axis=2) * radius[:, None, None]
+    frames, baselines = simulate_simultaneous_presses(hydrogel, points, seed=5)
+    pairs, pair_baselines = simulate_simultaneous_presses(hydrogel, points[:, :2], seed=6)
+    counts, misses = [], []
+    for k in range(10):
+        touches = model.locate_touches(frames[k], baselines[k], 3)
+        counts.append(len(touches.xy))
+        gaps = np.linalg.norm(touches.xy[:, None, :] - points[k][None], axis=2)
+        misses += gaps.min(axis=1).tolist()
+    assert counts.count(3) >= 8, counts  # measured 10 of 10
+    assert np.median(misses) < 0.015, misses  # measured 8.5 mm
+    two = [
+        len(model.locate_touches(f, b, 3).xy) for f, b in zip(pairs, pair_baselines, strict=True)
+    ]
+    assert two.count(2) >= 8, two  # measured 9 of 10

@@ -16,7 +16,8 @@ a far pair (``split`` << 1). The frame counts as two when ``split`` is below ``t
 the ``false_split_rate`` quantile of ``split`` over held-out single presses (each against the
 other training presses), so by construction that share of single presses is split in two.
 Further touches (K > 2) are added greedily the same way: the best far candidate (new press at
-least ``min_separation_m`` from every press so far) against the best near one, same threshold.
+least ``min_separation_m`` from every press so far) against the best near one, same threshold;
+then each touch is re-placed with the others fixed (two sweeps).
 
 ``min_separation_m`` defaults to the layer's electrode pitch (mean distance between
 neighbouring electrode centres): a boundary-electrode EIT skin does not resolve two touches
@@ -168,6 +169,8 @@ class MultiTouchModel:
             if added is None:
                 break
             chosen.append(added)
+        if len(chosen) > 2:  # a greedy third touch may fit better with the first two moved
+            chosen = basis.refine(x, chosen)
         cols = self.responses[chosen].T  # [M, k]
         weights = np.maximum(np.linalg.lstsq(cols, x, rcond=None)[0], 0.0)
         fitted = cols * weights[None, :]  # [M, k] each touch's fitted response
@@ -238,23 +241,42 @@ class PairBasis:
             return PairFit(near / qq, np.inf, np.array([-1, -1]), np.zeros(2))
         return PairFit(near / qq, far[i, j] / qq, np.array([i, j]), np.array([ai[i, j], aj[i, j]]))
 
-    def extend(self, x: np.ndarray, chosen: list[int], threshold: float) -> int | None:
-        """The training press to add to ``chosen`` as another touch, or None (module docstring)."""
-        cols = self.x[chosen].T  # [M, k]
-        q, _ = np.linalg.qr(cols)
+    def additions(self, x: np.ndarray, chosen: list[int]) -> tuple[np.ndarray, np.ndarray, float]:
+        """What adding each training press to ``chosen`` (indices) gives for ``x`` [M].
+
+        Returns ``[N]`` decrease of the squared residual (-inf: not a positive addition),
+        ``[N]`` whether the press is at least the minimum separation from every chosen one,
+        and the squared residual of the chosen presses alone (unconstrained least squares).
+        """
+        q, _ = np.linalg.qr(self.x[chosen].T)  # [M, k]
         residual = x - q @ (q.T @ x)  # [M]
         projected = self.x - (self.x @ q) @ q.T  # [N, M] each candidate off the chosen span
         norm2 = np.einsum("nm,nm->n", projected, projected)
         gain = projected @ residual
         ok = (gain > 0) & (norm2 > 1e-12 * max(float(norm2.max()), 1e-300))
-        drop = np.where(ok, gain**2 / np.where(ok, norm2, 1.0), -np.inf)  # residual decrease
+        drop = np.where(ok, gain**2 / np.where(ok, norm2, 1.0), -np.inf)
         distance = np.linalg.norm(
             self.press_xy[:, None, :] - self.press_xy[chosen][None, :, :], axis=2
         ).min(axis=1)
-        far = distance >= self.min_separation_m
-        rr = float(residual @ residual)
+        return drop, distance >= self.min_separation_m, float(residual @ residual)
+
+    def extend(self, x: np.ndarray, chosen: list[int], threshold: float) -> int | None:
+        """The training press to add to ``chosen`` as another touch, or None (module docstring)."""
+        drop, far, rr = self.additions(x, chosen)
         far_r = rr - float(np.where(far, drop, -np.inf).max(initial=-np.inf))
         near_r = rr - float(max(np.where(far, -np.inf, drop).max(initial=-np.inf), 0.0))
         if not np.isfinite(far_r) or not far_r / max(near_r, np.finfo(float).tiny) < threshold:
             return None
         return int(np.argmax(np.where(far, drop, -np.inf)))
+
+    def refine(self, x: np.ndarray, chosen: list[int], sweeps: int = 2) -> list[int]:
+        """Re-place each touch with the others fixed (best far press), ``sweeps`` times."""
+        chosen = list(chosen)
+        for _ in range(sweeps):
+            for j in range(len(chosen)):
+                others = chosen[:j] + chosen[j + 1 :]
+                drop, far, _ = self.additions(x, others)
+                best = np.where(far, drop, -np.inf)
+                if np.isfinite(best.max()):
+                    chosen[j] = int(np.argmax(best))
+        return chosen
