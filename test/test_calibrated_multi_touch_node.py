@@ -2,7 +2,8 @@
 
 Simulated single presses on the hydrogel patch are calibrated with ``eit-skin calibrate
 --max-touches 2``; the node gets frames of true two-probe presses and of single presses; its
-``calibrated_contacts`` must carry two contacts the probes' distance apart, and one.
+``calibrated_contacts`` must carry two contacts the probes' distance apart, and one; a press
+held beyond the drift time constant is a changed sheet (no contacts, a WARN diagnostic).
 """
 
 from __future__ import annotations
@@ -58,6 +59,15 @@ def reference_ready(probe: Probe) -> bool:
     )
 
 
+def sheet_changed_warning(probe: Probe) -> bool:
+    return any(
+        status.level[0] == 1 and "sheet changed" in status.message
+        for _, msg in probe.messages[DIAGNOSTICS]
+        for status in msg.status
+        if status.name.endswith("eit_reconstruction: pressure")
+    )
+
+
 def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) -> None:
     model, _, cache = calibrated
     patch = load_patch(PATCH)
@@ -79,6 +89,7 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
         "calibration": str(model),
         "calibration_max_touches": 2,
         "reference_frames": 3,
+        "drift_time_constant_s": 0.5,
         "diagnostics_period_s": 0.2,
         "marker_period_s": 0.0,
     }
@@ -117,6 +128,10 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
 
         pairs = [send(f) for f in frames]
         singles = [send(f) for f in single]
+        # held for longer than the drift time constant (0.5 s of frame time): the sheet
+        # changed, not a touch: no contacts, a WARN on /diagnostics
+        held = [send(frames[0]) for _ in range(40)]
+        warned = probe.spin_until(lambda: sheet_changed_warning(probe), EVENT_S)
     finally:
         code = stop_node(node)
         probe.close()
@@ -127,6 +142,9 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
         assert abs(np.linalg.norm(a - b) - separation) < 0.01
         assert all(0.0 <= c.confidence <= 1.0 and c.layer == "pressure" for c in msg.contacts)
     assert [len(m.contacts) for m in singles] == [1, 1]
+    assert [len(m.contacts) for m in held[:15]] == [2] * 15 and not held[-1].contacts
+    assert warned, log.read_text()
+    assert "sheet changed" in log.read_text()
 
 
 def test_two_touches_with_a_one_touch_calibration_are_refused(tmp_path, calibrated) -> None:

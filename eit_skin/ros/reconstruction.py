@@ -19,7 +19,8 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
   a warning says so)
   (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
 * ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults,
-  values left out (beyond the full scale, one-frame jumps).
+  values left out (beyond the full scale, one-frame jumps), a changed sheet of the
+  calibrated layer (WARN, :mod:`eit_skin.calibration.online`).
 """
 
 from __future__ import annotations
@@ -460,6 +461,12 @@ class ReconstructionNode(Node):
                 level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif (
+                self.calibration is not None
+                and self.calibration.layer_name == name
+                and (self.calibration.sheet_changed is not None)
+            ):
+                level, text = 1, self.calibration.sheet_changed
             elif implausible > self._implausible_reported.get(name, 0):
                 level, text = (
                     1,
