@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eit_skin.calibration.multi_touch import MultiTouchModel, electrode_pitch
 from eit_skin.calibration.session import PressSession
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
@@ -185,6 +186,8 @@ class PressLocaliser:
         depth_model: depth model (pattern, standardised log-magnitude -> depth m), or ``None``.
         magnitude_stats: ``[2]`` mean and std of the training log-magnitudes.
         n_presses: training presses.
+        multi_touch: the several-touches model (:mod:`eit_skin.calibration.multi_touch`), or
+            ``None`` when calibrated for one touch at a time.
     """
 
     layer_name: str
@@ -194,14 +197,18 @@ class PressLocaliser:
     depth_model: KernelRidge | None
     magnitude_stats: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0]))
     n_presses: int = 0
+    multi_touch: MultiTouchModel | None = None
 
     @property
     def n_measurements(self) -> int:
         return int(self.scale.size)
 
     @classmethod
-    def fit(cls, session: PressSession, layer: Layer) -> PressLocaliser:
-        """Fit on ``session`` (checked against ``layer``: channel count, positions on the sheet)."""
+    def fit(cls, session: PressSession, layer: Layer, max_touches: int = 1) -> PressLocaliser:
+        """Fit on ``session`` (checked against ``layer``: channel count, positions on the sheet).
+
+        ``max_touches`` > 1 also fits the several-touches model from the same single presses.
+        """
         session.check_layer(layer)
         d = relative_change(session.frames, session.baselines())
         scale = d.std(axis=0)
@@ -213,8 +220,18 @@ class PressLocaliser:
         if session.depth is not None:
             depth_inputs = np.hstack([pattern, ((magnitude - stats[0]) / stats[1])[:, None]])
             depth_model = KernelRidge.fit(depth_inputs, session.depth)
+        multi = None
+        if max_touches > 1:
+            multi = MultiTouchModel.fit(d / scale, session.press_xy, electrode_pitch(layer))
         return cls(
-            layer.name, layer.content_hash, scale, position, depth_model, stats, session.n_presses
+            layer.name,
+            layer.content_hash,
+            scale,
+            position,
+            depth_model,
+            stats,
+            session.n_presses,
+            multi,
         )
 
     def locate(
@@ -227,9 +244,39 @@ class PressLocaliser:
             reference: ``[M]`` unloaded frame.
             references: ``[T, M]`` per-frame unloaded frames (used instead of ``reference``).
         """
-        frames = np.atleast_2d(np.asarray(frames, float))
         baselines = reference if references is None else references
-        pattern, magnitude = split_features(relative_change(frames, baselines) / self.scale)
+        return self.locate_responses(self.responses(np.asarray(frames, float), baselines))
+
+    def locate_touches(
+        self, frame: np.ndarray, baseline: np.ndarray, max_touches: int
+    ) -> LocatedPresses:
+        """Up to ``max_touches`` presses of one ``frame`` [M] against ``baseline`` [M].
+
+        Rows of the result are touches (count = rows). One touch unless the calibration has a
+        several-touches model (``fit(..., max_touches > 1)``) and it counts more (its module).
+
+        Raises:
+            CalibrationError: ``max_touches`` > 1 but the calibration was made for one touch.
+        """
+        x = self.responses(np.asarray(frame, float), baseline)[0]
+        if max_touches > 1 and self.multi_touch is None:
+            raise CalibrationError(
+                f"max_touches {max_touches}: this calibration locates one touch at a time "
+                f"(calibrate again with --max-touches {max_touches})"
+            )
+        split = None if max_touches == 1 else self.multi_touch.decompose(x, max_touches)
+        if split is None:
+            return self.locate_responses(x[None, :])
+        depth = self.locate_responses(split.responses).depth
+        return LocatedPresses(split.xy, split.confidence, depth)
+
+    def responses(self, frames: np.ndarray, baselines: np.ndarray) -> np.ndarray:
+        """``[T, M]`` channel-scaled relative changes of ``frames`` [T, M] (the model's input)."""
+        return relative_change(np.atleast_2d(frames), baselines) / self.scale
+
+    def locate_responses(self, responses: np.ndarray) -> LocatedPresses:
+        """Press position, confidence and depth of channel-scaled ``responses`` [T, M]."""
+        pattern, magnitude = split_features(np.atleast_2d(responses))
         xy, confidence = self.position.predict(pattern)
         depth = None
         if self.depth_model is not None:
@@ -270,6 +317,8 @@ class PressLocaliser:
         }
         if self.depth_model is not None:
             arrays.update(self.depth_model.arrays("depth"))
+        if self.multi_touch is not None:
+            arrays.update(self.multi_touch.arrays("multi"))
         write_npz_atomic(path, **arrays)
 
     @classmethod
@@ -303,6 +352,9 @@ class PressLocaliser:
                 KernelRidge.from_arrays(arrays, "depth") if "depth_weights" in arrays else None,
                 arrays["magnitude_stats"],
                 int(arrays["n_presses"]),
+                MultiTouchModel.from_arrays(arrays, "multi")
+                if "multi_responses" in arrays
+                else None,
             )
         except KeyError as error:
             raise CalibrationError(f"{source}: missing key {error}") from error

@@ -21,6 +21,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="calibration npz to write")
     parser.add_argument("--folds", type=int, default=5, help="folds of the cross-validation")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fold shuffle")
+    parser.add_argument(
+        "--max-touches",
+        type=int,
+        default=1,
+        metavar="K",
+        help="also fit the several-touches model (up to K touches at once, from the same "
+        "single presses); default 1: one touch at a time",
+    )
 
 
 def depth_bands(depth_m, n_bands: int = 3):
@@ -49,7 +57,9 @@ def run(args: argparse.Namespace) -> int:
         session = load_press_session(args.presses)
         session.check_layer(layer)
         cv = cross_validate(session, layer, folds=args.folds, seed=args.seed)
-        model = PressLocaliser.fit(session, layer)
+        if args.max_touches < 1:
+            raise ValueError(f"--max-touches: {args.max_touches}, need >= 1")
+        model = PressLocaliser.fit(session, layer, args.max_touches)
         model.save(args.out)
     except (PatchError, OSError, KeyError, ValueError) as error:
         print(f"eit-skin calibrate: {error}", file=sys.stderr)
@@ -69,5 +79,12 @@ def run(args: argparse.Namespace) -> int:
                 f"{np.median(e[rows]):.1f} mm, p90 {np.percentile(e[rows], 90):.1f} mm; "
                 f"depth median {np.median(cv.depth_error[rows]) * 1e3:.2f} mm"
             )
+    if model.multi_touch is not None:
+        mt = model.multi_touch
+        print(
+            f"  several touches: up to {args.max_touches}, touches closer than "
+            f"{mt.min_separation_m * 1e3:.0f} mm count as one; {mt.false_split_rate:.0%} of "
+            "held-out single presses are split in two"
+        )
     print(f"wrote {args.out} (layer {layer.name!r}, M = {model.n_measurements})")
     return 0

@@ -27,8 +27,9 @@ frames of another size are counted (``frames_rejected``) and left out.
 
 Calibrated positions: when the reconstruction publishes ``calibrated_contacts`` (its
 ``calibration`` parameter), an event's centroid is the calibrated press of the same
-``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then; otherwise
-it stays the image centroid. Segmented ``contacts`` carry NaN depth and confidence.
+``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then (and it is
+the frame's only calibrated press); otherwise it stays the image centroid. Segmented
+``contacts`` carry NaN depth and confidence.
 """
 
 from __future__ import annotations
@@ -289,7 +290,9 @@ class ClassifierNode(Node):
         return frame
 
     def _on_calibrated(self, msg) -> None:
-        if msg.contacts and msg.contacts[0].confidence >= MIN_CONFIDENCE:
+        # one calibrated press: the event's centroid; several (calibration_max_touches > 1):
+        # the event spans them, its image centroid stands
+        if len(msg.contacts) == 1 and msg.contacts[0].confidence >= MIN_CONFIDENCE:
             c = msg.contacts[0].centroid
             self._calibrated[self._stamp_ns(msg)] = (c.x, c.y)
             while len(self._calibrated) > 50:

@@ -161,6 +161,12 @@ RECONSTRUCTION: ParameterTable = [
         "empty: off. Refused at start unless the patch has the model's layer, unchanged "
         "(content hash) and with the model's channel count",
     ),
+    (
+        "calibration_max_touches",
+        1,
+        "calibrated contacts per frame at most (several touches at once); > 1 needs a "
+        "calibration made with `eit-skin calibrate --max-touches`",
+    ),
 ]
 
 CLASSIFIER: ParameterTable = [

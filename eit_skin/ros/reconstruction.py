@@ -13,11 +13,14 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
 * ``Q/skin_marker``: a coloured TRIANGLE_LIST of the layer on the patch's 3-D surface (one
   topic per layer: stacked layers would hide each other in one display);
 * ``calibrated_contacts`` (only with the ``calibration`` parameter): per imaged frame of the
-  calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
-  located by the press calibration when the processor calls the frame touched, else empty
+  calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with the presses
+  (at most ``calibration_max_touches``, one confidence each) located by the press calibration
+  when the processor calls the frame touched, else empty (also while the sheet has changed:
+  a warning says so)
   (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
 * ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults,
-  values left out (beyond the full scale, one-frame jumps).
+  values left out (beyond the full scale, one-frame jumps), a changed sheet of the
+  calibrated layer (WARN, :mod:`eit_skin.calibration.online`).
 """
 
 from __future__ import annotations
@@ -114,7 +117,11 @@ class ReconstructionNode(Node):
         self.patch = load_patch(path)
         # refused (CalibrationError, a ValueError) before any matrix is built
         self.calibration = (
-            OnlineLocaliser.load(str(p["calibration"]), self.patch) if p["calibration"] else None
+            OnlineLocaliser.load(
+                str(p["calibration"]), self.patch, int(p["calibration_max_touches"])
+            )
+            if p["calibration"]
+            else None
         )
         cache = str(p["cache_dir"]) or default_cache_dir()
         joint = str(p["joint_name"])
@@ -345,14 +352,18 @@ class ReconstructionNode(Node):
             state.colour_pub.publish(colour)
 
     def _publish_calibrated(self, header, frame, flags, out, processor: LayerProcessor) -> None:
-        """The frame's calibrated contact (none if untouched), before its images."""
+        """The frame's calibrated contacts (none if untouched), before its images."""
         Contact, ContactArray = _contact_types()
         array = ContactArray(header=header, patch=self.patch.name)
-        contact = self.calibration.contact(frame, flags, out, processor)
-        if contact is not None:
+        changed = self.calibration.sheet_changed
+        contacts = self.calibration.contacts(frame, flags, out, processor)
+        if self.calibration.sheet_changed is not None and changed is None:
+            self.get_logger().warning(self.calibration.sheet_changed)
+        peak = float(np.nanmax(out.image, initial=-np.inf))
+        for contact in contacts:
             item = Contact(layer=self.calibration.layer_name, area_m2=0.0, mean=float("nan"))
             item.centroid.x, item.centroid.y = (float(v) for v in contact.xy_m)
-            item.peak = float(np.nanmax(out.image, initial=-np.inf))
+            item.peak = peak
             item.depth_m = contact.depth_m
             item.confidence = contact.confidence
             place_on_surface([item], self.patch.placement, [contact.xy_m])
@@ -473,6 +484,12 @@ class ReconstructionNode(Node):
                 level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif (
+                self.calibration is not None
+                and self.calibration.layer_name == name
+                and (self.calibration.sheet_changed is not None)
+            ):
+                level, text = 1, self.calibration.sheet_changed
             elif implausible > self._implausible_reported.get(name, 0):
                 level, text = (
                     1,
