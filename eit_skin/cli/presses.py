@@ -9,6 +9,15 @@ baseline is the frame ``S`` seconds before it (probe lifted). ``--patch`` checks
 every press lies on the sheet before anything is written.
 
 ``simulate --patch P --count N --out S.npz``: N random presses simulated on the patch.
+
+``guide --patch P --frames F.npz --targets N --out S.npz``: calibration by hand. Writes the
+printable 1:1 template (``--template``, default ``S.svg`` and ``S.pdf`` beside the session:
+sheet, electrodes, N numbered targets, 10 mm scale bar), then prompts for each target in
+turn, finds each press and release in the patch's pressure-layer frames (the touch
+classifier's START/END, as ``eit-skin classify``), refuses a press too short, too weak or on
+two targets with the reason (the next press redoes the target) and asks after each accepted
+one: ``ok`` or ``redo`` (``--answers FILE``: one answer a line; default all ``ok``). The
+session is written only when every target has its press. docs/press-calibration.md.
 """
 
 from __future__ import annotations
@@ -19,7 +28,7 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="mode", required=True, metavar="record|simulate")
+    sub = parser.add_subparsers(dest="mode", required=True, metavar="record|simulate|guide")
     record = sub.add_parser("record", help="pair a frame recording with a probe CSV")
     record.add_argument("--frames", type=Path, required=True, help="frames npz with 't'")
     record.add_argument("--probe", type=Path, required=True, help="CSV: time, x, y[, depth]")
@@ -32,9 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--patch", required=True, help="patch name or YAML path")
         p.add_argument("--layer", default="", help="layer (default: the first)")
         p.add_argument("--out", type=Path, required=True, help="press session npz to write")
+    add_guide_arguments(sub.add_parser("guide", help="calibrate by hand on a printed template"))
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.mode == "guide":
+        return run_guide(args)
     from eit_skin.calibration.session import pair_probe_csv
     from eit_skin.cli.locate import load_located_frames
     from eit_skin.patch.loading import load_patch
@@ -65,4 +77,174 @@ def run(args: argparse.Namespace) -> int:
         print(f"eit-skin presses {args.mode}: {error}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}: {session.n_presses} presses, M = {session.n_measurements}")
+    return 0
+
+
+def add_guide_arguments(guide: argparse.ArgumentParser) -> None:
+    """The options of ``presses guide``."""
+    from eit_skin.cli.reconstruct import add_pipeline_arguments
+
+    guide.add_argument("--patch", required=True, help="patch name or YAML path")
+    source = guide.add_mutually_exclusive_group(required=True)
+    source.add_argument("--frames", type=Path, help="recording of the session (frames npz)")
+    source.add_argument("--port", help="serial device of the board (live session)")
+    guide.add_argument("--targets", type=int, default=25, help="targets to press (default 25)")
+    guide.add_argument("--out", type=Path, required=True, help="press session npz to write")
+    guide.add_argument(
+        "--template",
+        type=Path,
+        default=None,
+        help="template to write (.svg or .pdf; default: the session's name with .svg and .pdf)",
+    )
+    guide.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="targets this far inside the outline, holes and electrodes (default: a finger's "
+        "width, 12 mm)",
+    )
+    guide.add_argument(
+        "--answers", type=Path, default=None, help="file: ok|redo per accepted press"
+    )
+    guide.add_argument(
+        "--rate", type=float, default=None, metavar="HZ", help="frame rate (default: the file's t)"
+    )
+    guide.add_argument("--min-hold", type=float, default=0.3, metavar="S", help="shortest press")
+    guide.add_argument(
+        "--min-snr", type=float, default=10.0, help="weakest press, x the frames' noise"
+    )
+    guide.add_argument(
+        "--min-relative",
+        type=float,
+        default=0.25,
+        help="weakest press, x the median accepted press (default 0.25)",
+    )
+    guide.add_argument(
+        "--max-offset",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="refuse a press the image places farther than this from its target and nearer "
+        "another (default: the targets' median spacing; 0: off, for images that do not localise)",
+    )
+    add_pipeline_arguments(guide)
+
+
+def read_answers(path: Path) -> list[str]:
+    """The scripted replies of a guided session: ``ok`` or ``redo``, one a line (``#``: note)."""
+    from eit_skin.calibration.guide import ANSWERS
+
+    out = []
+    for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+        word = line.split("#", 1)[0].strip().lower()
+        if not word:
+            continue
+        if word not in ANSWERS:
+            raise ValueError(f"{path}: line {line_no}: {word!r}: want one of {', '.join(ANSWERS)}")
+        out.append(word)
+    return out
+
+
+def run_guide(args: argparse.Namespace) -> int:
+    """``presses guide``: template, prompts, presses judged and paired, session written."""
+    import numpy as np
+
+    from eit_skin.calibration.guide import GuidedSession, GuideRules, PressDetector
+    from eit_skin.calibration.session import MIN_PRESSES
+    from eit_skin.calibration.template import (
+        FINGER_WIDTH_M,
+        spread_targets,
+        template_drawing,
+        write_template,
+    )
+    from eit_skin.cli.classify import classified_frames
+    from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import PatchError
+    from eit_skin.resources import config_path
+    from eit_skin.touch.classifier import classifier_layers
+
+    def fail(message) -> int:
+        print(f"eit-skin presses guide: {message}", file=sys.stderr)
+        return 2
+
+    if args.port is not None:
+        return fail(
+            "--port: a live guided session is not available yet; record the session with "
+            "`eit-skin capture --seconds ...` and run guide --frames on it"
+        )
+    if args.targets < MIN_PRESSES:
+        return fail(f"--targets: {args.targets}, calibrate needs at least {MIN_PRESSES}")
+    try:
+        patch = load_patch(config_path(args.patch))
+        layer = classifier_layers(patch)[0]
+        margin = FINGER_WIDTH_M if args.margin is None else args.margin * 1e-3
+        targets = spread_targets(layer, args.targets, margin)
+        gaps = np.linalg.norm(targets[:, None] - targets[None], axis=2)
+        np.fill_diagonal(gaps, np.inf)
+        spacing = float(np.median(gaps.min(axis=1)))
+        rules = GuideRules(
+            min_hold_s=args.min_hold,
+            min_snr=args.min_snr,
+            min_relative=args.min_relative,
+            max_offset_m=spacing if args.max_offset is None else args.max_offset * 1e-3,
+        )
+        answers = read_answers(args.answers) if args.answers is not None else []
+        drawing = template_drawing(
+            layer, targets, f"{patch.name} / {layer.name}: {len(targets)} calibration targets"
+        )
+        templates = (
+            [args.template]
+            if args.template
+            else [args.out.with_suffix(".svg"), args.out.with_suffix(".pdf")]
+        )
+        for path in templates:
+            write_template(path, drawing)
+        print(f"wrote {', '.join(map(str, templates))}: print at 100 %, check the 10 mm bar")
+        guide = GuidedSession(targets, rules, str(args.frames))
+        detector = PressDetector(rules)
+        args.stretch_frames = None
+
+        def prompt() -> None:
+            if not guide.done:
+                x, y = targets[guide.current] * 1e3
+                print(
+                    f"target {guide.current + 1}/{len(targets)} at ({x:+.1f}, {y:+.1f}) mm: "
+                    "press it, hold, release"
+                )
+
+        prompt()
+        for t, images, events in classified_frames(args, patch):
+            frame = None if images is None else images.frame_v
+            for press in detector.step(t, frame, events):
+                if guide.done:
+                    break
+                verdict = guide.judge(press)
+                off = np.linalg.norm(press.image_xy - targets[verdict.target]) * 1e3
+                span = f"{press.t_start_s:.2f}-{press.t_end_s:.2f} s"
+                if not verdict.accepted:
+                    print(
+                        f"  press {span}: refused, {verdict.reason}; press target "
+                        f"{verdict.target + 1} again"
+                    )
+                    continue
+                reply = answers.pop(0) if answers else "ok"
+                print(
+                    f"  press {span}: accepted ({press.snr:.0f} x noise, image {off:.1f} mm "
+                    f"from the mark); answer: {reply}"
+                )
+                guide.answer(verdict, reply)
+                prompt()
+            if guide.done:
+                break
+        session = guide.session()
+        session.check_layer(layer)
+        session.save(args.out)
+    except (PatchError, OSError, KeyError, ValueError) as error:
+        return fail(error)
+    refused = sum(not v.accepted for v in guide.log)
+    print(
+        f"wrote {args.out}: {session.n_presses} presses ({refused} refused, "
+        f"{len(guide.log) - refused - session.n_presses} redone), M = {session.n_measurements}"
+    )
     return 0
