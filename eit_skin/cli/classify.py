@@ -159,13 +159,9 @@ def classified_frames(args: argparse.Namespace, patch, runs: dict[Path, FileRun]
     classified; last, ``(t, None, events)`` with the END of a touch still going on. Raises
     ValueError for a file too short for the classifier's calibration.
     """
-    import numpy as np
-
     from eit_skin.cli.reconstruct import cache_dir
     from eit_skin.pipeline.builder import LayerImager
-    from eit_skin.touch.classifier import TouchClassifier, classifier_layers
-    from eit_skin.touch.frame_evidence import channel_electrodes
-    from eit_skin.touch.shapes import raw_patterns, single_contact_spread
+    from eit_skin.touch.classifier import classifier_layers
 
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
@@ -189,19 +185,7 @@ def classified_frames(args: argparse.Namespace, patch, runs: dict[Path, FileRun]
                 f"{reader.n_frames}"
             )
         stretch = _images(stretch_imager, stretch_reader, args, runs, patch.name)
-    # one fingertip's blur at every pixel, m
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    disc, contact = raw_patterns(pressure_layer, imager)  # the raw frames' START filter
-    electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
-    classifier = TouchClassifier(
-        imager.grid.x,
-        imager.grid.y,
-        contact_spread_m=spread,
-        electrodes_m=electrodes,
-        channel_electrodes=channel_electrodes(imager.protocol),
-        disc_rel=disc,
-        contact_rel=contact,
-    )
+    classifier = build_classifier(pressure_layer, imager)
     t0 = None
     t_rel = 0.0
     n_imaged = 0
@@ -224,6 +208,31 @@ def classified_frames(args: argparse.Namespace, patch, runs: dict[Path, FileRun]
             "nothing classified"
         )
     yield t_rel, None, classifier.finish()
+
+
+def build_classifier(layer, imager):
+    """The touch classifier of a pressure ``layer`` imaged by ``imager``, as the node builds it.
+
+    With one fingertip's blur at every pixel and the raw frames' START filter.
+    """
+    import numpy as np
+
+    from eit_skin.touch.classifier import TouchClassifier
+    from eit_skin.touch.frame_evidence import channel_electrodes
+    from eit_skin.touch.shapes import raw_patterns, single_contact_spread
+
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    disc, contact = raw_patterns(layer, imager)
+    electrodes = np.array([e.center for e in layer.electrodes], dtype=np.float64)
+    return TouchClassifier(
+        imager.grid.x,
+        imager.grid.y,
+        contact_spread_m=spread,
+        electrodes_m=electrodes,
+        channel_electrodes=channel_electrodes(imager.protocol),
+        disc_rel=disc,
+        contact_rel=contact,
+    )
 
 
 def _touch_line(event, faults: FaultSpans, placement: Placement) -> dict:

@@ -88,6 +88,14 @@ def add_guide_arguments(guide: argparse.ArgumentParser) -> None:
     source = guide.add_mutually_exclusive_group(required=True)
     source.add_argument("--frames", type=Path, help="recording of the session (frames npz)")
     source.add_argument("--port", help="serial device of the board (live session)")
+    guide.add_argument("--baud", type=int, default=0, help="bit/s with --port (0: the profile's)")
+    guide.add_argument(
+        "--wait",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="with --port: give up after S seconds without a frame (default 10)",
+    )
     guide.add_argument("--targets", type=int, default=25, help="targets to press (default 25)")
     guide.add_argument("--out", type=Path, required=True, help="press session npz to write")
     guide.add_argument(
@@ -168,11 +176,6 @@ def run_guide(args: argparse.Namespace) -> int:
         print(f"eit-skin presses guide: {message}", file=sys.stderr)
         return 2
 
-    if args.port is not None:
-        return fail(
-            "--port: a live guided session is not available yet; record the session with "
-            "`eit-skin capture --seconds ...` and run guide --frames on it"
-        )
     if args.targets < MIN_PRESSES:
         return fail(f"--targets: {args.targets}, calibrate needs at least {MIN_PRESSES}")
     try:
@@ -190,6 +193,13 @@ def run_guide(args: argparse.Namespace) -> int:
             max_offset_m=spacing if args.max_offset is None else args.max_offset * 1e-3,
         )
         answers = read_answers(args.answers) if args.answers is not None else []
+        answers.reverse()  # popped from the end
+
+        def ask() -> str:  # scripted, else at the terminal when live, else "ok"
+            if answers:
+                return answers.pop()
+            return ask_person() if args.port is not None else "ok"
+
         drawing = template_drawing(
             layer, targets, f"{patch.name} / {layer.name}: {len(targets)} calibration targets"
         )
@@ -201,7 +211,7 @@ def run_guide(args: argparse.Namespace) -> int:
         for path in templates:
             write_template(path, drawing)
         print(f"wrote {', '.join(map(str, templates))}: print at 100 %, check the 10 mm bar")
-        guide = GuidedSession(targets, rules, str(args.frames))
+        guide = GuidedSession(targets, rules, str(args.frames or args.port))
         detector = PressDetector(rules)
         args.stretch_frames = None
 
@@ -214,7 +224,11 @@ def run_guide(args: argparse.Namespace) -> int:
                 )
 
         prompt()
-        for t, images, events in classified_frames(args, patch):
+        if args.frames is not None:
+            stream = classified_frames(args, patch)
+        else:
+            stream = live_frames(args, patch, layer)
+        for t, images, events in stream:
             frame = None if images is None else images.frame_v
             for press in detector.step(t, frame, events):
                 if guide.done:
@@ -228,11 +242,14 @@ def run_guide(args: argparse.Namespace) -> int:
                         f"{verdict.target + 1} again"
                     )
                     continue
-                reply = answers.pop(0) if answers else "ok"
                 print(
                     f"  press {span}: accepted ({press.snr:.0f} x noise, image {off:.1f} mm "
-                    f"from the mark); answer: {reply}"
+                    f"from the mark)",
+                    end="",
+                    flush=True,
                 )
+                reply = ask()
+                print(f"; answer: {reply}")
                 guide.answer(verdict, reply)
                 prompt()
             if guide.done:
@@ -248,3 +265,65 @@ def run_guide(args: argparse.Namespace) -> int:
         f"{len(guide.log) - refused - session.n_presses} redone), M = {session.n_measurements}"
     )
     return 0
+
+
+def ask_person() -> str:
+    """Ask at the terminal after an accepted press: Enter keeps it, ``r`` redoes the target."""
+    while True:
+        word = input(" -- Enter: next target, r: redo it > ").strip().lower()
+        if word in ("", "ok", "y", "n", "next"):
+            return "ok"
+        if word in ("r", "redo"):
+            return "redo"
+
+
+def live_frames(args: argparse.Namespace, patch, layer):
+    """``(t s, LayerImages, touch events)`` per imaged frame of the board on ``args.port``.
+
+    The board read as ``eit-skin capture`` reads it, imaged by the reconstruction node's
+    per-frame pipeline (the reference captured from the first frames: keep the sheet
+    untouched at first) and classified as ``eit-skin classify`` does. Ends on Ctrl-C or
+    when no frame came for ``args.wait`` seconds (an error).
+    """
+    import queue
+
+    from eit_skin.cli.classify import build_classifier
+    from eit_skin.cli.reconstruct import cache_dir, make_processor
+    from eit_skin.hardware.sources import LayerFrameFactory, board_source
+    from eit_skin.pipeline.builder import LayerImager
+
+    imager = LayerImager.build(layer, cache_dir=cache_dir(args))
+    args.reference = "capture"
+    processor = make_processor(imager, args, patch.name)
+    classifier = build_classifier(layer, imager)
+    records: queue.Queue = queue.Queue()
+    source = board_source(
+        LayerFrameFactory(patch, layer, patch.frame_id), args.port, args.baud, records.put
+    )
+    print(
+        f"reading {layer.name!r} from {args.port}: keep the sheet untouched for the first second",
+        flush=True,
+    )
+    source.start()
+    first_ns = None
+    t = 0.0
+    try:
+        while True:
+            try:
+                record = records.get(timeout=args.wait)
+            except queue.Empty:
+                raise ValueError(
+                    f"{args.port}: no frame for {args.wait:g} s: {source.status().message}"
+                ) from None
+            first_ns = record.stamp_ns if first_ns is None else first_ns
+            t = (record.stamp_ns - first_ns) * 1e-9
+            flags = record.channel_flags if len(record.channel_flags) else None
+            images = processor.step(record.voltages, t, flags)
+            if images is None:
+                continue
+            classifier.set_faulty_electrodes(images.faulty_electrodes)
+            yield t, images, classifier.step(t, images.image, None, images.frame_v)
+    except KeyboardInterrupt:
+        yield t, None, classifier.finish()
+    finally:
+        source.stop()
