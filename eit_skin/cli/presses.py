@@ -10,14 +10,15 @@ every press lies on the sheet before anything is written.
 
 ``simulate --patch P --count N --out S.npz``: N random presses simulated on the patch.
 
-``guide --patch P --frames F.npz --targets N --out S.npz``: calibration by hand. Writes the
+``guide --patch P (--frames F.npz | --port PORT) --targets N --out S.npz``: calibration by hand. Writes the
 printable 1:1 template (``--template``, default ``S.svg`` and ``S.pdf`` beside the session:
 sheet, electrodes, N numbered targets, 10 mm scale bar), then prompts for each target in
 turn, finds each press and release in the patch's pressure-layer frames (the touch
 classifier's START/END, as ``eit-skin classify``), refuses a press too short, too weak or on
 two targets with the reason (the next press redoes the target) and asks after each accepted
-one: ``ok`` or ``redo`` (``--answers FILE``: one answer a line; default all ``ok``). The
-session is written only when every target has its press. docs/press-calibration.md.
+one: ``ok`` or ``redo`` (``--answers FILE``: one answer a line; default all ``ok``; live,
+``--port``: Enter or ``r`` at the terminal). The session is written only when every target
+has its press. docs/press-calibration.md.
 """
 
 from __future__ import annotations
