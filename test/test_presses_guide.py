@@ -223,6 +223,8 @@ def test_guide_refusals_write_nothing(guided, tmp_path, capsys):
         main([*base[: base.index("--targets") + 1], "5", *base[base.index("--targets") + 2 :]]) == 2
     )
     assert "calibrate needs at least 10" in capsys.readouterr().err
+    assert main([*base, "--template", str(tmp_path / "t.png")]) == 2
+    assert "want a .svg or .pdf file name" in capsys.readouterr().err
     bad = tmp_path / "answers.txt"
     bad.write_text("ok\nyes please\n")
     assert main([*base, "--answers", str(bad)]) == 2

@@ -10,15 +10,15 @@ every press lies on the sheet before anything is written.
 
 ``simulate --patch P --count N --out S.npz``: N random presses simulated on the patch.
 
-``guide --patch P (--frames F.npz | --port PORT) --targets N --out S.npz``: calibration by hand. Writes the
-printable 1:1 template (``--template``, default ``S.svg`` and ``S.pdf`` beside the session:
-sheet, electrodes, N numbered targets, 10 mm scale bar), then prompts for each target in
-turn, finds each press and release in the patch's pressure-layer frames (the touch
-classifier's START/END, as ``eit-skin classify``), refuses a press too short, too weak or on
-two targets with the reason (the next press redoes the target) and asks after each accepted
-one: ``ok`` or ``redo`` (``--answers FILE``: one answer a line; default all ``ok``; live,
-``--port``: Enter or ``r`` at the terminal). The session is written only when every target
-has its press. docs/press-calibration.md.
+``guide --patch P (--frames F.npz | --port PORT) --targets N --out S.npz``: calibration by
+hand. Writes the printable 1:1 template (``--template``, default ``S.svg`` and ``S.pdf``
+beside the session: sheet, electrodes, N numbered targets, 10 mm scale bar), then prompts
+for each target in turn, finds each press and release in the patch's pressure-layer frames
+(the touch classifier's START/END, as ``eit-skin classify``), refuses a press too short, too
+weak or on two targets with the reason (the next press redoes the target) and asks after
+each accepted one: ``ok`` or ``redo`` (``--answers FILE``: one answer a line; default all
+``ok``; live, ``--port``: Enter or ``r`` at the terminal). The session is written only when
+every target has its press. docs/press-calibration.md.
 """
 
 from __future__ import annotations
@@ -177,6 +177,8 @@ def run_guide(args: argparse.Namespace) -> int:
         print(f"eit-skin presses guide: {message}", file=sys.stderr)
         return 2
 
+    if args.template is not None and args.template.suffix.lower() not in (".svg", ".pdf"):
+        return fail(f"--template {args.template}: want a .svg or .pdf file name")
     if args.targets < MIN_PRESSES:
         return fail(f"--targets: {args.targets}, calibrate needs at least {MIN_PRESSES}")
     try:
