@@ -108,11 +108,14 @@ def spread_targets(layer: Layer, n: int, margin_m: float = FINGER_WIDTH_M) -> np
             f"closer than a fingertip radius ({FINGER_RADIUS_M * 1e3:g} mm): use fewer --targets "
             "or a smaller --margin"
         )
-    return reading_order(targets, FINGER_WIDTH_M)
+    return reading_order(targets, float(np.median(gap.min(axis=1))) if n > 1 else 1.0)
 
 
 def reading_order(points: np.ndarray, row_m: float) -> np.ndarray:
-    """``points`` [n, 2] sorted in rows of height ``row_m`` from the top, alternating direction."""
+    """``points`` [n, 2] in rows ``row_m`` high from the top, alternating in direction.
+
+    ``row_m``: the targets' spacing; the finger then travels little from one to the next.
+    """
     row = np.floor((points[:, 1].max() - points[:, 1]) / row_m + 0.5).astype(int)
     x = np.where(row % 2 == 0, points[:, 0], -points[:, 0])
     return points[np.lexsort((x, row))]
