@@ -170,6 +170,39 @@ def test_presses_are_refused_with_the_reason_and_redone():
         guide.session()
 
 
+def test_detector_keeps_the_baseline_and_plateau_of_each_press():
+    """Frames: noise 1e-3 on 8 channels, one missing; a 0.1 change held from 1.0 to 2.0 s."""
+    from eit_skin.calibration.guide import PressDetector
+    from eit_skin.touch.events import TouchEvent
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 3.0, 0.05)
+    shape = np.linspace(1.0, 2.0, 8)
+    frames = 1.0 + 1e-3 * rng.standard_normal((len(t), 8))
+    frames += 0.1 * shape * ((t >= 1.0) & (t <= 2.0))[:, None]
+    frames[:, 5] = np.nan
+
+    def event(state, at):
+        return TouchEvent(1, state, "push", 0.9, at, 1.0, 2.0, (0.01, 0.0), 1e-4, 5e3, 1)
+
+    detector = PressDetector(GuideRules())
+    found = []
+    for k, at in enumerate(t):
+        events = [event("start", at)] if np.isclose(at, 1.0) else []
+        events += [event("end", at)] if np.isclose(at, 2.05) else []
+        found += detector.step(at, frames[k], events)
+    (press,) = found
+    assert press.hold_s == pytest.approx(1.0) and press.peak_pa == 5e3
+    expected = 1.0 + 0.1 * shape
+    ok = np.arange(8) != 5
+    np.testing.assert_allclose(press.frame[ok], expected[ok], atol=1e-3)
+    np.testing.assert_allclose(press.baseline[ok], 1.0, atol=1e-3)
+    assert np.isnan(press.frame[5])
+    # RMS change over noise: 0.1 * rms(shape) / 1e-3 (the noise of the quiet frames before)
+    rms = 0.1 * np.sqrt(np.mean(shape[ok] ** 2)) / 1e-3
+    assert press.snr == pytest.approx(rms, rel=0.3)
+
+
 def test_rules_refuse_negative_values():
     with pytest.raises(ValueError, match="min_snr: must be >= 0"):
         GuideRules(min_snr=-1.0)

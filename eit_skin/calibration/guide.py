@@ -22,6 +22,7 @@ press is redone by the next press. :meth:`GuidedSession.session` gives the press
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 from dataclasses import dataclass
 
@@ -141,7 +142,10 @@ class PressDetector:
         """
         if len(self._quiet_sq) < 2:
             return None
-        return np.sqrt(np.median(np.array(self._quiet_sq), axis=0) / (2.0 * CHI2_1_MEDIAN))
+        with warnings.catch_warnings():  # a channel missing in every frame: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d2 = np.nanmedian(np.array(self._quiet_sq), axis=0)
+        return np.sqrt(d2 / (2.0 * CHI2_1_MEDIAN))
 
     def step(
         self, t_s: float, frame: np.ndarray | None, events: list[TouchEvent]
@@ -189,16 +193,18 @@ class PressDetector:
         during = (t >= event.t_start_s) & (t <= event.t_end_s)
         if not before.any() or not during.any():
             return None
-        baseline = frames[before].mean(axis=0)
-        change = np.linalg.norm(frames[during] - baseline, axis=1)
-        plateau = frames[during][change >= PLATEAU_FRACTION * change.max()]
-        frame = plateau.mean(axis=0)
+        with warnings.catch_warnings():  # a channel missing (NaN) in every frame stays NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            baseline = np.nanmean(frames[before], axis=0)
+            change = np.sqrt(np.nansum((frames[during] - baseline) ** 2, axis=1))
+            plateau = frames[during][change >= PLATEAU_FRACTION * change.max()]
+            frame = np.nanmean(plateau, axis=0)
         sigma = self.noise_std()
         if sigma is None:
             snr = np.inf
         else:
-            floor = max(float(np.median(sigma)), np.finfo(float).tiny) * 1e-3
-            snr = float(np.sqrt(np.mean(((frame - baseline) / np.maximum(sigma, floor)) ** 2)))
+            floor = max(float(np.nanmedian(sigma)), np.finfo(float).tiny) * 1e-3
+            snr = float(np.sqrt(np.nanmean(((frame - baseline) / np.maximum(sigma, floor)) ** 2)))
         return DetectedPress(
             event.t_start_s,
             event.t_end_s,
