@@ -246,7 +246,7 @@ def test_calibration_from_the_guided_session_meets_the_goal(arm, guided, guide_o
     test = test.subset(np.flatnonzero(sheet_clearance(layer, test.press_xy) >= FINGER_WIDTH_M))
     located = model.locate(test.frames, test.reference, test.references)
     error = np.linalg.norm(located.xy - test.press_xy, axis=1)
-    # the goal: within 2x the finger's placement error (measured 1.7 mm median, 3.6 mm p90)
+    # the goal: within 2x the finger's placement error (1.9 mm median: press-calibration.md)
     assert np.median(error) <= 2 * PLACEMENT_RMS_M
 
 
