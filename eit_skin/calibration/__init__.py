@@ -2,7 +2,9 @@
 
 Modules: ``session`` (press session files: frames of presses at known positions, pairing a
 robot's probe log with a recording), ``localiser`` (:class:`PressLocaliser`: fit, k-fold
-cross-validation, locate, calibration files), ``online`` (:class:`OnlineLocaliser`: a calibration
+cross-validation, locate, calibration files), ``template`` (a printable 1:1 template of
+numbered press targets), ``guide`` (calibration by hand: presses found in a frame stream,
+judged and paired with the targets), ``online`` (:class:`OnlineLocaliser`: a calibration
 bound to one layer of a running patch, one frame at a time; used by the reconstruction node),
 ``multi_touch`` (several touches at once from single-press calibrations: superposition).
 """
