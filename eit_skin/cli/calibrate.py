@@ -20,6 +20,9 @@ import itertools
 import sys
 from pathlib import Path
 
+POOR_FIT = 0.1
+"""Device fit residual (share of the unloaded frame's rms) above which the model is called poor."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch", required=True, help="patch name or YAML path")
@@ -85,6 +88,11 @@ def run(args: argparse.Namespace) -> int:
                 f"fitted to the session's unloaded frame (fit residual {fit.residual:.1%} of "
                 "its rms)"
             )
+            if fit.residual > POOR_FIT:
+                notes.append(
+                    "  the model explains this device's unloaded frame poorly: expect little "
+                    "from the prior (leave-one-out drops it when it does not help)"
+                )
         modes = PRIOR_MODES if args.prior_mode == "auto" else (args.prior_mode,)
         cv = cross_validate(
             session, layer, folds=args.folds, seed=args.seed, prior=prior, prior_modes=modes
