@@ -97,8 +97,9 @@ def test_calibration_with_prior_round_trips_and_old_readers_refuse_it(
     assert int(arrays["format_version"]) == 2  # a version-1 reader refuses it, never misreads
     plain = tmp_path / "plain.npz"
     PressLocaliser.fit(session.subset(np.arange(25)), layer).save(plain)
-    with np.load(plain) as data:
-        assert int(data["format_version"]) == 1  # files without a prior keep the old layout
+    with np.load(plain) as data:  # files without a prior keep the old layout, key for key
+        assert int(data["format_version"]) == 1
+        assert not [k for k in data.files if "prior" in k]
     np.savez(tmp_path / "bad.npz", **{**arrays, "position_prior_mode": np.str_("guess")})
     with pytest.raises(CalibrationError, match=r"bad.npz: key 'position_prior_mode': 'guess'"):
         PressLocaliser.load(tmp_path / "bad.npz", layer)
