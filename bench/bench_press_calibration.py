@@ -230,7 +230,11 @@ paired leave-one-out differences.
   15.2 mm, N = 100 5.0 / 12.3 mm, also within noise, so not added. The issue's goals (N = 50 <=
   3.5 mm, N = 100 <= 2.5 mm) are **not** met: 6.7 and 5.0 mm today, with or without prior;
   N = 400: 2.6 / 6.1 mm. A prior can only help this skin once its model reproduces the real
-  unloaded frame (issue 35's work on the real sets).
+  unloaded frame (issue 35's work on the real sets). Why (bench/hydrogel_pattern_study.md): the
+  patch's pattern is the board's (its firmware table); the board adds a chiral V+/V- artefact
+  to the unloaded frame; and a simulated press raises the conductance where this skin's lowers
+  it (real presses matched to model presses by pattern alone: 23.4 mm median with a lowering
+  press, 49.8 mm with a raising one, the centre 50.6 mm), still short of 25 real presses.
 - Hence `--physics-prior` is off by default; it costs a device fit and a simulation (7-27 s
   for 500 presses on this shared machine, plus the meshes on a patch's first run) and 2-4x the
   fit time.
