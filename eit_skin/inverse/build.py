@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_NOISE_FIGURE,
@@ -82,7 +83,7 @@ def build_method(
     if jacobian is None:
         jacobian = imaging_jacobian(forward, sigma0, mesh)
     if method == "greit":
-        return ReconstructionMatrix.greit(jacobian, mesh, hyperparameter, noise_figure)
+        return greit_matrix(jacobian, mesh, hyperparameter, noise_figure)
     return ReconstructionMatrix.from_jacobian(
         jacobian,
         mesh,
