@@ -8,7 +8,8 @@ import pytest
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.frames import FLAG_SATURATED
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from eit_skin.inverse.gauss_newton import (
-    GaussNewtonReconstructor,
     GaussNewtonSolver,
     WarmStart,
     gauss_newton,
     gauss_newton_difference,
 )
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.inverse.priors import make_prior
 from test.reconstruction_phantoms import RADIUS_M, phantom, setup

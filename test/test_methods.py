@@ -8,7 +8,8 @@ import pytest
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.inverse.build import build_method
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.hyperparameter import noise_figure
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS

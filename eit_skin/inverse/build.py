@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import (
     DEFAULT_MAX_ITERATIONS,

@@ -37,7 +37,7 @@ from eit_skin.inverse.channel_noise import (
     estimate_channel_noise,
 )
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.hyperparameter import (
     MODEL_ERROR_SHARE,
     choose_for_model_error,
