@@ -52,12 +52,8 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.phantoms import disc_centres, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
-from eit_skin.inverse.gauss_newton import (
-    GaussNewtonReconstructor,
-    GaussNewtonSolver,
-    WarmStart,
-    gauss_newton_difference,
-)
+from eit_skin.inverse.gauss_newton import GaussNewtonSolver, WarmStart, gauss_newton_difference
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian, reference_scale
