@@ -52,7 +52,7 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.phantoms import disc_centres, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
-from eit_skin.inverse.gauss_newton import GaussNewtonSolver, WarmStart, gauss_newton_difference
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
 from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
@@ -288,8 +288,8 @@ def gn_case(fwd, large, v0):
     for kind in ("noser", "laplace"):
         full_prior = kind if kind == "noser" else make_prior(kind, fwd.mesh)
         one_off = median_time(
-            lambda p=full_prior: gauss_newton_difference(
-                fwd, large, v0, prior=p, hyperparameter=0.01, max_iterations=5, tolerance=0.0
+            lambda p=full_prior: GaussNewtonSolver(fwd, 1.0, p, 0.01).difference(
+                large, v0, options=FitOptions(max_iterations=5, tolerance=0.0)
             ),
             GN_REPEATS,
         )
@@ -301,7 +301,7 @@ def gn_case(fwd, large, v0):
         for _ in range(GN_REPEATS):
             timed.solve_s = timed.jacobian_s = 0.0
             t, c = time.perf_counter(), time.process_time()
-            gn = solver.difference(large, v0, max_iterations=5, tolerance=0.0)
+            gn = solver.difference(large, v0, options=FitOptions(max_iterations=5, tolerance=0.0))
             runs.append(
                 (time.perf_counter() - t, time.process_time() - c, timed.solve_s, timed.jacobian_s)
             )
@@ -343,7 +343,7 @@ def gn_section(gn_rows) -> list[str]:
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; median of "
         f"{GN_REPEATS} runs; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
         "end of the run (this benchmark included; wall times grow with other load, CPU time "
-        "less so). One-off: `gauss_newton_difference` with the unknowns on the "
+        "less so). One-off: a `GaussNewtonSolver` built per call with the unknowns on the "
         "forward mesh (builds everything per call). Solver: `GaussNewtonSolver` built once "
         "(setup column), unknowns on the coarse parameter mesh, then `difference()` per frame; "
         "the per-iteration split is wall time of the forward solves (factorisation + "
@@ -544,7 +544,10 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
     rec = GaussNewtonReconstructor.build(fwd, 1.0, "laplace", parameter_mesh=pmesh)
     solver = rec.solver
     frames = [v for _, v in press]
-    ref = [solver.difference(v, v0, max_iterations=5).parameter_change for v in frames]
+    ref = [
+        solver.difference(v, v0, options=FitOptions(max_iterations=5)).parameter_change
+        for v in frames
+    ]
     ref_pc = [peak_and_centre(x, pmesh) for x in ref]
     out = []
     for label, warm_on, step_tol, relin, iters in ONLINE_CONFIGS:
@@ -554,17 +557,8 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
             wall, cpu, res = [], [], []
             for v in frames:
                 t, c = time.perf_counter(), time.process_time()
-                r = solver.difference(
-                    v,
-                    v0,
-                    None,
-                    iters,
-                    1e-3,
-                    1e-9,
-                    warm,
-                    step_tolerance=step_tol,
-                    relinearise=relin,
-                )
+                options = FitOptions(iters, step_tolerance=step_tol, relinearise=relin)
+                r = solver.difference(v, v0, None, options, warm)
                 wall.append(time.perf_counter() - t)
                 cpu.append(time.process_time() - c)
                 res.append(r)

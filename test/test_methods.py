@@ -8,7 +8,7 @@ import pytest
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.inverse.build import build_method
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
 from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.hyperparameter import noise_figure
@@ -95,13 +95,15 @@ def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
         res = solver.difference(
             frame,
             s.v0,
-            max_iterations=gn.max_iterations,
             warm=warm,
-            step_tolerance=gn.step_tolerance,
-            relinearise=gn.relinearise,
+            options=FitOptions(
+                max_iterations=gn.max_iterations,
+                step_tolerance=gn.step_tolerance,
+                relinearise=gn.relinearise,
+            ),
         )
         np.testing.assert_allclose(got, res.parameter_change.astype(np.float32), rtol=1e-6)
-        cold = solver.difference(frame, s.v0, max_iterations=gn.max_iterations)
+        cold = solver.difference(frame, s.v0, options=FitOptions(max_iterations=gn.max_iterations))
         assert cold.iterations == gn.max_iterations  # a large contrast takes every step
         k = np.argmax(np.abs(cold.parameter_change))
         assert abs(got[k] / cold.parameter_change[k] - 1.0) < 0.05

@@ -66,7 +66,7 @@ _LINE_SEARCH_HALVINGS = 12
 
 @dataclass(frozen=True)
 class GaussNewtonResult:
-    """Outcome of :func:`gauss_newton`.
+    """Outcome of a fit (:meth:`GaussNewtonSolver.fit`, :meth:`GaussNewtonSolver.difference`).
 
     Attributes:
         sigma: ``[N]`` sheet conductance on the forward mesh, siemens.
@@ -135,6 +135,38 @@ class WarmStart:
         self.channels, self.d, self.voltages, self.linearisation = b"", None, None, None
 
 
+class _LineSearch(NamedTuple):
+    """A line search's outcome: forward solves, the accepted point (None: no decrease)."""
+
+    solves: int
+    d: np.ndarray | None
+    sigma: np.ndarray | None
+    residual: np.ndarray | None
+    voltages: np.ndarray | None
+    damped: bool
+    gain: float
+    objective: float
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """When a fit stops and what it reuses (:meth:`GaussNewtonSolver.difference` says each).
+
+    Attributes:
+        max_iterations: Gauss-Newton steps at most.
+        tolerance: stop at this relative residual.
+        stagnation: stop when a step lowers the objective by less than this (relative).
+        step_tolerance: online convergence test on the next step (0: off).
+        relinearise: keep a linearisation until the solution moved this far (0: never).
+    """
+
+    max_iterations: int = 10
+    tolerance: float = 1e-3
+    stagnation: float = 1e-9
+    step_tolerance: float = 0.0
+    relinearise: float = 0.0
+
+
 class GaussNewtonSolver:
     """Regularised Gauss-Newton around one ``sigma0``, reusable for many targets or frames.
 
@@ -142,8 +174,9 @@ class GaussNewtonSolver:
     factorised prior, the weighted combination ``C_w``, ``lambda^2`` and the whole first
     linearisation at ``sigma0`` (``G^T``, ``P^-1 G^T`` and the Cholesky factor of
     ``J P^-1 J^T + lambda^2 I``), so the first step of every fit costs two triangular solves
-    and a forward solve. The data scale ``w`` is fixed: ``weights_v``, or the floored
-    ``|F(sigma0)|`` (the one-step convention, :func:`eit_skin.inverse.one_step.reference_scale`).
+    and a forward solve. The data scale ``w`` (:attr:`weights_v`) is fixed: the floored
+    ``|F(sigma0)|`` (the one-step convention, :func:`eit_skin.inverse.one_step.reference_scale`);
+    ``|ln(sigma / sigma0)|`` is bounded by :data:`DEFAULT_MAX_LOG_CONTRAST`.
 
     Args:
         forward: model with ``.voltages(sigma)``, ``.jacobian_basis(sigma)`` (or
@@ -153,8 +186,6 @@ class GaussNewtonSolver:
         hyperparameter: dimensionless ``h``.
         parameter_mesh: coarser mesh of the same sheet carrying the unknowns (default: the
             forward mesh).
-        weights_v: ``[M]`` data scale ``w`` in volts.
-        max_log_contrast: bound on ``|ln(sigma / sigma0)|``.
     """
 
     def __init__(
@@ -164,8 +195,6 @@ class GaussNewtonSolver:
         prior: str | Prior = "laplace",
         hyperparameter: float = 0.03,
         parameter_mesh: Mesh | None = None,
-        weights_v: np.ndarray | None = None,
-        max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
     ) -> None:
         if not (np.isfinite(hyperparameter) and hyperparameter > 0):
             raise ValueError(f"hyperparameter must be a positive number, got {hyperparameter}")
@@ -173,10 +202,8 @@ class GaussNewtonSolver:
         n = forward.mesh.n_triangles
         self.sigma0 = np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n,)).copy()
         self.v0 = np.asarray(forward.voltages(self.sigma0), dtype=np.float64)  # [M] volts
-        self.weights_v = reference_scale(self.v0) if weights_v is None else np.asarray(weights_v)
-        if self.weights_v.shape != self.v0.shape or not np.all(self.weights_v > 0):
-            raise ValueError(f"weights_v must be [{self.v0.size}] positive volts")
-        self.max_log_contrast = float(max_log_contrast)
+        self.weights_v = reference_scale(self.v0)  # [M] volts, the data scale w
+        self.max_log_contrast = DEFAULT_MAX_LOG_CONTRAST
         self._owner, self._to_params = _parameter_map(forward.mesh, parameter_mesh)
         self.n_parameters = n if self._owner is None else parameter_mesh.n_triangles  # type: ignore[union-attr]
         if isinstance(prior, Prior) and prior.n != self.n_parameters:
@@ -379,12 +406,8 @@ class GaussNewtonSolver:
         frame: np.ndarray,
         reference: np.ndarray,
         excluded: np.ndarray | None = None,
-        max_iterations: int = 10,
-        tolerance: float = 1e-3,
-        stagnation: float = 1e-9,
+        options: FitOptions = FitOptions(),
         warm: WarmStart | None = None,
-        step_tolerance: float = 0.0,
-        relinearise: float = 0.0,
     ) -> GaussNewtonResult:
         """Difference imaging: fit ``F(sigma0) + s(F(sigma0)) (v - v_ref) / s_ref``.
 
@@ -396,11 +419,13 @@ class GaussNewtonSolver:
         stops when ``||r|| <= tolerance * ||r_0||`` (``r_0`` the data change itself), so a
         small touch is imaged as fully as a large one, and no change gives no iteration.
 
-        Online options (the defaults give the plain cold Gauss-Newton fit):
+        ``options`` (:class:`FitOptions`): ``max_iterations``, ``tolerance``, ``stagnation``,
+        and the online options (their defaults give the plain cold Gauss-Newton fit):
 
-        * ``warm``: start from the last fit's solution and model voltages (no forward solve
-          to get there) and store this fit's end point in it; a different channel set, or a
-          frame with no change at all, starts cold from ``sigma0``.
+        * ``warm`` (an argument of its own): start from the last fit's solution and model
+          voltages (no forward solve to get there) and store this fit's end point in it; a
+          different channel set, or a frame with no change at all, starts cold from
+          ``sigma0``.
         * ``step_tolerance``: convergence test on the Gauss-Newton step: stop, without a
           forward solve, when the next step would change no element's ``ln sigma`` by more
           than this fraction of the largest ``|ln sigma|`` of the image (0.01: 1 % of its
@@ -416,40 +441,7 @@ class GaussNewtonSolver:
         if excluded is not None:
             bad = bad | np.asarray(excluded, dtype=bool)
         target = self.v0 + reference_scale(self.v0) * np.where(bad, 0.0, dv)
-        options = FitOptions(max_iterations, tolerance, stagnation, step_tolerance, relinearise)
         return self._fit(target, bad if bad.any() else None, True, options, warm)
-
-
-class _LineSearch(NamedTuple):
-    """A line search's outcome: forward solves, the accepted point (None: no decrease)."""
-
-    solves: int
-    d: np.ndarray | None
-    sigma: np.ndarray | None
-    residual: np.ndarray | None
-    voltages: np.ndarray | None
-    damped: bool
-    gain: float
-    objective: float
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """When a fit stops and what it reuses (:meth:`GaussNewtonSolver.difference` says each).
-
-    Attributes:
-        max_iterations: Gauss-Newton steps at most.
-        tolerance: stop at this relative residual.
-        stagnation: stop when a step lowers the objective by less than this (relative).
-        step_tolerance: online convergence test on the next step (0: off).
-        relinearise: keep a linearisation until the solution moved this far (0: never).
-    """
-
-    max_iterations: int = 10
-    tolerance: float = 1e-3
-    stagnation: float = 1e-9
-    step_tolerance: float = 0.0
-    relinearise: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -473,35 +465,6 @@ def _cholesky(k: np.ndarray, lam2: float) -> tuple[np.ndarray, bool]:
     """Cholesky factor of ``K + lambda^2 I`` (overwrites ``k``)."""
     k[np.diag_indices_from(k)] += lam2
     return sla.cho_factor(k, lower=True, check_finite=False)
-
-
-def gauss_newton(
-    forward: Any,
-    v_target: np.ndarray,
-    sigma0: np.ndarray | float,
-    prior: str | Prior = "laplace",
-    hyperparameter: float = 0.03,
-    max_iterations: int = 10,
-    tolerance: float = 1e-3,
-    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
-    weights_v: np.ndarray | None = None,
-    stagnation: float = 1e-9,
-    parameter_mesh: Mesh | None = None,
-) -> GaussNewtonResult:
-    """Absolute regularised Gauss-Newton fit of ``F(sigma)`` to ``v_target`` ``[M]`` volts.
-
-    One-off form of :class:`GaussNewtonSolver` (build one to fit many targets); ``weights_v``
-    defaults to the floored ``|v_target|``. Arguments as there and in
-    :meth:`GaussNewtonSolver.fit`.
-    """
-    v_target = np.asarray(v_target, dtype=np.float64)
-    if v_target.shape != (forward.n_measurements,) or not np.isfinite(v_target).all():
-        raise ValueError(f"v_target must be finite [{forward.n_measurements}] volts")
-    w = reference_scale(v_target) if weights_v is None else weights_v
-    solver = GaussNewtonSolver(
-        forward, sigma0, prior, hyperparameter, parameter_mesh, w, max_log_contrast
-    )
-    return solver.fit(v_target, max_iterations, tolerance, stagnation)
 
 
 def _parameter_map(
@@ -545,26 +508,3 @@ def _jacobian_factors(forward: Any, sigma: np.ndarray) -> tuple[np.ndarray, sp.c
         return basis.products, basis.combination
     j = np.asarray(forward.jacobian(sigma), dtype=np.float64)
     return j, sp.identity(j.shape[0], format="csr")
-
-
-def gauss_newton_difference(
-    forward: Any,
-    frame: np.ndarray,
-    reference: np.ndarray,
-    sigma0: np.ndarray | float = 1.0,
-    prior: str | Prior = "laplace",
-    hyperparameter: float = 0.03,
-    parameter_mesh: Mesh | None = None,
-    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
-    **kwargs: Any,
-) -> GaussNewtonResult:
-    """Difference imaging with the iterative solver (large contrasts), one frame.
-
-    One-off form of :meth:`GaussNewtonSolver.difference` (build a solver to image many
-    frames: the first linearisation is then shared); ``kwargs``: those of
-    :meth:`GaussNewtonSolver.difference`.
-    """
-    solver = GaussNewtonSolver(
-        forward, sigma0, prior, hyperparameter, parameter_mesh, None, max_log_contrast
-    )
-    return solver.difference(frame, reference, **kwargs)

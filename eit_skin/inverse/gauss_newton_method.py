@@ -16,6 +16,7 @@ from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.gauss_newton import (
     DEFAULT_RELINEARISE,
     DEFAULT_STEP_TOLERANCE,
+    FitOptions,
     GaussNewtonSolver,
     WarmStart,
 )
@@ -162,15 +163,12 @@ class GaussNewtonReconstructor:
         mask = None if excluded is None else np.asarray(excluded, dtype=bool)
         v2 = v[None] if v.ndim == 1 else v
         out = np.empty((v2.shape[0], self.n_elements), dtype=np.float32)
+        options = FitOptions(
+            self.max_iterations,
+            self.tolerance,
+            step_tolerance=self.step_tolerance,
+            relinearise=self.relinearise,
+        )
         for t, frame in enumerate(v2):
-            out[t] = self.solver.difference(
-                frame,
-                ref,
-                mask,
-                max_iterations=self.max_iterations,
-                tolerance=self.tolerance,
-                warm=self.warm,
-                step_tolerance=self.step_tolerance,
-                relinearise=self.relinearise,
-            ).parameter_change
+            out[t] = self.solver.difference(frame, ref, mask, options, self.warm).parameter_change
         return out[0] if v.ndim == 1 else out

@@ -304,17 +304,16 @@ class ReconstructionMatrix:
         mesh: Mesh,
         prior: str | Prior = "laplace",
         hyperparameter: float | None = None,
-        channels: np.ndarray | None = None,
         noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
         """One-step matrix from a relative Jacobian ``[M, N]`` (:func:`relative_jacobian`).
 
         ``prior``: a kind (:data:`~eit_skin.inverse.priors.PRIOR_KINDS`) or a built
         :class:`~eit_skin.inverse.priors.Prior` on ``mesh``; other arguments as in
-        :meth:`build`; ``channels``: the channel subset to use (default: all).
+        :meth:`build` (a channel subset: :meth:`without_channels`).
         """
         model = PriorModel.build(jacobian, mesh, prior)
-        return linear_matrix(model, hyperparameter, noise_figure, channels)
+        return linear_matrix(model, hyperparameter, noise_figure)
 
     @property
     def method(self) -> str:
