@@ -143,22 +143,19 @@ def compiled_step(
     floor = reference_floor(reference_v)  # numpy's ddot, as the numpy step
     if not math.isfinite(floor):
         return None
-    merged = plan.merged
-    h, w = plan.shape
-    arrays = (plan.signs, merged.matrix, merged.index, merged.weights, plan.owner)
-    previous, limit = checks.previous_v, checks.jump_limit_v
+    noise, k, alpha, full_scale, previous, limit = checks
     if previous is None or limit is None:
         previous, limit = _no_checks(reference_v.size)
     values, base, image, touching, planned = _compiled()[0](
         frame_v,
         reference_v,
-        (*arrays, plan.low, plan.high, plan.pascals, h, w),
+        plan.packed,
         (
             floor,
-            _NO_NOISE if checks.element_noise is None else checks.element_noise,
-            float(checks.contact_k),
-            -1.0 if checks.alpha is None else float(checks.alpha),
-            math.inf if checks.full_scale_v is None else float(checks.full_scale_v),
+            _NO_NOISE if noise is None else noise,
+            float(k),
+            -1.0 if alpha is None else float(alpha),
+            math.inf if full_scale is None else float(full_scale),
             previous,
             limit,
         ),

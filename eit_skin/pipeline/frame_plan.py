@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -60,8 +61,6 @@ class FramePlan:
         pascals: the unit, Pa per unit relative change (> 0).
         owner: intp ``[H*W]`` element under each pixel, ``N`` where none (NaN).
         shape: ``(H, W)``.
-        reconstructor: the matrix the plan was built from (the caller's check for a stale
-            plan: ``plan.reconstructor is imager.reconstructor``).
     """
 
     merged: MergedColumns
@@ -71,7 +70,6 @@ class FramePlan:
     pascals: float
     owner: np.ndarray
     shape: tuple[int, int]
-    reconstructor: ReconstructionMatrix
 
     @classmethod
     def build(
@@ -100,13 +98,17 @@ class FramePlan:
             pascals=float(pascals),
             owner=np.ascontiguousarray(grid.pixel_owner, dtype=np.intp),
             shape=grid.shape,
-            reconstructor=rec,
         )
 
-    @property
-    def n_channels(self) -> int:
-        """``M``, channels in a frame."""
-        return int(self.signs.size)
+    @cached_property
+    def packed(self) -> tuple:
+        """The plan as the compiled kernel takes it, packed once.
+
+        ``(signs, matrix, index, weights, owner, low, high, pascals, H, W)``.
+        """
+        merged, (h, w) = self.merged, self.shape
+        arrays = (self.signs, merged.matrix, merged.index, merged.weights, self.owner)
+        return (*arrays, self.low, self.high, self.pascals, h, w)
 
 
 class FrameChecks(NamedTuple):
