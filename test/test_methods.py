@@ -8,7 +8,9 @@ import pytest
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.inverse.build import build_method
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.hyperparameter import noise_figure
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, DEFAULT_PRIOR, METHODS
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
@@ -43,7 +45,7 @@ def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built
         jacobian, mesh, DEFAULT_PRIOR, noise_figure=DEFAULT_NOISE_FIGURE["one_step"]
     )
     np.testing.assert_array_equal(built["one_step"].matrix, one.matrix)
-    greit = ReconstructionMatrix.greit(jacobian, mesh, noise_figure=0.13)
+    greit = greit_matrix(jacobian, mesh, noise_figure=0.13)
     np.testing.assert_array_equal(built["greit"].matrix, greit.matrix)
     gn = built["gauss_newton"]
     assert isinstance(gn, GaussNewtonReconstructor)
@@ -97,13 +99,15 @@ def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
         res = solver.difference(
             frame,
             s.v0,
-            max_iterations=gn.max_iterations,
             warm=warm,
-            step_tolerance=gn.step_tolerance,
-            relinearise=gn.relinearise,
+            options=FitOptions(
+                max_iterations=gn.max_iterations,
+                step_tolerance=gn.step_tolerance,
+                relinearise=gn.relinearise,
+            ),
         )
         np.testing.assert_allclose(got, res.parameter_change.astype(np.float32), rtol=1e-6)
-        cold = solver.difference(frame, s.v0, max_iterations=gn.max_iterations)
+        cold = solver.difference(frame, s.v0, options=FitOptions(max_iterations=gn.max_iterations))
         assert cold.iterations == gn.max_iterations  # a large contrast takes every step
         k = np.argmax(np.abs(cold.parameter_change))
         assert abs(got[k] / cold.parameter_change[k] - 1.0) < 0.05

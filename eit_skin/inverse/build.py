@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_NOISE_FIGURE,
@@ -84,7 +85,7 @@ def build_method(
     if jacobian is None:
         jacobian = imaging_jacobian(forward, sigma0, mesh)
     if method == "greit":
-        return ReconstructionMatrix.greit(jacobian, mesh, hyperparameter, noise_figure)
+        return greit_matrix(jacobian, mesh, hyperparameter, noise_figure)
     return ReconstructionMatrix.from_jacobian(
         jacobian,
         mesh,

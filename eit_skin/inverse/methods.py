@@ -60,7 +60,7 @@ class Reconstructor(Protocol):
     """A method set up for one sheet: frames (V) -> relative conductivity change per element.
 
     Implemented by :class:`~eit_skin.inverse.one_step.ReconstructionMatrix` (``one_step``,
-    ``greit``) and :class:`~eit_skin.inverse.gauss_newton.GaussNewtonReconstructor`.
+    ``greit``) and :class:`~eit_skin.inverse.gauss_newton_method.GaussNewtonReconstructor`.
 
     Attributes:
         method: one of :data:`METHODS`.
