@@ -8,7 +8,7 @@ of CPU, one core, with a warm matrix cache; the first run builds every candidate
   (``data/real/README.md``: devices, truth, licences).
 * Image quality (issue 35): spurious blobs of either sign and artefact energy of both tools
   and of the solver the patch files named before (:data:`PREVIOUS_DEFAULT`).
-* Default choice: every solver candidate (:data:`CANDIDATE_METHODS` x noise figures, with and
+* Default choice: every solver candidate (:data:`CANDIDATE_SOLVERS` x noise figures, with and
   without the model-error rule) on the five sets and a simulated one (:func:`simulated_set`),
   chosen on five and scored on the sixth (:func:`default_choice`).
 * eit_skin: the patch file as shipped (device facts only: the package default solver) through
@@ -84,9 +84,10 @@ SENSITIVITY_FRACTIONS = (0.25, 0.75)
 STEP_NOISE_LEVEL = 2.0
 STEP_CLEAR = 10.0
 #: Leave-one-set-out choice of the default (:func:`default_choice`): the solver candidates,
-#: (method, noise figure); ``one_step`` with the Laplace prior. Every candidate goes through
-#: the node's chain (reference check, measured channel noise, ``h`` for the noise figure).
-CANDIDATE_METHODS = ("greit", "one_step")
+#: (method, prior, noise figure, model-error share); ``one_step`` with each prior of
+#: :data:`CANDIDATE_SOLVERS` (GREIT has none). Every candidate goes through the node's chain
+#: (reference check, measured channel noise, ``h`` for the noise figure).
+CANDIDATE_SOLVERS = (("greit", None), ("one_step", "laplace"), ("one_step", "noser"))
 CANDIDATE_NOISE_FIGURES = (0.13, 0.2, 0.3, 0.5, 0.7, 1.0, 2.0)
 #: ... and with the model-error rule (``use_reference``'s ``model_error_share``) at these
 #: shares, on top of the noise figures in :data:`RULE_NOISE_FIGURES`.
@@ -103,11 +104,13 @@ SIM_SEED = 35
 #: The package default among the candidates: what a patch without a solver section gets.
 PACKAGE_DEFAULT = (
     SolverSpec().method,
+    SolverSpec().prior,
     DEFAULT_NOISE_FIGURE[SolverSpec().method],
     MODEL_ERROR_SHARE,
 )
 #: What the real-device patch files shipped before issue 35 (in the figures and tables).
-PREVIOUS_DEFAULT = ("greit", 0.13, 0.0)
+PREVIOUS_DEFAULT = ("greit", None, 0.13, 0.0)
+PRIOR_NAMES = {"laplace": "Laplace", "noser": "NOSER", "tikhonov": "Tikhonov"}
 ANALYSIS_BEGIN = "<!-- BEGIN analysis (written by hand; the bench keeps it) -->"
 ANALYSIS_END = "<!-- END analysis -->"
 
@@ -343,9 +346,9 @@ def kept_analysis() -> str:
     return "(not written yet: look at the figures and the tables, then write it here)\n"
 
 
-def candidate_layer(layer: Layer, method: str, noise_figure: float) -> Layer:
-    """``layer`` with the solver candidate (``one_step``: Laplace prior), ``h`` not fixed."""
-    prior = "laplace" if method == "one_step" else layer.solver.prior
+def candidate_layer(layer: Layer, method: str, prior: str | None, noise_figure: float) -> Layer:
+    """``layer`` with the solver candidate (``prior`` None: the layer's), ``h`` not fixed."""
+    prior = prior or layer.solver.prior
     solver = replace(
         layer.solver, method=method, prior=prior, noise_figure=noise_figure, hyperparameter=None
     )
@@ -433,14 +436,14 @@ def goal_failures(ours: dict, peer: dict) -> tuple[int, float]:
 
 
 def candidate_scores(layer: Layer, data: scoring.RealSet, repeated, radius: float) -> dict:
-    """``{(method, noise figure, model-error share): scores}`` of every candidate on one set."""
+    """``{(method, prior, noise figure, model-error share): scores}`` of every candidate."""
     out = {}
-    for method in CANDIDATE_METHODS:
-        cands = [(method, nf, 0.0) for nf in CANDIDATE_NOISE_FIGURES]
-        cands += [(method, nf, sh) for nf in RULE_NOISE_FIGURES for sh in CANDIDATE_SHARES]
+    for method, prior in CANDIDATE_SOLVERS:
+        cands = [(method, prior, nf, 0.0) for nf in CANDIDATE_NOISE_FIGURES]
+        cands += [(method, prior, nf, sh) for nf in RULE_NOISE_FIGURES for sh in CANDIDATE_SHARES]
         for cand in cands:
-            layer_c = candidate_layer(layer, method, cand[1])
-            images, grid = candidate_images(layer_c, data, repeated, cand[2])
+            layer_c = candidate_layer(layer, *cand[:3])
+            images, grid = candidate_images(layer_c, data, repeated, cand[3])
             sc = scoring.score(data, images, grid.x, grid.y, grid.inside, radius)
             if data.name == "simulator":
                 sc["max_m"] = max_position_error(images, grid, data)
@@ -465,10 +468,11 @@ def simulator_entry() -> dict:
     }
 
 
-def label(cand: tuple[str, float, float]) -> str:
-    """A solver candidate ``(method, noise figure, model-error share)`` in words."""
-    method, nf, share = cand
-    text = f"{'one-step Laplace' if method == 'one_step' else 'GREIT'} NF {nf:g}"
+def label(cand: tuple[str, str | None, float, float]) -> str:
+    """A solver candidate ``(method, prior, noise figure, model-error share)`` in words."""
+    method, prior, nf, share = cand
+    name = f"one-step {PRIOR_NAMES[prior]}" if method == "one_step" else "GREIT"
+    text = f"{name} NF {nf:g}"
     return text + (f", model error 1/{1 / share:.0f}" if share else "")
 
 
@@ -494,7 +498,8 @@ def default_choice(entries: dict) -> list[str]:
         "",
         "## Choosing the default: leave one set out",
         "",
-        "Candidates: GREIT and one-step with the Laplace prior, each at noise figure "
+        "Candidates: GREIT and one-step with the Laplace and with the NOSER prior "
+        "(`diag(J^T J)^0.5`, the prior of pyEIT's JAC), each at noise figure "
         + ", ".join(f"{nf:g}" for nf in CANDIDATE_NOISE_FIGURES)
         + " alone, and at "
         + " and ".join(f"{nf:g}" for nf in RULE_NOISE_FIGURES)
@@ -629,9 +634,9 @@ def main() -> None:
                     for r in runs[:2]
                 ]
         calibration = calibrate(layer, protocol, data, radius)
-        method, nf, share = PREVIOUS_DEFAULT
+        *solver, share = PREVIOUS_DEFAULT
         before_images, before_grid = candidate_images(
-            candidate_layer(layer, method, nf), data, repeated_frames(data), share
+            candidate_layer(layer, *solver), data, repeated_frames(data), share
         )
         before = Run("before", before_images, before_grid, 0, 0, ours.model_v)
         save_figure(data, [runs[0], runs[1], before], radius, FIGURES / f"{name}.png")

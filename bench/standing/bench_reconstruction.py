@@ -27,8 +27,8 @@ writes ``bench/standing/reconstruction.md`` and ``bench/standing/reconstruction.
 * ``--json OUT.json``: one row per mesh (:data:`JSON_KEYS`; null where not measured).
 * Frame -> image (``--frame-only`` runs just the per-mesh table, without Gauss-Newton,
   sweep or plot, and rewrites only the report's first section): ours
-  (``ReconstructionMatrix.images``) and pyEIT's ``solve`` followed by the same unit, clip
-  and gather onto the same pixels, so both produce the same image.
+  (the node's planned step, ``pipeline.frame_plan``) and pyEIT's ``solve`` followed by the
+  same unit, clip and gather onto the same pixels, so both produce the same image.
 * Gauss-Newton in the node (``--gn-node`` runs just this part and rewrites only its section):
   the shipped arm, face and elbow layers switched to ``method: gauss_newton`` and imaged
   frame by frame through ``LayerImager.relative_change`` (the reconstruction node's call) on
@@ -40,36 +40,37 @@ from __future__ import annotations
 
 import argparse
 import os
+import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench.header import run_header
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.phantoms import disc_centres, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
-from eit_skin.inverse.gauss_newton import (
-    GaussNewtonReconstructor,
-    GaussNewtonSolver,
-    WarmStart,
-    gauss_newton_difference,
-)
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian, reference_scale
 from eit_skin.inverse.priors import make_prior
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
 from eit_skin.pipeline.builder import LayerImager, with_method
+from eit_skin.pipeline.frame_kernel import frame_step
+from eit_skin.pipeline.frame_plan import FrameChecks, FramePlan
 from eit_skin.resources import config_path
 from eit_skin.sim.simulator import SkinSimulator
 
 R = 0.05
 #: Frame -> image: a unit factor (e.g. Pa per unit relative change) and the pipeline's clip.
 UNIT, FLOOR = 1.0e4, -0.9e4
-NOISE_FIGURE = DEFAULT_NOISE_FIGURE["one_step"]  # Laplace prior
+NOISE_FIGURE = 0.3  # Laplace prior: the noise-figure study's value (config/elbow.yaml)
 GREIT_NOISE_FIGURE = DEFAULT_NOISE_FIGURE["greit"]  # trained matrix, the shipped value
 OUT = Path(__file__).resolve().parent
 SIZES = [0.0066, 0.0047, 0.0036, 0.0033, 0.0023, 0.0016]  # 0.7k, 1.3k, 2.2k, 2.7k, 5.4k, 11k
@@ -95,6 +96,11 @@ ONLINE_CONFIGS = [
     ("warm, quasi-Newton 1.0, step test 0.03", True, 0.03, 1.0, 5),
     ("warm, fixed Jacobian, 1 step per frame", True, 0.0, 1e9, 1),
 ]
+
+
+def loaded() -> bool:
+    """Whether other jobs load the machine: 1-min load average above half the CPUs."""
+    return hasattr(os, "getloadavg") and os.getloadavg()[0] > 0.5 * (os.cpu_count() or 1)
 
 
 def median_time(fn, n):
@@ -128,10 +134,10 @@ def copy_bandwidth() -> float:
 
 
 def memory_floor_s(rm, grid, n_channels: int, batch: int, bandwidth: float) -> float:
-    """Least time, s, to move one frame's bytes at ``bandwidth``: the folded pixel matrix read
-    once per call of ``batch`` frames, the frame (float64 ``[M]``) read and the float32
-    ``[H, W]`` image written."""
-    matrix = rm.pixel_matrix(grid, UNIT, FLOOR).matrix.nbytes
+    """Least time, s, to move one frame's bytes at ``bandwidth``: the merged matrix read once
+    per call of ``batch`` frames, the frame (float64 ``[M]``) read and the float32 ``[H, W]``
+    image written."""
+    matrix = rm.merged.matrix.nbytes
     return (matrix / batch + 8 * n_channels + 4 * grid.inside.size) / bandwidth
 
 
@@ -150,13 +156,26 @@ def merit(grid, values, phantoms):
     )
 
 
+def frame_to_image(rm, grid, v0):
+    """(one, many): frame ``[M]`` / frames ``[T, M]`` V -> pressure images of ``UNIT`` Pa per
+    relative change against ``v0``: one frame by its plan (the node's step,
+    :mod:`eit_skin.pipeline.frame_plan`), ``T`` frames by one product and the grid."""
+    plan, step, checks = FramePlan.build(rm, grid, UNIT, None), frame_step(), FrameChecks()
+    low, high = RELATIVE_CHANGE_RANGE
+
+    def many(frames):
+        return grid.to_image(UNIT * np.clip(rm.reconstruct(frames, v0), low, high))
+
+    return (lambda frame: step(plan, frame, v0, checks).image), many
+
+
 def greit_case(mesh, protocol, frames, v0, phantoms, grid, bandwidth: float = float("nan")):
     """The shipped method (GREIT-trained matrix) on ``mesh``: build, times, error.
 
     Frames ``[T, M]`` V, phantoms ``[(c, v)]``. Returns a dict: ``forward``, ``matrix``,
     ``build_s``; ``frame_s`` / ``batched_s`` (per frame): frame -> image (pixels of ``grid``,
     a unit factor, the clip at -0.9 of the pipeline, NaN outside: one float32 product,
-    :meth:`ReconstructionMatrix.images`); ``element_frame_s`` / ``element_batched_s``: frame
+    :func:`frame_to_image`); ``element_frame_s`` / ``element_batched_s``: frame
     -> element values only (:meth:`ReconstructionMatrix.reconstruct`, pyEIT's output);
     ``image_error``: max |float32 image - float64 chain| / max |image| over the frames;
     ``merit``: :func:`merit` of the element values; ``frame_floor_s`` / ``batched_floor_s``:
@@ -164,20 +183,19 @@ def greit_case(mesh, protocol, frames, v0, phantoms, grid, bandwidth: float = fl
     """
     t = time.perf_counter()
     fwd = ForwardModel(mesh, protocol, 1e-4)
-    rm = ReconstructionMatrix.greit(imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE)
+    rm = greit_matrix(imaging_jacobian(fwd), mesh, noise_figure=GREIT_NOISE_FIGURE)
     build = time.perf_counter() - t
     unit, floor = UNIT, FLOOR
-    rm.images(frames[0], v0, grid, unit, floor)  # folds the pixel matrix once (cached)
+    one, many = frame_to_image(rm, grid, v0)
     exact = np.asarray(rm.matrix, dtype=np.float64) @ ((frames - v0) / reference_scale(v0)).T
     exact = grid.to_image(np.maximum(unit * exact.T, floor))
-    fast = rm.images(frames, v0, grid, unit, floor)
+    fast = np.stack([one(f) for f in frames])
     return {
         "forward": fwd,
         "matrix": rm,
         "build_s": build,
-        "frame_s": median_time(lambda: rm.images(frames[0], v0, grid, unit, floor), 50),
-        "batched_s": median_time(lambda: rm.images(frames, v0, grid, unit, floor), 10)
-        / len(frames),
+        "frame_s": median_time(lambda: one(frames[0]), 50),
+        "batched_s": median_time(lambda: many(frames), 10) / len(frames),
         "element_frame_s": median_time(lambda: rm.reconstruct(frames[0], v0), 50),
         "element_batched_s": median_time(lambda: rm.reconstruct(frames, v0), 10) / len(frames),
         "image_error": float(np.nanmax(np.abs(fast - exact)) / np.nanmax(np.abs(exact))),
@@ -270,8 +288,8 @@ def gn_case(fwd, large, v0):
     for kind in ("noser", "laplace"):
         full_prior = kind if kind == "noser" else make_prior(kind, fwd.mesh)
         one_off = median_time(
-            lambda p=full_prior: gauss_newton_difference(
-                fwd, large, v0, prior=p, hyperparameter=0.01, max_iterations=5, tolerance=0.0
+            lambda p=full_prior: GaussNewtonSolver(fwd, 1.0, p, 0.01).difference(
+                large, v0, options=FitOptions(max_iterations=5, tolerance=0.0)
             ),
             GN_REPEATS,
         )
@@ -283,7 +301,7 @@ def gn_case(fwd, large, v0):
         for _ in range(GN_REPEATS):
             timed.solve_s = timed.jacobian_s = 0.0
             t, c = time.perf_counter(), time.process_time()
-            gn = solver.difference(large, v0, max_iterations=5, tolerance=0.0)
+            gn = solver.difference(large, v0, options=FitOptions(max_iterations=5, tolerance=0.0))
             runs.append(
                 (time.perf_counter() - t, time.process_time() - c, timed.solve_s, timed.jacobian_s)
             )
@@ -317,12 +335,15 @@ def gn_case(fwd, large, v0):
 
 def gn_section(gn_rows) -> list[str]:
     """Markdown lines of the Gauss-Newton section of the report."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Gauss-Newton",
         "",
-        f"{run_header()} 5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R target at "
-        f"(-0.3, 0.4) R; median of {GN_REPEATS} runs (wall times grow with other load, CPU "
-        "time less so). One-off: `gauss_newton_difference` with the unknowns on the "
+        f"5 iterations (tolerance 0, h = 0.01) on a x20, 0.2 R target at (-0.3, 0.4) R; "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; median of "
+        f"{GN_REPEATS} runs; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
+        "end of the run (this benchmark included; wall times grow with other load, CPU time "
+        "less so). One-off: a `GaussNewtonSolver` built per call with the unknowns on the "
         "forward mesh (builds everything per call). Solver: `GaussNewtonSolver` built once "
         "(setup column), unknowns on the coarse parameter mesh, then `difference()` per frame; "
         "the per-iteration split is wall time of the forward solves (factorisation + "
@@ -427,21 +448,25 @@ def gn_node_case(patch_name: str, rate_hz: float) -> list[dict]:
 
 def gn_node_section(rows, cpu: int | None, rate_hz: float) -> list[str]:
     """Markdown lines of the Gauss-Newton-in-the-node section of the report."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Gauss-Newton in the node",
         "",
-        f"{run_header()} Sustained rate of the reconstruction node's per-frame path with "
-        "every layer of the shipped patches switched to `method: gauss_newton` "
-        "(`pipeline.builder.with_method`: Laplace prior, `h` chosen for the method's default "
-        "noise figure on the first linearised step, `max_iterations` 5, tolerance 1e-3 of the "
-        "measured change): `LayerImager.relative_change(frame, reference, flags)` for every "
-        "frame of the "
+        "Sustained rate of the reconstruction node's per-frame path with every layer of the "
+        "shipped patches switched to `method: gauss_newton` (`pipeline.builder.with_method`: "
+        "Laplace prior, `h` chosen for the method's default noise figure on the first "
+        "linearised step, `max_iterations` 5, tolerance 1e-3 of the measured change): "
+        "`LayerImager.relative_change(frame, reference, flags)` for every frame of the "
         f"simulator's demo scenario at {rate_hz:g} Hz (touches, holds, quiet frames, drift, "
         "ADC noise; pre-touch reference), one call per frame as the node makes it. "
-        f"Process pinned to CPU {cpu} (on a shared machine wall time is an upper bound and CPU "
-        "time the better figure). Per patch: frames of every layer imaged in "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, process "
+        f"pinned to CPU {cpu}; 1-min load average {load:.1f} on {os.cpu_count()} cores at the "
+        "end (this benchmark included; other jobs shared the machine, so wall time is an upper "
+        "bound and CPU time the better figure). Per patch: frames of every layer imaged in "
         "turn on the one core, `frames / sum of the layers' total time`. Not included: "
-        "reference tracking, conversion to images and publishing (one-step-sized costs).",
+        "reference tracking, conversion to images and publishing (one-step-sized costs). "
+        "Command: `OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.standing.bench_reconstruction "
+        "--gn-node`.",
         "",
         "| patch | layer | forward triangles | parameter triangles | h | frames | setup s "
         "(wall / CPU) | per frame ms: median / p95 (wall) | mean iterations (share at max) "
@@ -519,7 +544,10 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
     rec = GaussNewtonReconstructor.build(fwd, 1.0, "laplace", parameter_mesh=pmesh)
     solver = rec.solver
     frames = [v for _, v in press]
-    ref = [solver.difference(v, v0, max_iterations=5).parameter_change for v in frames]
+    ref = [
+        solver.difference(v, v0, options=FitOptions(max_iterations=5)).parameter_change
+        for v in frames
+    ]
     ref_pc = [peak_and_centre(x, pmesh) for x in ref]
     out = []
     for label, warm_on, step_tol, relin, iters in ONLINE_CONFIGS:
@@ -529,17 +557,8 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
             wall, cpu, res = [], [], []
             for v in frames:
                 t, c = time.perf_counter(), time.process_time()
-                r = solver.difference(
-                    v,
-                    v0,
-                    None,
-                    iters,
-                    1e-3,
-                    1e-9,
-                    warm,
-                    step_tolerance=step_tol,
-                    relinearise=relin,
-                )
+                options = FitOptions(iters, step_tolerance=step_tol, relinearise=relin)
+                r = solver.difference(v, v0, None, options, warm)
                 wall.append(time.perf_counter() - t)
                 cpu.append(time.process_time() - c)
                 res.append(r)
@@ -574,20 +593,24 @@ def online_gn_case(fwd, press, v0) -> list[dict]:
 
 def online_section(rows) -> list[str]:
     """Markdown lines of the online Gauss-Newton section (accuracy per millisecond)."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## Online Gauss-Newton: accuracy per millisecond",
         "",
-        f"{run_header()} A press sequence at {ONLINE_RATE_HZ:g} Hz ({ONLINE_FRAMES} frames: "
-        "a 0.2 R disk pressed in over 0.1 s to x20 while it slides 0.5 R in 0.4 s, 1 % noise, "
-        "data mesh as above) imaged frame by frame by `GaussNewtonSolver.difference` of the "
-        "reconstructor (`GaussNewtonReconstructor.build`: Laplace prior, `h` for the default "
-        "noise figure 0.3, 416-triangle parameter mesh) in each configuration. Errors are against"
-        " five cold Gauss-Newton iterations on the same frame (what the reconstructor did per "
-        "frame before): peak = relative error of the largest value, centre = distance of the "
-        "quarter-max centre of gravity, fraction of R; max over the frames. Times per frame, wall"
-        " (mean / median / p95) and CPU (mean), median of two passes; solves = forward "
+        f"A press sequence at {ONLINE_RATE_HZ:g} Hz ({ONLINE_FRAMES} frames: a 0.2 R disk "
+        "pressed in over 0.1 s to x20 while it slides 0.5 R in 0.4 s, 1 % noise, data mesh as "
+        "above) imaged frame by frame by `GaussNewtonSolver.difference` of the reconstructor "
+        "(`GaussNewtonReconstructor.build`: Laplace prior, `h` for the default noise figure "
+        "0.3, 416-triangle parameter mesh) in each configuration. Errors are against five cold "
+        "Gauss-Newton iterations on the same frame (what the reconstructor did per frame "
+        "before): peak = relative error of the largest value, centre = distance of the "
+        "quarter-max centre of gravity, fraction of R; max over the frames. Times per frame, "
+        "wall (mean / median / p95) and CPU (mean), median of two passes; solves = forward "
         "factorisations, linearisations = Jacobians + normal matrices per frame (the one at "
-        "sigma0 is precomputed). The reconstructor's default (warm start, step test 0.01, "
+        f"sigma0 is precomputed). OPENBLAS_NUM_THREADS="
+        f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; 1-min load average {load:.1f} "
+        f"on {os.cpu_count()} cores when written (loaded: other jobs shared the machine, wall "
+        "times are upper bounds). The reconstructor's default (warm start, step test 0.01, "
         "linearisation kept within |d ln sigma| <= 0.5) is marked.",
         "",
         "| forward triangles | configuration | ms/frame wall: mean / median / p95 | CPU ms "
@@ -690,9 +713,8 @@ def main() -> None:
             )
             # the ratio from interleaved calls (ours, pyEIT's, ours, ...): same load on both
             rm = g["matrix"]
-            frame_t, py_image = interleaved_medians(
-                [lambda rm=rm, grid=grid: rm.images(frames[0], v0, grid, UNIT, FLOOR), py_fn], 200
-            )
+            one = frame_to_image(rm, grid, v0)[0]
+            frame_t, py_image = interleaved_medians([lambda one=one: one(frames[0]), py_fn], 200)
         else:
             py_build, py_frame, py_image, py = None, None, None, (None,) * 4
         records.append(
@@ -733,7 +755,7 @@ def main() -> None:
         inv = disk_mesh(R, h_m=h)
         grid = ImageGrid.build(inv, 64)
         t = time.perf_counter()
-        rm = ReconstructionMatrix.greit(
+        rm = greit_matrix(
             imaging_jacobian(fwd, inverse_mesh=inv), inv, noise_figure=GREIT_NOISE_FIGURE
         )
         build = time.perf_counter() - t
@@ -802,10 +824,19 @@ def frame_section(
 ) -> list[str]:
     """The report's first section: machine, method and the per-mesh frame table."""
     only = " (this section only; the sections below are from an earlier run)"
+    flags = "".join(f" {a}" for a in sys.argv[1:] if a.startswith("--") and a != "--json")
     lines = [
         "# Reconstruction benchmark",
         "",
-        f"{run_header()} Mode: {'--quick' if quick else 'full'}{only if frame_only else ''}.",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"1-min load average {os.getloadavg()[0]:.1f} when written (includes this run"
+        f"{'; LOADED: shared with other jobs, times are upper bounds' if loaded() else ''}), "
+        f"Python {platform.python_version()}, numpy "
+        f"{np.__version__}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}"
+        f". Mode: {'--quick' if quick else 'full'}. Command: `OPENBLAS_NUM_THREADS=1 "
+        f".venv/bin/python -m bench.standing.bench_reconstruction{flags}`"
+        f"{only if frame_only else ''}"
+        f", {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
         "",
         f"Data simulated on a {data_n}-triangle mesh (never a reconstruction mesh), 1 % noise; "
         "30 targets (radius 5 % R, conductivity x2) at 0..0.9 R. eit_skin: GREIT-trained "
@@ -819,22 +850,21 @@ def frame_section(
         "machine's load weighs on both alike; batched: 30 frames in one call, "
         "median of 10, per frame. Frame->image, both sides: one frame of volts and the "
         "reference in, a new float32 64 x 64 image out, with a unit factor, the pipeline's "
-        "clip and NaN outside the sheet; ours: `ReconstructionMatrix.images` (its cached "
-        "`FrameImager`: `(v - ref) / s_ref` with the reciprocal channels merged, 208 -> 104 "
-        "inputs, one float32 `sgemv` with the rows of the elements under pixels, clip, one "
-        "gather, in preallocated buffers); pyEIT's: its `solve(v, v0, normalize=True)` "
-        "(`(v - v0) / |v0|`, `-H dv`), the unit and the clip in place on its float64 element "
-        "values, then `ImageGrid.to_image` (one casting copy into a NaN-padded float32 row and "
-        "the same gather onto the same pixels), i.e. the same output as ours; element frame: "
-        "volts to element values only (`reconstruct`, what pyEIT's `solve` gives); float32 "
-        "image error: max deviation from the float64 chain over max |image|; frame / pyEIT: "
-        "our frame->image time over pyEIT's frame->image time. Our matrix is float32, "
-        "column-major, [K elements under pixels, 104]; pyEIT's float64, row-major, [N, 208]. "
-        "Gauss-Newton: see its sections below. "
+        "clip and NaN outside the sheet; ours: the node's planned step (`FramePlan`, the "
+        "compiled kernel: `(v - ref) / s_ref` with the reciprocal channels merged, 208 -> 104 "
+        "inputs, one float32 `sgemv`, clip, unit, one gather); pyEIT's: its "
+        "`solve(v, v0, normalize=True)` (`(v - v0) / |v0|`, `-H dv`), the unit and the clip "
+        "in place on its float64 element values, then `ImageGrid.to_image` (one casting copy "
+        "into a NaN-padded float32 row and the same gather onto the same pixels), i.e. the "
+        "same output as ours; element frame: volts to element values only (`reconstruct`, "
+        "what pyEIT's `solve` gives); float32 image error: max deviation from the float64 "
+        "chain over max |image|; frame / pyEIT: our frame->image time over pyEIT's "
+        "frame->image time. Our matrix is float32, column-major, [N, 104]; pyEIT's float64, "
+        "row-major, [N, 208]. Gauss-Newton: see its sections below. "
         "PE = GREIT position error (max over targets, fraction of R); RES = GREIT resolution "
         "(mean); RNG = GREIT ringing (EIDORS definition, mean); SD = shape deformation (max). "
         f"Memory floor: the least time to move one frame's bytes at this core's copy bandwidth "
-        f"({bandwidth / 1e9:.1f} GB/s, `np.copyto` of 64 MiB): the folded float32 pixel matrix "
+        f"({bandwidth / 1e9:.1f} GB/s, `np.copyto` of 64 MiB): the merged float32 matrix "
         "(read once per call: per frame single, over 30 frames batched), the float64 frame "
         "in and the float32 image out; x floor = measured time over that floor.",
         "",

@@ -1,9 +1,15 @@
-"""Calibration of a real skin from labelled presses: a model-free, data-driven press localiser.
+"""Calibration of a real skin from labelled presses: a data-driven press localiser.
 
 Modules: ``session`` (press session files: frames of presses at known positions, pairing a
-robot's probe log with a recording), ``localiser`` (:class:`PressLocaliser`: fit, k-fold
-cross-validation, locate, calibration files), ``online`` (:class:`OnlineLocaliser`: a calibration
-bound to one layer of a running patch, one frame at a time; used by the reconstruction node).
+robot's probe log with a recording), ``features`` (relative change, pattern, magnitude),
+``kernel_ridge`` (RBF kernel ridge with leave-one-out hyperparameters), ``physics_prior``
+(presses simulated on the device's model as the localiser's prior), ``localiser``
+(:class:`PressLocaliser`: fit, k-fold cross-validation, locate, calibration files),
+``template`` (a printable 1:1 template of numbered press targets), ``guide`` (calibration by
+hand: presses found in a frame stream, judged and paired with the targets), ``online``
+(:class:`OnlineLocaliser`: a calibration bound to one layer of a running patch, one frame at a
+time; used by the reconstruction node), ``multi_touch`` (several touches at once from
+single-press calibrations: superposition).
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ _EXPORTS: dict[str, str] = {
     "PressLocaliser": "localiser",
     "PressSession": "session",
     "PressSessionError": "session",
+    "PhysicsPrior": "physics_prior",
     "cross_validate": "localiser",
     "load_press_session": "session",
     "pair_probe_csv": "session",
@@ -26,6 +33,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "CalibrationError",
+    "PhysicsPrior",
     "PressLocaliser",
     "PressSession",
     "PressSessionError",
@@ -36,6 +44,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from eit_skin.calibration.localiser import CalibrationError, PressLocaliser, cross_validate
+    from eit_skin.calibration.physics_prior import PhysicsPrior
     from eit_skin.calibration.session import (
         PressSession,
         PressSessionError,

@@ -34,6 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
+from eit_skin.calibration.features import relative_change, split_features
+from eit_skin.calibration.kernel_ridge import KernelRidge
+from eit_skin.calibration.multi_touch import MultiTouchModel, electrode_pitch
+from eit_skin.calibration.physics_prior import (
+    PRIOR_MODES,
+    PhysicsPrior,
+    PriorPosition,
+    fit_prior_position,
+)
 from eit_skin.calibration.session import PressSession
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
@@ -41,121 +50,12 @@ from eit_skin.patch.model import Layer
 FORMAT_VERSION = 1
 """Version of the calibration file layout; files of another version are refused."""
 
-LENGTH_SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
-"""Kernel length scales tried, as factors of the median pairwise feature distance."""
-
-RIDGE_GRID = tuple(10.0 ** np.arange(-6, 1))
-"""Ridge values tried, relative to the kernel's unit diagonal (dimensionless)."""
+PRIOR_FORMAT_VERSION = 2
+"""Version of a file whose position model has a physics prior (readers of version 1 refuse it)."""
 
 
 class CalibrationError(ValueError):
     """A calibration file is invalid or does not belong to the patch: names the file."""
-
-
-def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``[A, B]`` squared Euclidean distances between the rows of ``a`` [A, D] and ``b`` [B, D]."""
-    d = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * a @ b.T
-    return np.maximum(d, 0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class KernelRidge:
-    """RBF kernel ridge regression (GP posterior mean) with leave-one-out hyperparameters.
-
-    Attributes:
-        inputs: ``[N, D]`` training features.
-        gamma: kernel ``exp(-gamma |x - x'|^2)``, 1 / feature unit^2.
-        ridge: ridge relative to the unit kernel diagonal.
-        weights: ``[N, K]`` dual weights.
-        offset: ``[K]`` mean of the training targets (the prediction far from all data).
-        spacing: ``[N]`` sorted distances of each training input to its nearest other one.
-        loo_error: mean Euclidean leave-one-out error of the chosen pair, target units.
-    """
-
-    inputs: np.ndarray
-    gamma: float
-    ridge: float
-    weights: np.ndarray
-    offset: np.ndarray
-    spacing: np.ndarray
-    loo_error: float
-
-    @classmethod
-    def fit(
-        cls,
-        inputs: np.ndarray,
-        targets: np.ndarray,
-        factors: tuple[float, ...] = LENGTH_SCALE_FACTORS,
-        ridges: tuple[float, ...] = RIDGE_GRID,
-    ) -> KernelRidge:
-        """Fit ``targets`` [N, K] on ``inputs`` [N, D]; the (factor, ridge) pair by LOO error.
-
-        One eigendecomposition per length scale gives the exact leave-one-out residuals
-        ``(y - H y) / (1 - diag H)`` of every ridge at once.
-        """
-        x = np.asarray(inputs, float)
-        y = np.asarray(targets, float).reshape(len(x), -1)
-        offset = y.mean(axis=0)
-        yc = y - offset
-        d2 = squared_distances(x, x)
-        median = float(np.median(d2[np.triu_indices(len(x), 1)]))
-        if not median > 0:
-            raise ValueError("all training features are identical: nothing to learn from")
-        best = (np.inf, 1.0, 1.0)
-        for factor in factors:
-            gamma = 1.0 / (2.0 * factor * factor * median)
-            s, U = np.linalg.eigh(np.exp(-gamma * d2))
-            s = np.maximum(s, 0.0)
-            Uy = U.T @ yc
-            U2 = U * U
-            for ridge in ridges:
-                g = s / (s + ridge)
-                residual = (yc - U @ (g[:, None] * Uy)) / (1.0 - U2 @ g)[:, None]
-                error = float(np.mean(np.linalg.norm(residual, axis=1)))
-                if error < best[0]:
-                    best = (error, gamma, ridge)
-        error, gamma, ridge = best
-        weights = np.linalg.solve(np.exp(-gamma * d2) + ridge * np.eye(len(x)), yc)
-        np.fill_diagonal(d2, np.inf)
-        spacing = np.sort(np.sqrt(d2.min(axis=1)))
-        return cls(x, gamma, ridge, weights, offset, spacing, error)
-
-    def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(``[T, K]`` prediction, ``[T]`` confidence in [0, 1]) for ``queries`` [T, D]."""
-        d2 = squared_distances(queries, self.inputs)
-        nearest = np.sqrt(d2.min(axis=1))
-        farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
-        return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
-
-    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {
-            f"{prefix}_inputs": self.inputs,
-            f"{prefix}_gamma": np.float64(self.gamma),
-            f"{prefix}_ridge": np.float64(self.ridge),
-            f"{prefix}_weights": self.weights,
-            f"{prefix}_offset": self.offset,
-            f"{prefix}_spacing": self.spacing,
-            f"{prefix}_loo_error": np.float64(self.loo_error),
-        }
-
-    @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> KernelRidge:
-        return cls(
-            arrays[f"{prefix}_inputs"],
-            float(arrays[f"{prefix}_gamma"]),
-            float(arrays[f"{prefix}_ridge"]),
-            arrays[f"{prefix}_weights"],
-            arrays[f"{prefix}_offset"],
-            arrays[f"{prefix}_spacing"],
-            float(arrays[f"{prefix}_loo_error"]),
-        )
-
-
-def relative_change(frames: np.ndarray, baselines: np.ndarray) -> np.ndarray:
-    """``[T, M]`` ``(v - v_ref) / |v_ref|`` of ``frames`` [T, M]; ``baselines`` [M] or [T, M]."""
-    frames = np.asarray(frames, float)
-    baselines = np.asarray(baselines, float)
-    return (frames - baselines) / np.abs(baselines)
 
 
 @dataclass(frozen=True)
@@ -181,40 +81,72 @@ class PressLocaliser:
         layer_name: the layer it was calibrated on.
         layer_hash: ``Layer.content_hash`` of that layer.
         scale: ``[M]`` per-channel spread of the relative change over the training presses.
-        position: position model (pattern -> ``[x, y]`` m).
+        position: position model (pattern -> ``[x, y]`` m), with a physics prior or without.
         depth_model: depth model (pattern, standardised log-magnitude -> depth m), or ``None``.
         magnitude_stats: ``[2]`` mean and std of the training log-magnitudes.
         n_presses: training presses.
+        multi_touch: the several-touches model (:mod:`eit_skin.calibration.multi_touch`), or
+            ``None`` when calibrated for one touch at a time.
     """
 
     layer_name: str
     layer_hash: str
     scale: np.ndarray
-    position: KernelRidge
+    position: KernelRidge | PriorPosition
     depth_model: KernelRidge | None
     magnitude_stats: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0]))
     n_presses: int = 0
+    multi_touch: MultiTouchModel | None = None
 
     @property
     def n_measurements(self) -> int:
         return int(self.scale.size)
 
     @classmethod
-    def fit(cls, session: PressSession, layer: Layer) -> PressLocaliser:
-        """Fit on ``session`` (checked against ``layer``: channel count, positions on the sheet)."""
+    def fit(
+        cls,
+        session: PressSession,
+        layer: Layer,
+        max_touches: int = 1,
+        *,
+        prior: PhysicsPrior | None = None,
+        prior_modes: tuple[str, ...] = PRIOR_MODES,
+    ) -> PressLocaliser:
+        """Fit on ``session`` (checked against ``layer``: channel count, positions on the sheet).
+
+        ``max_touches`` > 1 also fits the several-touches model from the same single presses.
+
+        With ``prior`` (presses simulated on the layer's model), position is fitted with it
+        (:func:`~eit_skin.calibration.physics_prior.fit_prior_position`: mode among
+        ``prior_modes`` and weight by leave-one-out; the plain model unless the prior wins).
+        """
         session.check_layer(layer)
         d = relative_change(session.frames, session.baselines())
         scale = d.std(axis=0)
         scale = np.where(scale > 0, scale, 1.0)  # a channel no press moves carries no pattern
         pattern, magnitude = split_features(d / scale)
         stats = np.array([magnitude.mean(), max(float(magnitude.std()), 1e-12)])
-        position = KernelRidge.fit(pattern, session.press_xy)
+        position = (
+            KernelRidge.fit(pattern, session.press_xy)
+            if prior is None
+            else fit_prior_position(pattern, session.press_xy, prior, prior_modes)
+        )
         depth_model = None
         if session.depth is not None:
             depth_inputs = np.hstack([pattern, ((magnitude - stats[0]) / stats[1])[:, None]])
             depth_model = KernelRidge.fit(depth_inputs, session.depth)
+        multi = None
+        if max_touches > 1:
+            multi = MultiTouchModel.fit(d / scale, session.press_xy, electrode_pitch(layer))
         return cls(
-            layer.name, layer.content_hash, scale, position, depth_model, stats, session.n_presses
+            layer.name,
+            layer.content_hash,
+            scale,
+            position,
+            depth_model,
+            stats,
+            session.n_presses,
+            multi,
         )
 
     def locate(
@@ -227,9 +159,39 @@ class PressLocaliser:
             reference: ``[M]`` unloaded frame.
             references: ``[T, M]`` per-frame unloaded frames (used instead of ``reference``).
         """
-        frames = np.atleast_2d(np.asarray(frames, float))
         baselines = reference if references is None else references
-        pattern, magnitude = split_features(relative_change(frames, baselines) / self.scale)
+        return self.locate_responses(self.responses(np.asarray(frames, float), baselines))
+
+    def locate_touches(
+        self, frame: np.ndarray, baseline: np.ndarray, max_touches: int
+    ) -> LocatedPresses:
+        """Up to ``max_touches`` presses of one ``frame`` [M] against ``baseline`` [M].
+
+        Rows of the result are touches (count = rows). One touch unless the calibration has a
+        several-touches model (``fit(..., max_touches > 1)``) and it counts more (its module).
+
+        Raises:
+            CalibrationError: ``max_touches`` > 1 but the calibration was made for one touch.
+        """
+        x = self.responses(np.asarray(frame, float), baseline)[0]
+        if max_touches > 1 and self.multi_touch is None:
+            raise CalibrationError(
+                f"max_touches {max_touches}: this calibration locates one touch at a time "
+                f"(calibrate again with --max-touches {max_touches})"
+            )
+        split = None if max_touches == 1 else self.multi_touch.decompose(x, max_touches)
+        if split is None:
+            return self.locate_responses(x[None, :])
+        depth = self.locate_responses(split.responses).depth
+        return LocatedPresses(split.xy, split.confidence, depth)
+
+    def responses(self, frames: np.ndarray, baselines: np.ndarray) -> np.ndarray:
+        """``[T, M]`` channel-scaled relative changes of ``frames`` [T, M] (the model's input)."""
+        return relative_change(np.atleast_2d(frames), baselines) / self.scale
+
+    def locate_responses(self, responses: np.ndarray) -> LocatedPresses:
+        """Press position, confidence and depth of channel-scaled ``responses`` [T, M]."""
+        pattern, magnitude = split_features(np.atleast_2d(responses))
         xy, confidence = self.position.predict(pattern)
         depth = None
         if self.depth_model is not None:
@@ -257,8 +219,9 @@ class PressLocaliser:
 
     def save(self, path: str | Path) -> None:
         """Write the calibration file atomically (npz, no pickles)."""
+        with_prior = isinstance(self.position, PriorPosition)
         arrays = {
-            "format_version": np.int64(FORMAT_VERSION),
+            "format_version": np.int64(PRIOR_FORMAT_VERSION if with_prior else FORMAT_VERSION),
             "kind": np.str_("press_localiser"),
             "layer_name": np.str_(self.layer_name),
             "layer_hash": np.str_(self.layer_hash),
@@ -270,6 +233,8 @@ class PressLocaliser:
         }
         if self.depth_model is not None:
             arrays.update(self.depth_model.arrays("depth"))
+        if self.multi_touch is not None:
+            arrays.update(self.multi_touch.arrays("multi"))
         write_npz_atomic(path, **arrays)
 
     @classmethod
@@ -289,35 +254,35 @@ class PressLocaliser:
                 f"{source}: key 'format_version'/'kind': not a press calibration file "
                 "(write one with `eit-skin calibrate`)"
             )
-        if int(version) != FORMAT_VERSION:
+        if int(version) not in (FORMAT_VERSION, PRIOR_FORMAT_VERSION):
             raise CalibrationError(
                 f"{source}: key 'format_version': version {int(version)}, this eit_skin reads "
-                f"version {FORMAT_VERSION} (calibrate again)"
+                f"versions {FORMAT_VERSION} and {PRIOR_FORMAT_VERSION} (calibrate again)"
             )
         try:
             model = cls(
                 str(arrays["layer_name"]),
                 str(arrays["layer_hash"]),
                 arrays["scale"],
-                KernelRidge.from_arrays(arrays, "position"),
+                PriorPosition.from_arrays(arrays, "position")
+                if int(version) == PRIOR_FORMAT_VERSION
+                else KernelRidge.from_arrays(arrays, "position"),
                 KernelRidge.from_arrays(arrays, "depth") if "depth_weights" in arrays else None,
                 arrays["magnitude_stats"],
                 int(arrays["n_presses"]),
+                MultiTouchModel.from_arrays(arrays, "multi")
+                if "multi_responses" in arrays
+                else None,
             )
         except KeyError as error:
             raise CalibrationError(f"{source}: missing key {error}") from error
+        except ValueError as error:
+            raise CalibrationError(f"{source}: {error}") from error
         if int(arrays["n_measurements"]) != model.scale.size:
             raise CalibrationError(f"{source}: key 'scale': size differs from 'n_measurements'")
         if layer is not None:
             model.check_layer(layer, source)
         return model
-
-
-def split_features(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(``[T, M]`` unit pattern ``q / |q|``, ``[T]`` log-magnitude ``log |q|``) of ``q`` [T, M]."""
-    norm = np.linalg.norm(q, axis=1)
-    norm = np.where(norm > 0, norm, np.finfo(float).tiny)
-    return q / norm[:, None], np.log(norm)
 
 
 @dataclass(frozen=True)
@@ -345,11 +310,14 @@ def cross_validate(
     folds: int = 5,
     n_train: int | None = None,
     seed: int = 0,
+    prior: PhysicsPrior | None = None,
+    prior_modes: tuple[str, ...] = PRIOR_MODES,
 ) -> CrossValidation:
     """k-fold cross-validation of :meth:`PressLocaliser.fit` on ``session``.
 
     The presses are shuffled (``seed``) into ``folds`` folds; each fold is located by a model
-    fitted on the others (only their first ``n_train`` presses if given).
+    fitted on the others (only their first ``n_train`` presses if given), with ``prior`` if
+    given (see :meth:`PressLocaliser.fit`).
     """
     t = session.n_presses
     if not 2 <= folds <= t:
@@ -362,7 +330,9 @@ def cross_validate(
     for i, test in enumerate(parts):
         train = np.concatenate([p for j, p in enumerate(parts) if j != i])[:n_train]
         start = time.perf_counter()
-        model = PressLocaliser.fit(session.subset(train), layer)
+        model = PressLocaliser.fit(
+            session.subset(train), layer, prior=prior, prior_modes=prior_modes
+        )
         seconds.append(time.perf_counter() - start)
         refs = None if session.references is None else session.references[test]
         located = model.locate(session.frames[test], session.reference, refs)

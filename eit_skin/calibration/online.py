@@ -1,7 +1,7 @@
 """Calibrated contacts of a running skin: the press localiser applied frame by frame (no ROS).
 
 The reconstruction node holds one :class:`OnlineLocaliser` when its ``calibration`` parameter
-names a file of ``eit-skin calibrate``, and calls :meth:`OnlineLocaliser.contact` once per
+names a file of ``eit-skin calibrate``, and calls :meth:`OnlineLocaliser.contacts` once per
 imaged frame of the calibrated layer. It reuses what the layer's
 :class:`~eit_skin.pipeline.processor.LayerProcessor` already decided:
 
@@ -23,6 +23,14 @@ imaged frame of the calibrated layer. It reuses what the layer's
   processor's fault checks leave the electrode out; a contact right at it gets confidence 0,
   so the classifier keeps its own centroid there (below :data:`MIN_CONFIDENCE`), one
   spacing or further away it is unchanged.
+* **several touches**: with ``max_touches`` K > 1 (and a calibration fitted for it,
+  ``eit-skin calibrate --max-touches K``) a frame gives up to K contacts, one confidence each
+  (:mod:`eit_skin.calibration.multi_touch`).
+* **changed sheet**: a press is brief; a change the processor keeps calling touched for longer
+  than its own drift time constant (drift tracking frozen all that time) is the sheet changing
+  (damage, drying, a slipped electrode), not a touch. From then on no contact is reported and
+  :attr:`OnlineLocaliser.sheet_changed` says why, until the processor calls a frame untouched
+  again (the sheet back at its reference, e.g. after a re-zero).
 """
 
 from __future__ import annotations
@@ -89,36 +97,54 @@ class OnlineLocaliser:
         localiser: the fitted localiser.
         patch: the patch the node runs; the localiser's layer must be in it, unchanged.
         source: where the localiser came from (error messages).
+        max_touches: contacts per frame at most (K); > 1 needs a calibration fitted for it.
 
     Raises:
-        CalibrationError: no layer of that name, or its content hash differs.
+        CalibrationError: no layer of that name, or its content hash differs, or
+            ``max_touches`` > 1 with a one-touch calibration.
     """
 
-    def __init__(self, localiser: PressLocaliser, patch: Patch, source: str) -> None:
+    def __init__(
+        self, localiser: PressLocaliser, patch: Patch, source: str, max_touches: int = 1
+    ) -> None:
         if localiser.layer_name not in patch.layer_names:
             raise CalibrationError(
                 f"{source}: key 'layer_name': calibrated on layer {localiser.layer_name!r}, "
                 f"patch {patch.name!r} has layers {list(patch.layer_names)} (another patch?)"
             )
         localiser.check_layer(patch.layer(localiser.layer_name), source)
+        if max_touches < 1:
+            raise CalibrationError(f"{source}: max_touches {max_touches}: need >= 1")
+        if max_touches > 1 and localiser.multi_touch is None:
+            raise CalibrationError(
+                f"{source}: max_touches {max_touches}: the calibration locates one touch at a "
+                f"time (calibrate again with --max-touches {max_touches})"
+            )
         self.localiser = localiser
+        self.max_touches = int(max_touches)
+        self.sheet_changed: str | None = None  # why contacts stopped (module docstring)
+        self._touched_since_s: float | None = None
         self.layer_name = localiser.layer_name
         self.source = source
         self._centres: np.ndarray | None = None  # [n_electrodes, 2] m, on first need
 
     @classmethod
-    def load(cls, path: str | Path, patch: Patch) -> OnlineLocaliser:
+    def load(cls, path: str | Path, patch: Patch, max_touches: int = 1) -> OnlineLocaliser:
         """Read a calibration file made on a layer of ``patch`` (CalibrationError otherwise)."""
-        return cls(PressLocaliser.load(path), patch, str(path))
+        return cls(PressLocaliser.load(path), patch, str(path), max_touches)
 
     def check_measurements(self, m: int) -> None:
         """Raise :class:`CalibrationError` unless the layer's frames have ``m`` channels."""
         self.localiser.check_frames(m, self.source, "n_measurements")
 
     def locate(
-        self, frame_v: np.ndarray, reference_v: np.ndarray, excluded: np.ndarray | None = None
-    ) -> CalibratedContact:
-        """The press of one frame ``[M]`` V against ``reference_v`` ``[M]`` V.
+        self,
+        frame_v: np.ndarray,
+        reference_v: np.ndarray,
+        excluded: np.ndarray | None = None,
+        max_touches: int = 1,
+    ) -> list[CalibratedContact]:
+        """The presses (1..max_touches) of one frame ``[M]`` V against ``reference_v`` ``[M]`` V.
 
         ``excluded`` (bool ``[M]``) and non-finite channels count as unchanged.
         """
@@ -129,41 +155,67 @@ class OnlineLocaliser:
             usable &= ~excluded
         frame = np.where(usable, frame, 1.0)
         reference = np.where(usable, reference, 1.0)
-        located = self.localiser.locate(frame[None, :], reference)
-        depth = np.nan if located.depth is None else float(located.depth[0])
-        return CalibratedContact(located.xy[0].copy(), depth, float(located.confidence[0]))
+        located = self.localiser.locate_touches(frame, reference, max_touches)
+        depth = np.full(len(located.xy), np.nan) if located.depth is None else located.depth
+        return [
+            CalibratedContact(xy.copy(), float(z), float(c))
+            for xy, z, c in zip(located.xy, depth, located.confidence, strict=True)
+        ]
 
-    def contact(
+    def contacts(
         self,
         frame_v: np.ndarray,
         flags: np.ndarray | None,
         images: LayerImages,
         processor: LayerProcessor,
-    ) -> CalibratedContact | None:
-        """The calibrated contact of a frame the processor just imaged, or None if untouched.
+    ) -> list[CalibratedContact]:
+        """The calibrated contacts (up to ``max_touches``) of a frame the processor just imaged.
 
         Args:
             frame_v: ``[M]`` volts as received (flags not applied).
             flags: optional uint8 ``[M]`` channel flags (empty / None: all OK).
             images: what ``processor.step`` returned for this frame.
-            processor: the layer's processor (reference, faulty electrodes).
+            processor: the layer's processor (reference, faulty electrodes, drift time constant).
 
-        A contact near an electrode the processor leaves out has its confidence scaled by
-        :func:`fault_proximity` (module docstring).
+        Returns:
+            Empty when the frame is untouched or the sheet changed (module docstring). A contact
+            near an electrode the processor leaves out has its confidence scaled by
+            :func:`fault_proximity`.
         """
         if not images.touching:
-            return None
+            self._touched_since_s = None
+            self.sheet_changed = None
+            return []
+        if self._touched_since_s is None:
+            self._touched_since_s = images.t_s
+        limit_s = processor.tracker.drift_time_constant_s
+        touched_s = images.t_s - self._touched_since_s
+        if self.sheet_changed is None and limit_s > 0 and touched_s > limit_s:
+            self.sheet_changed = (
+                f"layer {self.layer_name}: changed for {touched_s:.0f} s without a break, longer "
+                f"than the drift time constant ({limit_s:g} s): the sheet changed since its "
+                "reference (damage, drying, an electrode), not a touch; no calibrated contacts "
+                "until it is back at its reference (re-zero)"
+            )
+        if self.sheet_changed is not None:
+            return []
         m = processor.n_measurements
         faulty = processor.faulty_electrodes
         excluded = processor.imager.protocol.touching(faulty)
         if flags is not None and np.size(flags):
             excluded = excluded | excluded_channels(flags, m)
-        located = self.locate(frame_v, processor.reference(), excluded)
+        located = self.locate(frame_v, processor.reference(), excluded, self.max_touches)
         if not faulty.size:
             return located
         if self._centres is None:
             self._centres = electrode_centres(processor.imager.mesh)  # the inverse mesh's
         mesh = processor.imager.mesh
         peak = mesh.centroids[int(np.nanargmax(np.abs(images.values)))]  # the image's contact
-        factor = fault_proximity(np.stack([located.xy_m, peak]), self._centres, faulty)
-        return CalibratedContact(located.xy_m, located.depth_m, located.confidence * factor)
+        return [
+            CalibratedContact(
+                c.xy_m,
+                c.depth_m,
+                c.confidence * fault_proximity(np.stack([c.xy_m, peak]), self._centres, faulty),
+            )
+            for c in located
+        ]

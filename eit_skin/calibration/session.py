@@ -225,14 +225,25 @@ def load_press_session(path: str | Path) -> PressSession:
 
 
 def read_probe_csv(path: str | Path) -> np.ndarray:
-    """``[P, 3 or 4]`` rows ``time_s, x_m, y_m[, depth_m]`` of a probe log (header optional)."""
+    """``[P, 3 or 4]`` rows ``time_s, x_m, y_m[, depth_m]`` of a probe log (header optional).
+
+    A gap (an empty cell before the row's last value), a row of another width than the rows
+    above, or a time not after the row above is refused naming the row (and column).
+    """
     rows: list[list[float]] = []
     width = None
     with open(path, newline="") as stream:
         for line_no, row in enumerate(csv.reader(stream), start=1):
-            cells = [c.strip() for c in row if c.strip()]
+            cells = [c.strip() for c in row]
+            while cells and not cells[-1]:
+                cells.pop()  # trailing separators
             if not cells or cells[0].startswith("#"):
                 continue
+            if "" in cells:
+                raise PressSessionError(
+                    f"{path}: row {line_no} column {cells.index('') + 1}: empty (a gap in the "
+                    "probe log: every row needs time, x, y[, depth])"
+                )
             try:
                 values = [float(c) for c in cells]
             except ValueError:
@@ -249,6 +260,11 @@ def read_probe_csv(path: str | Path) -> np.ndarray:
                 )
             if not np.all(np.isfinite(values)):
                 raise PressSessionError(f"{path}: row {line_no}: not finite")
+            if rows and values[0] <= rows[-1][0]:
+                raise PressSessionError(
+                    f"{path}: row {line_no}: time {values[0]:.6g} s is not after the row above "
+                    f"({rows[-1][0]:.6g} s)"
+                )
             width = len(values)
             rows.append(values)
     if not rows:

@@ -135,21 +135,37 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
     ``runs`` (if given) receives, per file, the frames skipped and values and electrodes
     left out. Raises ValueError for a file too short for the classifier's calibration.
     """
-    import numpy as np
-
-    from eit_skin.cli.reconstruct import cache_dir
     from eit_skin.patch.loading import load_patch
-    from eit_skin.pipeline.builder import LayerImager
     from eit_skin.resources import config_path
-    from eit_skin.touch.classifier import TouchClassifier, classifier_layers
-    from eit_skin.touch.frame_evidence import channel_electrodes
-    from eit_skin.touch.shapes import raw_patterns, single_contact_spread
+
+    patch = load_patch(args.patch if Path(args.patch).exists() else config_path(args.patch))
+    faults = FaultSpans()
+    faulty: tuple[int, ...] = ()
+    for t_rel, images, events in classified_frames(args, patch, runs):
+        if images is not None:
+            if images.faulty_electrodes != faulty:
+                faulty = images.faulty_electrodes
+                yield {"kind": "fault", "t": round(t_rel, 4), "faulty_electrodes": list(faulty)}
+            faults.add(t_rel, faulty, images.frame_v.size - images.channels_used)
+        for event in events:
+            if event.state == "end":
+                yield _touch_line(event, faults, patch.placement)
+
+
+def classified_frames(args: argparse.Namespace, patch, runs: dict[Path, FileRun] | None = None):
+    """``(t s from the first imaged frame, LayerImages, touch events)`` per imaged frame.
+
+    The pressure layer's frames of ``args.frames`` (and ``args.stretch_frames``) imaged and
+    classified; last, ``(t, None, events)`` with the END of a touch still going on. Raises
+    ValueError for a file too short for the classifier's calibration.
+    """
+    from eit_skin.cli.reconstruct import cache_dir
+    from eit_skin.pipeline.builder import LayerImager
+    from eit_skin.touch.classifier import classifier_layers
 
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate: must be > 0 Hz, got {args.rate:g}")
     runs = {} if runs is None else runs
-    patch_path = args.patch if Path(args.patch).exists() else config_path(args.patch)
-    patch = load_patch(patch_path)
     pressure_layer, stretch_layer = classifier_layers(patch)
     cache = cache_dir(args)
     imager = LayerImager.build(pressure_layer, cache_dir=cache)
@@ -169,24 +185,10 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
                 f"{reader.n_frames}"
             )
         stretch = _images(stretch_imager, stretch_reader, args, runs, patch.name)
-    # one fingertip's blur at every pixel, m
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
-    disc, contact = raw_patterns(pressure_layer, imager)  # the raw frames' START filter
-    electrodes = np.array([e.center for e in pressure_layer.electrodes], dtype=np.float64)
-    classifier = TouchClassifier(
-        imager.grid.x,
-        imager.grid.y,
-        contact_spread_m=spread,
-        electrodes_m=electrodes,
-        channel_electrodes=channel_electrodes(imager.protocol),
-        disc_rel=disc,
-        contact_rel=contact,
-    )
+    classifier = build_classifier(pressure_layer, imager)
     t0 = None
-    faults = FaultSpans()
-    faulty: tuple[int, ...] = ()
+    t_rel = 0.0
     n_imaged = 0
-    m = imager.n_measurements
     for times, pressure in _images(imager, reader, args, runs, patch.name):
         extras = [None] * len(times) if stretch is None else next(stretch)[1]
         t0 = times[0] if t0 is None else t0
@@ -195,24 +197,42 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
                 continue
             n_imaged += 1
             t_rel = float(t - t0)
-            if images.faulty_electrodes != faulty:
-                faulty = images.faulty_electrodes
-                yield {"kind": "fault", "t": round(t_rel, 4), "faulty_electrodes": list(faulty)}
-            faults.add(t_rel, faulty, m - images.channels_used)
             image = None if extra is None else extra.image
             # the electrodes the imaging left out: less confidence near them
             classifier.set_faulty_electrodes(images.faulty_electrodes)
-            for event in classifier.step(t_rel, images.image, image, images.frame_v):
-                if event.state == "end":
-                    yield _touch_line(event, faults, patch.placement)
+            yield t_rel, images, classifier.step(t_rel, images.image, image, images.frame_v)
     if not classifier.calibrated:
         raise ValueError(
             f"{args.frames}: {n_imaged} imaged frame(s) do not cover the classifier's "
             f"calibration ({classifier.config.calibration_s:g} s of untouched frames): "
             "nothing classified"
         )
-    for event in classifier.finish():
-        yield _touch_line(event, faults, patch.placement)
+    yield t_rel, None, classifier.finish()
+
+
+def build_classifier(layer, imager):
+    """The touch classifier of a pressure ``layer`` imaged by ``imager``, as the node builds it.
+
+    With one fingertip's blur at every pixel and the raw frames' START filter.
+    """
+    import numpy as np
+
+    from eit_skin.touch.classifier import TouchClassifier
+    from eit_skin.touch.frame_evidence import channel_electrodes
+    from eit_skin.touch.shapes import raw_patterns, single_contact_spread
+
+    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    disc, contact = raw_patterns(layer, imager)
+    electrodes = np.array([e.center for e in layer.electrodes], dtype=np.float64)
+    return TouchClassifier(
+        imager.grid.x,
+        imager.grid.y,
+        contact_spread_m=spread,
+        electrodes_m=electrodes,
+        channel_electrodes=channel_electrodes(imager.protocol),
+        disc_rel=disc,
+        contact_rel=contact,
+    )
 
 
 def _touch_line(event, faults: FaultSpans, placement: Placement) -> dict:

@@ -5,7 +5,9 @@ each frame's own unloaded baseline), in the patch's device conventions as ``reco
 them (``layout: full`` frames of W numbers, complex frames). Output ``--out`` (npz): ``xy``
 [T, 2] m in the sheet frame, ``confidence`` [T] in [0, 1] (share of calibration presses spaced
 at least as far from their neighbours as this frame is from the nearest one: near 0 = unlike
-any calibration press), ``depth`` [T] m when calibrated.
+any calibration press), ``depth`` [T] m when calibrated. With ``--max-touches K`` > 1 (a
+calibration made with ``eit-skin calibrate --max-touches``): ``count`` [T] touches per frame,
+``xy`` [T, K, 2], ``confidence`` and ``depth`` [T, K], NaN beyond each frame's count.
 """
 
 from __future__ import annotations
@@ -21,6 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", type=Path, required=True, help="calibration npz")
     parser.add_argument("--frames", type=Path, required=True, help="frames npz")
     parser.add_argument("--out", type=Path, required=True, help="output npz")
+    parser.add_argument(
+        "--max-touches",
+        type=int,
+        default=1,
+        metavar="K",
+        help="up to K touches per frame (needs a calibration made with --max-touches)",
+    )
 
 
 def load_located_frames(path: Path, protocol, m: int | None = None):
@@ -70,16 +79,49 @@ def run(args: argparse.Namespace) -> int:
         reference, frames, references, _ = load_located_frames(
             args.frames, protocol, model.n_measurements
         )
-        located = model.locate(frames, reference, references)
-        out = {"xy": located.xy, "confidence": located.confidence}
-        if located.depth is not None:
-            out["depth"] = located.depth
+        if args.max_touches < 1:
+            raise ValueError(f"--max-touches: {args.max_touches}, need >= 1")
+        if args.max_touches > 1:
+            out = several_touches(model, frames, reference, references, args.max_touches)
+        else:
+            located = model.locate(frames, reference, references)
+            out = {"xy": located.xy, "confidence": located.confidence}
+            if located.depth is not None:
+                out["depth"] = located.depth
         write_npz_atomic(args.out, **out)
     except (PatchError, OSError, KeyError, ValueError) as error:
         print(f"eit-skin locate: {error}", file=sys.stderr)
         return 2
+    if args.max_touches > 1:
+        counts = np.bincount(out["count"], minlength=args.max_touches + 1)[1:]
+        print(f"  touches per frame 1..{args.max_touches}: {counts.tolist()}")
     print(
         f"wrote {args.out}: {len(frames)} frames, median confidence "
-        f"{np.median(located.confidence):.2f}"
+        f"{np.nanmedian(out['confidence']):.2f}"
     )
     return 0
+
+
+def several_touches(model, frames, reference, references, k: int) -> dict:
+    """``count`` [T], ``xy`` [T, k, 2], ``confidence`` and ``depth`` [T, k] (NaN padded)."""
+    import numpy as np
+
+    t = len(frames)
+    out = {
+        "count": np.zeros(t, dtype=np.int64),
+        "xy": np.full((t, k, 2), np.nan),
+        "confidence": np.full((t, k), np.nan),
+        "depth": np.full((t, k), np.nan),
+    }
+    for i in range(t):  # one frame at a time, as online (the pair search is per frame)
+        baseline = reference if references is None else references[i]
+        touches = model.locate_touches(frames[i], baseline, k)
+        n = len(touches.xy)
+        out["count"][i] = n
+        out["xy"][i, :n] = touches.xy
+        out["confidence"][i, :n] = touches.confidence
+        if touches.depth is not None:
+            out["depth"][i, :n] = touches.depth
+    if model.depth_model is None:
+        del out["depth"]
+    return out

@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "frames": ("frames", "Convert frame recordings between MCAP and the offline npz format."),
     "locate": ("locate", "Press positions, confidence and depth of frames from a calibration."),
     "patch": ("patch", "Validate a patch file, print a summary, optionally draw it."),
-    "presses": ("presses", "Make a press session: robot probe CSV + frames, or simulated."),
+    "presses": ("presses", "Make a press session: robot probe CSV, by hand (guide), or simulated."),
     "reconstruct": ("reconstruct", "Reconstruct images from an offline frames file (npz)."),
     "record-postures": ("record_postures", "Record no-load references across a joint sweep."),
     "run": ("run", "Run the skin end to end (simulated arm by default); print touch events."),

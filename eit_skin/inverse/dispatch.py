@@ -11,10 +11,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.methods import (
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_NOISE_FIGURE,
+    DEFAULT_PRIOR,
     METHODS,
     METHODS_WITH_PRIOR,
     Reconstructor,
@@ -47,7 +49,8 @@ def make_reconstructor(
         jacobian: ``[M, N]`` relative Jacobian on the imaging mesh at ``sigma0``
             (:func:`~eit_skin.inverse.one_step.imaging_jacobian`), when already known.
         mesh: the imaging mesh (``N`` elements); default ``forward.mesh``.
-        prior: ``one_step`` and ``gauss_newton`` only (default ``"laplace"``).
+        prior: ``one_step`` and ``gauss_newton`` only (default :data:`DEFAULT_PRIOR`, the
+            patch schema's).
         hyperparameter: dimensionless ``h``; ``None`` chooses it for ``noise_figure``
             (``gauss_newton``: on its first linearised step).
         noise_figure: default :data:`DEFAULT_NOISE_FIGURE` of the method.
@@ -73,7 +76,7 @@ def make_reconstructor(
         return GaussNewtonReconstructor.build(
             forward,
             sigma0,
-            "laplace" if prior is None else prior,
+            DEFAULT_PRIOR if prior is None else prior,
             hyperparameter,
             noise_figure,
             parameter_mesh=None if mesh is forward.mesh else mesh,
@@ -83,11 +86,11 @@ def make_reconstructor(
     if jacobian is None:
         jacobian = imaging_jacobian(forward, sigma0, mesh)
     if method == "greit":
-        return ReconstructionMatrix.greit(jacobian, mesh, hyperparameter, noise_figure)
+        return greit_matrix(jacobian, mesh, hyperparameter, noise_figure)
     return ReconstructionMatrix.from_jacobian(
         jacobian,
         mesh,
-        "laplace" if prior is None else prior,
+        DEFAULT_PRIOR if prior is None else prior,
         hyperparameter,
         noise_figure=noise_figure,
     )

@@ -37,8 +37,8 @@ same prior and ``h`` the first Gauss-Newton step *is* the one-step image on thos
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg as sla
@@ -46,11 +46,8 @@ import scipy.sparse as sp
 
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared
-from eit_skin.inverse.methods import DEFAULT_MAX_ITERATIONS, DEFAULT_NOISE_FIGURE
 from eit_skin.inverse.one_step import (
-    ReconstructionMatrix,
     coarse_to_fine,
-    imaging_jacobian,
     reference_scale,
     relative_difference,
 )
@@ -69,7 +66,7 @@ _LINE_SEARCH_HALVINGS = 12
 
 @dataclass(frozen=True)
 class GaussNewtonResult:
-    """Outcome of :func:`gauss_newton`.
+    """Outcome of a fit (:meth:`GaussNewtonSolver.fit`, :meth:`GaussNewtonSolver.difference`).
 
     Attributes:
         sigma: ``[N]`` sheet conductance on the forward mesh, siemens.
@@ -138,6 +135,38 @@ class WarmStart:
         self.channels, self.d, self.voltages, self.linearisation = b"", None, None, None
 
 
+class _LineSearch(NamedTuple):
+    """A line search's outcome: forward solves, the accepted point (None: no decrease)."""
+
+    solves: int
+    d: np.ndarray | None
+    sigma: np.ndarray | None
+    residual: np.ndarray | None
+    voltages: np.ndarray | None
+    damped: bool
+    gain: float
+    objective: float
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """When a fit stops and what it reuses (:meth:`GaussNewtonSolver.difference` says each).
+
+    Attributes:
+        max_iterations: Gauss-Newton steps at most.
+        tolerance: stop at this relative residual.
+        stagnation: stop when a step lowers the objective by less than this (relative).
+        step_tolerance: online convergence test on the next step (0: off).
+        relinearise: keep a linearisation until the solution moved this far (0: never).
+    """
+
+    max_iterations: int = 10
+    tolerance: float = 1e-3
+    stagnation: float = 1e-9
+    step_tolerance: float = 0.0
+    relinearise: float = 0.0
+
+
 class GaussNewtonSolver:
     """Regularised Gauss-Newton around one ``sigma0``, reusable for many targets or frames.
 
@@ -145,8 +174,9 @@ class GaussNewtonSolver:
     factorised prior, the weighted combination ``C_w``, ``lambda^2`` and the whole first
     linearisation at ``sigma0`` (``G^T``, ``P^-1 G^T`` and the Cholesky factor of
     ``J P^-1 J^T + lambda^2 I``), so the first step of every fit costs two triangular solves
-    and a forward solve. The data scale ``w`` is fixed: ``weights_v``, or the floored
-    ``|F(sigma0)|`` (the one-step convention, :func:`eit_skin.inverse.one_step.reference_scale`).
+    and a forward solve. The data scale ``w`` (:attr:`weights_v`) is fixed: the floored
+    ``|F(sigma0)|`` (the one-step convention, :func:`eit_skin.inverse.one_step.reference_scale`);
+    ``|ln(sigma / sigma0)|`` is bounded by :data:`DEFAULT_MAX_LOG_CONTRAST`.
 
     Args:
         forward: model with ``.voltages(sigma)``, ``.jacobian_basis(sigma)`` (or
@@ -156,8 +186,6 @@ class GaussNewtonSolver:
         hyperparameter: dimensionless ``h``.
         parameter_mesh: coarser mesh of the same sheet carrying the unknowns (default: the
             forward mesh).
-        weights_v: ``[M]`` data scale ``w`` in volts.
-        max_log_contrast: bound on ``|ln(sigma / sigma0)|``.
     """
 
     def __init__(
@@ -167,8 +195,6 @@ class GaussNewtonSolver:
         prior: str | Prior = "laplace",
         hyperparameter: float = 0.03,
         parameter_mesh: Mesh | None = None,
-        weights_v: np.ndarray | None = None,
-        max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
     ) -> None:
         if not (np.isfinite(hyperparameter) and hyperparameter > 0):
             raise ValueError(f"hyperparameter must be a positive number, got {hyperparameter}")
@@ -176,10 +202,8 @@ class GaussNewtonSolver:
         n = forward.mesh.n_triangles
         self.sigma0 = np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n,)).copy()
         self.v0 = np.asarray(forward.voltages(self.sigma0), dtype=np.float64)  # [M] volts
-        self.weights_v = reference_scale(self.v0) if weights_v is None else np.asarray(weights_v)
-        if self.weights_v.shape != self.v0.shape or not np.all(self.weights_v > 0):
-            raise ValueError(f"weights_v must be [{self.v0.size}] positive volts")
-        self.max_log_contrast = float(max_log_contrast)
+        self.weights_v = reference_scale(self.v0)  # [M] volts, the data scale w
+        self.max_log_contrast = DEFAULT_MAX_LOG_CONTRAST
         self._owner, self._to_params = _parameter_map(forward.mesh, parameter_mesh)
         self.n_parameters = n if self._owner is None else parameter_mesh.n_triangles  # type: ignore[union-attr]
         if isinstance(prior, Prior) and prior.n != self.n_parameters:
@@ -254,28 +278,28 @@ class GaussNewtonSolver:
         ``v_target`` may be NaN); every other channel must be finite. ``tolerance`` is on
         ``||r|| / ||v_target / w||``.
         """
-        return self._fit(v_target, max_iterations, tolerance, stagnation, excluded, False)
+        options = FitOptions(max_iterations, tolerance, stagnation)
+        return self._fit(v_target, excluded, False, options)
 
     def _fit(
         self,
         v_target: np.ndarray,
-        max_iterations: int,
-        tolerance: float,
-        stagnation: float,
         excluded: np.ndarray | None,
         relative_to_change: bool,
+        options: FitOptions,
         warm: WarmStart | None = None,
-        step_tolerance: float = 0.0,
-        relinearise: float = 0.0,
     ) -> GaussNewtonResult:
-        fwd = self.forward
+        """The fit of :meth:`fit` and :meth:`difference`.
+
+        ``relative_to_change``: the tolerance is on the change from ``F(sigma0)`` (no change:
+        no iteration).
+        """
         v_target = np.asarray(v_target, dtype=np.float64)
         if v_target.shape != self.v0.shape:
             raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
         channels = self._channels(excluded)
         rows = slice(None) if channels.keep is None else channels.keep
-        w, p = self.weights_v[rows], self.prior
-        cw, lam2 = channels.cw, channels.lam2
+        w = self.weights_v[rows]
         target = v_target[rows] / w
         if not np.isfinite(target).all():
             raise ValueError(f"v_target must be finite [{self.v0.size}] volts")
@@ -292,10 +316,10 @@ class GaussNewtonSolver:
             d, sig, resid = np.zeros(self.n_parameters), self.sigma0, change
             model_v, lin = self.v0, _Linearisation(d, gt, z, channels.first_factor)
         history = [float(np.linalg.norm(resid)) / norm]
-        phi = float(resid @ resid)  # data term at d
-        converged = history[0] <= tolerance
+        converged = history[0] <= options.tolerance
         solves, it, linearisations = 0, 0, 0
-        while not converged and it < max_iterations:
+        relinearise = options.relinearise
+        while not converged and it < options.max_iterations:
             stale = lin is not None and (
                 (relinearise <= 0.0 and lin.d is not d)
                 or float(np.max(np.abs(d - lin.d), initial=0.0)) > relinearise
@@ -303,42 +327,27 @@ class GaussNewtonSolver:
             if lin is None or stale:
                 lin = self._linearise(d, sig, channels)
                 linearisations += 1
-            u = sla.cho_solve(lin.factor, resid + cw @ (d @ lin.gt), check_finite=False)
-            step = lin.z @ (cw.T @ u) - d
-            if step_tolerance > 0.0 and float(np.max(np.abs(step))) <= step_tolerance * float(
-                np.max(np.abs(d + step))
-            ):
+            u = sla.cho_solve(lin.factor, resid + channels.cw @ (d @ lin.gt), check_finite=False)
+            step = lin.z @ (channels.cw.T @ u) - d
+            tol = options.step_tolerance
+            if tol > 0.0 and float(np.max(np.abs(step))) <= tol * float(np.max(np.abs(d + step))):
                 converged = True  # the next step would change the image by < tol of its peak
                 break
             it += 1
-            objective = phi + lam2 * p.quadratic(d)
-            alpha, improved = 1.0, False
-            for _ in range(_LINE_SEARCH_HALVINGS):
-                trial = np.clip(d + alpha * step, -self.max_log_contrast, self.max_log_contrast)
-                sig_trial = self._fine_sigma(trial)
-                v_trial = fwd.voltages(sig_trial)
-                r_trial = target - v_trial[rows] / w
-                solves += 1
-                phi_trial = float(r_trial @ r_trial) + lam2 * p.quadratic(trial)
-                if np.isfinite(phi_trial) and phi_trial < objective:
-                    improved = True
-                    break
+            search = self._line_search(d, step, resid, lin, (target, rows, w, channels.lam2))
+            solves += search.solves
+            if search.d is None:
                 if lin.d is not d:  # a kept linearisation failed: take a fresh one here
-                    break
-                alpha *= 0.5
-            if not improved:
-                if lin.d is not d:
                     lin = None
                     it -= 1
                     continue
                 break
-            if alpha < 1.0 and relinearise > 0.0:
+            if search.damped and relinearise > 0.0:
                 lin = None  # the model needed damping: do not keep it
-            d, sig, resid, model_v = trial, sig_trial, r_trial, v_trial
-            phi = float(resid @ resid)
+            d, sig, resid, model_v = search.d, search.sigma, search.residual, search.voltages
             history.append(float(np.linalg.norm(resid)) / norm)
-            converged = history[-1] <= tolerance
-            if objective - phi_trial <= stagnation * objective:  # no progress left
+            converged = history[-1] <= options.tolerance
+            if search.gain <= options.stagnation * search.objective:  # no progress left
                 break
         if warm is not None:
             warm.channels, warm.d, warm.voltages, warm.linearisation = key, d, model_v, lin
@@ -353,6 +362,38 @@ class GaussNewtonSolver:
             linearisations=linearisations,
         )
 
+    def _line_search(
+        self,
+        d: np.ndarray,
+        step: np.ndarray,
+        resid: np.ndarray,
+        lin: _Linearisation,
+        data: tuple[np.ndarray, Any, np.ndarray, float],
+    ) -> _LineSearch:
+        """Halve ``step`` from ``d`` until the objective decreases (at most 12 halvings).
+
+        ``data``: ``(target [Mu], rows, w [Mu] V, lambda^2)`` of the fit. A kept
+        linearisation (``lin.d is not d``) gets the full step only.
+        """
+        target, rows, w, lam2 = data
+        objective = float(resid @ resid) + lam2 * self.prior.quadratic(d)
+        alpha = 1.0
+        for solves in range(1, _LINE_SEARCH_HALVINGS + 1):
+            trial = np.clip(d + alpha * step, -self.max_log_contrast, self.max_log_contrast)
+            sig_trial = self._fine_sigma(trial)
+            v_trial = self.forward.voltages(sig_trial)
+            r_trial = target - v_trial[rows] / w
+            phi_trial = float(r_trial @ r_trial) + lam2 * self.prior.quadratic(trial)
+            if np.isfinite(phi_trial) and phi_trial < objective:
+                gain = objective - phi_trial
+                return _LineSearch(
+                    solves, trial, sig_trial, r_trial, v_trial, alpha < 1.0, gain, objective
+                )
+            if lin.d is not d:
+                break
+            alpha *= 0.5
+        return _LineSearch(solves, None, None, None, None, True, 0.0, objective)
+
     def _linearise(self, d: np.ndarray, sig: np.ndarray, channels: _ChannelSet) -> _Linearisation:
         """Jacobian, prior solves and Cholesky factor at ``d`` (forward mesh ``sig``)."""
         products, _ = _jacobian_factors(self.forward, sig)  # cached factorisation of sig
@@ -365,12 +406,8 @@ class GaussNewtonSolver:
         frame: np.ndarray,
         reference: np.ndarray,
         excluded: np.ndarray | None = None,
-        max_iterations: int = 10,
-        tolerance: float = 1e-3,
-        stagnation: float = 1e-9,
+        options: FitOptions = FitOptions(),
         warm: WarmStart | None = None,
-        step_tolerance: float = 0.0,
-        relinearise: float = 0.0,
     ) -> GaussNewtonResult:
         """Difference imaging: fit ``F(sigma0) + s(F(sigma0)) (v - v_ref) / s_ref``.
 
@@ -382,11 +419,13 @@ class GaussNewtonSolver:
         stops when ``||r|| <= tolerance * ||r_0||`` (``r_0`` the data change itself), so a
         small touch is imaged as fully as a large one, and no change gives no iteration.
 
-        Online options (the defaults give the plain cold Gauss-Newton fit):
+        ``options`` (:class:`FitOptions`): ``max_iterations``, ``tolerance``, ``stagnation``,
+        and the online options (their defaults give the plain cold Gauss-Newton fit):
 
-        * ``warm``: start from the last fit's solution and model voltages (no forward solve
-          to get there) and store this fit's end point in it; a different channel set, or a
-          frame with no change at all, starts cold from ``sigma0``.
+        * ``warm`` (an argument of its own): start from the last fit's solution and model
+          voltages (no forward solve to get there) and store this fit's end point in it; a
+          different channel set, or a frame with no change at all, starts cold from
+          ``sigma0``.
         * ``step_tolerance``: convergence test on the Gauss-Newton step: stop, without a
           forward solve, when the next step would change no element's ``ln sigma`` by more
           than this fraction of the largest ``|ln sigma|`` of the image (0.01: 1 % of its
@@ -402,17 +441,7 @@ class GaussNewtonSolver:
         if excluded is not None:
             bad = bad | np.asarray(excluded, dtype=bool)
         target = self.v0 + reference_scale(self.v0) * np.where(bad, 0.0, dv)
-        return self._fit(
-            target,
-            max_iterations,
-            tolerance,
-            stagnation,
-            bad if bad.any() else None,
-            True,
-            warm,
-            step_tolerance,
-            relinearise,
-        )
+        return self._fit(target, bad if bad.any() else None, True, options, warm)
 
 
 @dataclass(frozen=True, eq=False)
@@ -436,35 +465,6 @@ def _cholesky(k: np.ndarray, lam2: float) -> tuple[np.ndarray, bool]:
     """Cholesky factor of ``K + lambda^2 I`` (overwrites ``k``)."""
     k[np.diag_indices_from(k)] += lam2
     return sla.cho_factor(k, lower=True, check_finite=False)
-
-
-def gauss_newton(
-    forward: Any,
-    v_target: np.ndarray,
-    sigma0: np.ndarray | float,
-    prior: str | Prior = "laplace",
-    hyperparameter: float = 0.03,
-    max_iterations: int = 10,
-    tolerance: float = 1e-3,
-    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
-    weights_v: np.ndarray | None = None,
-    stagnation: float = 1e-9,
-    parameter_mesh: Mesh | None = None,
-) -> GaussNewtonResult:
-    """Absolute regularised Gauss-Newton fit of ``F(sigma)`` to ``v_target`` ``[M]`` volts.
-
-    One-off form of :class:`GaussNewtonSolver` (build one to fit many targets); ``weights_v``
-    defaults to the floored ``|v_target|``. Arguments as there and in
-    :meth:`GaussNewtonSolver.fit`.
-    """
-    v_target = np.asarray(v_target, dtype=np.float64)
-    if v_target.shape != (forward.n_measurements,) or not np.isfinite(v_target).all():
-        raise ValueError(f"v_target must be finite [{forward.n_measurements}] volts")
-    w = reference_scale(v_target) if weights_v is None else weights_v
-    solver = GaussNewtonSolver(
-        forward, sigma0, prior, hyperparameter, parameter_mesh, w, max_log_contrast
-    )
-    return solver.fit(v_target, max_iterations, tolerance, stagnation)
 
 
 def _parameter_map(
@@ -508,178 +508,3 @@ def _jacobian_factors(forward: Any, sigma: np.ndarray) -> tuple[np.ndarray, sp.c
         return basis.products, basis.combination
     j = np.asarray(forward.jacobian(sigma), dtype=np.float64)
     return j, sp.identity(j.shape[0], format="csr")
-
-
-def gauss_newton_difference(
-    forward: Any,
-    frame: np.ndarray,
-    reference: np.ndarray,
-    sigma0: np.ndarray | float = 1.0,
-    prior: str | Prior = "laplace",
-    hyperparameter: float = 0.03,
-    parameter_mesh: Mesh | None = None,
-    max_log_contrast: float = DEFAULT_MAX_LOG_CONTRAST,
-    **kwargs: Any,
-) -> GaussNewtonResult:
-    """Difference imaging with the iterative solver (large contrasts), one frame.
-
-    One-off form of :meth:`GaussNewtonSolver.difference` (build a solver to image many
-    frames: the first linearisation is then shared); ``kwargs``: those of
-    :meth:`GaussNewtonSolver.difference`.
-    """
-    solver = GaussNewtonSolver(
-        forward, sigma0, prior, hyperparameter, parameter_mesh, None, max_log_contrast
-    )
-    return solver.difference(frame, reference, **kwargs)
-
-
-@dataclass(frozen=True, eq=False)
-class GaussNewtonReconstructor:
-    """Method ``gauss_newton`` behind the shared reconstructor interface.
-
-    Set up once per layer (:meth:`build`); :meth:`reconstruct` then runs the prepared
-    :class:`GaussNewtonSolver` on every frame. Values are ``sigma / sigma0 - 1`` per element
-    of the imaging (parameter) mesh, the one-step output convention.
-
-    Online (frame by frame, as the node and ``eit-skin reconstruct`` call it) every fit starts
-    where the previous frame's ended (:class:`WarmStart`, kept here; :meth:`reset` on a new
-    reference), stops on the step-size convergence test and reuses a linearisation while
-    the solution stays near it (quasi-Newton steps, one forward solve each): a frame like
-    the last costs no forward solve, a moving touch one or two. Frames arrive at 50-100 Hz,
-    so the previous solution is close; where it is not, the fit simply takes more steps
-    (at most ``max_iterations``). ``step_tolerance = 0`` and ``relinearise = 0`` with
-    :meth:`reset` before every frame give the plain cold Gauss-Newton fit.
-
-    Attributes:
-        solver: the prepared solver; its unknowns live on the imaging mesh.
-        linearised: the one-step matrix of its first step (same Jacobian, prior and ``h``):
-            where the hyperparameter was chosen, and the linear stand-in for callers that
-            need a matrix (e.g. the single-contact spread of :mod:`eit_skin.touch.shapes`).
-        max_iterations: Gauss-Newton steps per frame (>= 1).
-        tolerance: stop when the residual is this fraction of the measured change.
-        step_tolerance: convergence test, max ``|ln sigma|`` change of the next step over
-            the image's max ``|ln sigma|`` (:meth:`GaussNewtonSolver.difference`).
-        relinearise: max ``|ln sigma|`` distance before a kept linearisation is renewed.
-        warm: the last frame's end point (mutable state of an otherwise fixed operator).
-    """
-
-    solver: GaussNewtonSolver
-    linearised: ReconstructionMatrix
-    max_iterations: int = DEFAULT_MAX_ITERATIONS
-    tolerance: float = 1e-3
-    step_tolerance: float = DEFAULT_STEP_TOLERANCE
-    relinearise: float = DEFAULT_RELINEARISE
-    warm: WarmStart = field(default_factory=WarmStart, compare=False)
-
-    method: ClassVar[str] = "gauss_newton"
-
-    def __post_init__(self) -> None:
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations: must be >= 1, got {self.max_iterations}")
-
-    @classmethod
-    def build(
-        cls,
-        forward: Any,
-        sigma0: np.ndarray | float = 1.0,
-        prior: str | Prior = "laplace",
-        hyperparameter: float | None = None,
-        noise_figure: float | None = None,
-        parameter_mesh: Mesh | None = None,
-        max_iterations: int = DEFAULT_MAX_ITERATIONS,
-        jacobian: np.ndarray | None = None,
-    ) -> GaussNewtonReconstructor:
-        """Prepare the solver and its first linearisation.
-
-        Args:
-            forward: forward model (solved in every iteration).
-            sigma0: reference sheet conductance, siemens, scalar or ``[N_forward]``.
-            prior: kind or a built prior on the imaging mesh.
-            hyperparameter: ``h``; ``None`` chooses it by ``noise_figure`` on the first
-                linearised step (the one-step matrix with the same prior), default the
-                method's :data:`~eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`.
-            noise_figure: see ``hyperparameter``.
-            parameter_mesh: imaging mesh carrying the unknowns (default: the forward mesh).
-            max_iterations: Gauss-Newton steps per frame.
-            jacobian: ``[M, N]`` relative Jacobian on the imaging mesh at ``sigma0`` when
-                already known (:func:`~eit_skin.inverse.one_step.imaging_jacobian`, e.g. from
-                a disk cache).
-        """
-        mesh = forward.mesh if parameter_mesh is None else parameter_mesh
-        if jacobian is None:
-            jacobian = imaging_jacobian(forward, sigma0, parameter_mesh)
-        elif np.shape(jacobian) != (forward.n_measurements, mesh.n_triangles):
-            raise ValueError(
-                f"jacobian: expected [{forward.n_measurements}, {mesh.n_triangles}], "
-                f"got {np.shape(jacobian)}"
-            )
-        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, jacobian)
-        if noise_figure is None:
-            noise_figure = DEFAULT_NOISE_FIGURE[cls.method]
-        linear = ReconstructionMatrix.from_jacobian(
-            jacobian, mesh, p, hyperparameter, noise_figure=noise_figure
-        )
-        solver = GaussNewtonSolver(forward, sigma0, p, linear.hyperparameter, parameter_mesh)
-        return cls(solver, linear, int(max_iterations))
-
-    @property
-    def hyperparameter(self) -> float:
-        return self.solver.hyperparameter
-
-    def reset(self) -> None:
-        """Forget the last frame's solution (a new reference): the next fit starts cold."""
-        self.warm.reset()
-
-    @property
-    def n_channels(self) -> int:
-        return int(self.solver.v0.size)
-
-    @property
-    def n_elements(self) -> int:
-        return int(self.solver.n_parameters)
-
-    @property
-    def mesh(self) -> Mesh | None:
-        return self.linearised.mesh
-
-    def reconstruct(
-        self,
-        frames: np.ndarray,
-        reference: np.ndarray,
-        excluded: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Frames (volts) -> relative conductivity change per element, one fit per frame.
-
-        Frames are taken as a time sequence: each fit starts from the previous one's end.
-
-        Args:
-            frames: ``[M]`` or ``[T, M]`` volts, in the protocol's measurement order.
-            reference: ``[M]`` volts.
-            excluded: optional bool ``[M]`` channels to leave out (faulty electrodes).
-
-        Returns:
-            float32 ``[N]`` or ``[T, N]``; channels that are NaN/Inf in the reference or in a
-            frame are left out of that frame's fit, never imaged.
-        """
-        v = np.asarray(frames, dtype=np.float64)
-        ref = np.asarray(reference, dtype=np.float64)
-        m = self.n_channels
-        if ref.shape != (m,):
-            raise ValueError(f"reference must be [{m}] volts, got {ref.shape}")
-        if v.shape[-1] != m or v.ndim not in (1, 2):
-            raise ValueError(f"frames must be [M] or [T, M] with M={m}, got {v.shape}")
-        mask = None if excluded is None else np.asarray(excluded, dtype=bool)
-        v2 = v[None] if v.ndim == 1 else v
-        out = np.empty((v2.shape[0], self.n_elements), dtype=np.float32)
-        for t, frame in enumerate(v2):
-            out[t] = self.solver.difference(
-                frame,
-                ref,
-                mask,
-                max_iterations=self.max_iterations,
-                tolerance=self.tolerance,
-                warm=self.warm,
-                step_tolerance=self.step_tolerance,
-                relinearise=self.relinearise,
-            ).parameter_change
-        return out[0] if v.ndim == 1 else out

@@ -27,6 +27,7 @@ lattice of target centres), so a cached relative Jacobian rebuilds the same matr
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import Mesh
+from eit_skin.inverse.one_step import ReconstructionMatrix, checked_jacobian, linear_matrix
 
 #: Target radius as a fraction of the sheet's equivalent radius ``sqrt(area / pi)``.
 TARGET_RADIUS = 0.05
@@ -236,17 +238,29 @@ class GreitModel:
         responses: ``[M, K]`` simulated relative voltage changes ``Y = J X`` (all channels).
         gram_all: ``[M, M]`` ``Y Y^T`` on all channels.
         desired_responses: ``[N, M]`` ``D Y^T`` on all channels.
+        jacobian: ``[M, N]`` the relative Jacobian it was built from.
+        mesh: the imaging mesh (``N`` elements).
     """
 
+    method: ClassVar[str] = "greit"
     centres: np.ndarray
     responses: np.ndarray
     gram_all: np.ndarray
     desired_responses: np.ndarray
+    jacobian: np.ndarray
+    mesh: Mesh
 
     @classmethod
-    def build(cls, jacobian: np.ndarray, training: TrainingSet) -> GreitModel:
-        """Simulate the training targets with the relative Jacobian ``[M, N]``."""
-        j = np.asarray(jacobian, dtype=np.float64)
+    def build(
+        cls, jacobian: np.ndarray, mesh: Mesh, training: TrainingSet | None = None
+    ) -> GreitModel:
+        """Simulate the training targets with the relative Jacobian ``[M, N]`` on ``mesh``.
+
+        ``training``: default :func:`training_set` of ``mesh`` (which depends only on the
+        mesh, so the same Jacobian always gives the same matrix).
+        """
+        j = checked_jacobian(jacobian, mesh)
+        training = training_set(mesh) if training is None else training
         if j.shape[1] != training.targets.shape[0]:
             raise ValueError(
                 f"Jacobian has {j.shape[1]} columns, training set {training.targets.shape[0]}"
@@ -258,6 +272,8 @@ class GreitModel:
             responses=y,
             gram_all=0.5 * (k + k.T),
             desired_responses=training.desired @ y.T,
+            jacobian=j,
+            mesh=mesh,
         )
 
     def gram(self, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,3 +285,18 @@ class GreitModel:
         if ch.size == self.gram_all.shape[0] and np.array_equal(ch, np.arange(ch.size)):
             return self.gram_all, self.desired_responses
         return self.gram_all[np.ix_(ch, ch)], self.desired_responses[:, ch]
+
+
+def greit_matrix(
+    jacobian: np.ndarray,
+    mesh: Mesh,
+    hyperparameter: float | None = None,
+    noise_figure: float | None = None,
+) -> ReconstructionMatrix:
+    """The GREIT-trained matrix from a relative Jacobian ``[M, N]`` on ``mesh`` (no prior).
+
+    Trained on :func:`training_set` of ``mesh``; ``hyperparameter`` None: chosen for
+    ``noise_figure`` (:func:`~eit_skin.inverse.one_step.linear_matrix`). Another training
+    set: ``linear_matrix(GreitModel.build(jacobian, mesh, training), h)``.
+    """
+    return linear_matrix(GreitModel.build(jacobian, mesh), hyperparameter, noise_figure)

@@ -25,31 +25,39 @@ least-squares one, ``x = Y (K + lambda^2 Sigma)^-1 dv`` =
 ``K_w = S^-1 K S^-1``, ``Y_w = Y S^-1`` (``lambda^2`` from ``trace(K_w)``), so a new weighting
 costs one ``M x M`` factorisation and never a Jacobian.
 
-Method ``greit`` (:meth:`ReconstructionMatrix.greit`) is the matrix trained on simulated
-targets (:mod:`eit_skin.inverse.greit`): the same dual form with ``K = Y Y^T`` and ``D Y^T``
-in place of ``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
+Method ``greit`` (:func:`eit_skin.inverse.greit.greit_matrix`) is the matrix trained on
+simulated targets: the same dual form with ``K = Y Y^T`` and ``D Y^T`` in place of
+``J P^-1 J^T`` and ``P^-1 J^T``; it has no prior.
+
+Three steps, apart: building a method's dual-form pieces (:class:`PriorModel` here,
+:class:`~eit_skin.inverse.greit.GreitModel`), choosing the hyperparameter on them
+(:mod:`eit_skin.inverse.hyperparameter`, called by :func:`linear_matrix` and
+:func:`assemble`) and solving with the matrix (:class:`ReconstructionMatrix`).
 """
 
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cached_property
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, locate_points, proportional_columns
+from eit_skin.fem.image_grid import locate_points, proportional_columns
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared, regularised_inverse
-from eit_skin.inverse.greit import GreitModel, training_set
 from eit_skin.inverse.hyperparameter import choose_by_noise_figure, choose_for_gram
 from eit_skin.inverse.priors import Prior, make_prior
 
 REFERENCE_FLOOR = 1e-2
 """Channels whose reference is below this fraction of the RMS reference are normalised by it."""
+
+#: SciPy's float32 ``gemv`` (``a @ u`` is ``_GEMV(1.0, a, u)``): the BLAS the compiled kernel
+#: calls, so the numpy and compiled products agree bit for bit.
+_GEMV = sla.get_blas_funcs("gemv", dtype=np.float32)
 
 #: ``h`` of the matrix assembled before the noise-figure choice (which replaces it).
 _PROVISIONAL_H = 0.05
@@ -134,6 +142,105 @@ def imaging_jacobian(
     return j
 
 
+class LinearModel(Protocol):
+    """What a linear method's matrix is assembled from (building, apart from solving).
+
+    Attributes:
+        method: the method's name (:data:`~eit_skin.inverse.methods.METHODS`).
+        jacobian: ``[M, N]`` relative Jacobian (all channels).
+        mesh: the mesh of the ``N`` elements.
+    """
+
+    method: ClassVar[str]
+
+    @property
+    def jacobian(self) -> np.ndarray: ...
+
+    @property
+    def mesh(self) -> Mesh | None: ...
+
+    def gram(self, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(K [Mu, Mu], Y [N, Mu])`` of the dual form on the used channels ``[Mu]``."""
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class PriorModel:
+    """The one-step method's dual form: ``K = J P^-1 J^T``, ``Y = P^-1 J^T`` (module docstring).
+
+    Attributes:
+        prior: the sparse prior ``P`` on the mesh.
+        jacobian: ``[M, N]`` relative Jacobian.
+        mesh: the imaging mesh (``N`` elements).
+        p_inv_jt: ``[N, M]`` ``P^-1 J^T`` (``M`` sparse solves, once).
+    """
+
+    method: ClassVar[str] = "one_step"
+    prior: Prior
+    jacobian: np.ndarray
+    mesh: Mesh
+    p_inv_jt: np.ndarray
+
+    @classmethod
+    def build(cls, jacobian: np.ndarray, mesh: Mesh, prior: str | Prior) -> PriorModel:
+        """From a relative Jacobian ``[M, N]`` and a prior kind or built prior on ``mesh``."""
+        j = checked_jacobian(jacobian, mesh)
+        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, j)
+        if p.n != mesh.n_triangles:
+            raise ValueError(f"prior has {p.n} elements, the mesh {mesh.n_triangles}")
+        return cls(p, j, mesh, p.solve(j.T))
+
+    def gram(self, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(J_c P^-1 J_c^T [Mu, Mu], P^-1 J_c^T [N, Mu])`` on the used channels ``[Mu]``."""
+        y = self.p_inv_jt[:, channels]
+        k = self.jacobian[channels] @ y
+        return 0.5 * (k + k.T), y
+
+
+def linear_matrix(
+    model: LinearModel,
+    hyperparameter: float | None = None,
+    noise_figure: float | None = None,
+    channels: np.ndarray | None = None,
+) -> ReconstructionMatrix:
+    """The matrix of ``model`` at ``hyperparameter``, or at the one chosen for ``noise_figure``.
+
+    ``hyperparameter`` None: chosen by :func:`~eit_skin.inverse.hyperparameter.\
+choose_by_noise_figure` (``noise_figure`` None: the method's default) on all channels;
+    ``channels``: the channel subset to use (default: all).
+    """
+    base = assemble(model, np.arange(model.jacobian.shape[0]), _PROVISIONAL_H)
+    if hyperparameter is None:
+        hyperparameter = choose_by_noise_figure(base, noise_figure)
+    return base.with_hyperparameter(float(hyperparameter), channels=channels)
+
+
+def assemble(
+    model: LinearModel,
+    channels: np.ndarray,
+    h: float,
+    channel_scale: np.ndarray | None = None,
+    noise_figure: float | None = None,
+) -> ReconstructionMatrix:
+    """The matrix on ``channels`` for hyperparameter ``h``, or for the one hitting ``noise_figure``.
+
+    ``channel_scale``: ``[M]`` relative noise of every channel (whitening); None: unweighted.
+    """
+    channels = np.asarray(channels, dtype=np.int64)
+    k, y = model.gram(channels)
+    j = model.jacobian
+    if channel_scale is not None:
+        w = 1.0 / channel_scale[channels]  # whitening S^-1 on the used channels
+        k = k * w[:, None] * w[None, :]
+        y = y * w[None, :]
+    if noise_figure is not None:  # chosen on the Gram pair: the matrix is assembled once
+        used = j[channels] if channel_scale is None else j[channels] * w[:, None]
+        h = choose_for_gram(k, y, used, model.mesh, noise_figure)
+    return ReconstructionMatrix(
+        _matrix(k, y, h, channel_scale, channels), channels, float(h), model, channel_scale, (k, y)
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class ReconstructionMatrix:
     """A precomputed linear difference-imaging operator ``R = Y (K + lambda^2 I)^-1``.
@@ -148,26 +255,20 @@ class ReconstructionMatrix:
         channels: ``[M_used]`` int64 indices of the channels it uses (of ``n_channels``).
         n_channels: ``M``, channels in a full frame.
         hyperparameter: dimensionless ``h`` (see module docstring).
-        model: what supplies ``(K, Y)``: the :class:`~eit_skin.inverse.priors.Prior` of a
+        model: what supplies ``(K, Y)`` (:class:`LinearModel`): the :class:`PriorModel` of a
             one-step matrix, or the :class:`~eit_skin.inverse.greit.GreitModel` (training
             set and simulated responses) of a GREIT-trained one.
-        jacobian: ``[M, N]`` relative Jacobian (all channels) it was built from.
-        mesh: the mesh of the ``N`` elements, if known.
         channel_scale: ``[M]`` relative noise scale of every channel (weighted least squares,
             ``Sigma = diag(scale^2)``); None: all 1 (unweighted).
     """
 
     matrix: np.ndarray
     channels: np.ndarray
-    n_channels: int
     hyperparameter: float
-    model: Prior | GreitModel
-    jacobian: np.ndarray
-    mesh: Mesh | None = None
+    model: LinearModel
     channel_scale: np.ndarray | None = None
-    _p_inv_jt: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
     _gram: tuple[np.ndarray, np.ndarray] = field(default=None, repr=False)  # type: ignore[assignment]
-    _cache: dict[Any, Any] = field(default_factory=dict, repr=False)
+    _reduced: dict[bytes, ReconstructionMatrix] = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -203,103 +304,36 @@ class ReconstructionMatrix:
         mesh: Mesh,
         prior: str | Prior = "laplace",
         hyperparameter: float | None = None,
-        channels: np.ndarray | None = None,
         noise_figure: float | None = None,
     ) -> ReconstructionMatrix:
         """One-step matrix from a relative Jacobian ``[M, N]`` (:func:`relative_jacobian`).
 
         ``prior``: a kind (:data:`~eit_skin.inverse.priors.PRIOR_KINDS`) or a built
         :class:`~eit_skin.inverse.priors.Prior` on ``mesh``; other arguments as in
-        :meth:`build`; ``channels``: the channel subset to use (default: all).
+        :meth:`build` (a channel subset: :meth:`without_channels`).
         """
-        j = _checked_jacobian(jacobian, mesh)
-        p = prior if isinstance(prior, Prior) else make_prior(prior, mesh, j)
-        if p.n != mesh.n_triangles:
-            raise ValueError(f"prior has {p.n} elements, the mesh {mesh.n_triangles}")
-        return cls._from_model(j, mesh, p, hyperparameter, channels, noise_figure)
-
-    @classmethod
-    def greit(
-        cls,
-        jacobian: np.ndarray,
-        mesh: Mesh,
-        hyperparameter: float | None = None,
-        noise_figure: float | None = None,
-        channels: np.ndarray | None = None,
-        model: GreitModel | None = None,
-    ) -> ReconstructionMatrix:
-        """GREIT-trained matrix from a relative Jacobian ``[M, N]`` (no prior).
-
-        ``model``: a :class:`~eit_skin.inverse.greit.GreitModel` built from this Jacobian
-        (default: trained on :func:`~eit_skin.inverse.greit.training_set` of ``mesh``, which
-        depends only on the mesh, so the same Jacobian always gives the same matrix); other
-        arguments as in :meth:`from_jacobian`.
-        """
-        j = _checked_jacobian(jacobian, mesh)
-        trained = GreitModel.build(j, training_set(mesh)) if model is None else model
-        return cls._from_model(j, mesh, trained, hyperparameter, channels, noise_figure)
-
-    @classmethod
-    def _from_model(
-        cls,
-        j: np.ndarray,
-        mesh: Mesh,
-        model: Prior | GreitModel,
-        hyperparameter: float | None,
-        channels: np.ndarray | None,
-        noise_figure: float | None,
-    ) -> ReconstructionMatrix:
-        p_inv_jt = model.solve(j.T) if isinstance(model, Prior) else None  # [N, M]
-        all_channels = np.arange(j.shape[0])
-        base = cls._assemble(j, model, p_inv_jt, all_channels, _PROVISIONAL_H, mesh)
-        if hyperparameter is None:
-            hyperparameter = choose_by_noise_figure(base, noise_figure)
-        return base.with_hyperparameter(float(hyperparameter), channels=channels)
-
-    @classmethod
-    def _assemble(
-        cls,
-        j: np.ndarray,
-        p: Prior | GreitModel,
-        p_inv_jt: np.ndarray | None,
-        channels: np.ndarray,
-        h: float,
-        mesh: Mesh | None,
-        channel_scale: np.ndarray | None = None,
-        noise_figure: float | None = None,
-    ) -> ReconstructionMatrix:
-        """The matrix for hyperparameter ``h``, or for the one hitting ``noise_figure``."""
-        channels = np.asarray(channels, dtype=np.int64)
-        if isinstance(p, GreitModel):
-            k, y = p.gram(channels)
-        else:
-            y = p_inv_jt[:, channels]
-            k = j[channels] @ y
-            k = 0.5 * (k + k.T)
-        if channel_scale is not None:
-            w = 1.0 / channel_scale[channels]  # whitening S^-1 on the used channels
-            k = k * w[:, None] * w[None, :]
-            y = y * w[None, :]
-        if noise_figure is not None:  # chosen on the Gram pair: the matrix is assembled once
-            used = j[channels] if channel_scale is None else j[channels] * w[:, None]
-            h = choose_for_gram(k, y, used, mesh, noise_figure)
-        return cls(
-            matrix=_matrix(k, y, h, channel_scale, channels),
-            channels=channels,
-            n_channels=j.shape[0],
-            hyperparameter=float(h),
-            model=p,
-            jacobian=j,
-            mesh=mesh,
-            channel_scale=channel_scale,
-            _p_inv_jt=p_inv_jt,
-            _gram=(k, y),
-        )
+        model = PriorModel.build(jacobian, mesh, prior)
+        return linear_matrix(model, hyperparameter, noise_figure)
 
     @property
     def method(self) -> str:
-        """``"greit"`` for the trained matrix, else ``"one_step"``."""
-        return "greit" if isinstance(self.model, GreitModel) else "one_step"
+        """``"one_step"`` or ``"greit"``: the model's method."""
+        return self.model.method
+
+    @property
+    def jacobian(self) -> np.ndarray:
+        """``[M, N]`` relative Jacobian (all channels) the model was built from."""
+        return self.model.jacobian
+
+    @property
+    def mesh(self) -> Mesh | None:
+        """The mesh of the ``N`` elements, if known."""
+        return self.model.mesh
+
+    @property
+    def n_channels(self) -> int:
+        """``M``, channels in a full frame."""
+        return int(self.model.jacobian.shape[0])
 
     @property
     def linearised(self) -> ReconstructionMatrix:
@@ -323,23 +357,13 @@ class ReconstructionMatrix:
         if not (np.isfinite(h) and h > 0):
             raise ValueError(f"hyperparameter must be a positive number, got {h}")
         ch = self.channels if channels is None else np.asarray(channels, dtype=np.int64)
-        if np.array_equal(ch, self.channels):
-            k, y = self._gram
-            return ReconstructionMatrix(
-                matrix=_matrix(k, y, h, self.channel_scale, ch),
-                channels=ch,
-                n_channels=self.n_channels,
-                hyperparameter=float(h),
-                model=self.model,
-                jacobian=self.jacobian,
-                mesh=self.mesh,
-                channel_scale=self.channel_scale,
-                _p_inv_jt=self._p_inv_jt,
-                _gram=self._gram,
-            )
-        return ReconstructionMatrix._assemble(
-            self.jacobian, self.model, self._p_inv_jt, ch, h, self.mesh, self.channel_scale
-        )
+        if not np.array_equal(ch, self.channels):
+            return assemble(self.model, ch, h, self.channel_scale)
+        k, y = self._gram
+        return ReconstructionMatrix(
+            _matrix(k, y, h, self.channel_scale, ch), ch, float(h), self.model,
+            self.channel_scale, self._gram,
+        )  # fmt: skip
 
     def with_channel_scale(
         self,
@@ -362,16 +386,7 @@ class ReconstructionMatrix:
             ):
                 raise ValueError(f"channel scale must be [{self.n_channels}] positive numbers")
         h = self.hyperparameter if h is None else float(h)
-        return ReconstructionMatrix._assemble(
-            self.jacobian,
-            self.model,
-            self._p_inv_jt,
-            self.channels,
-            h,
-            self.mesh,
-            scale,
-            noise_figure,
-        )
+        return assemble(self.model, self.channels, h, scale, noise_figure)
 
     @property
     def whitened_jacobian(self) -> np.ndarray:
@@ -387,13 +402,13 @@ class ReconstructionMatrix:
         if excluded.shape != (self.n_channels,):
             raise ValueError(f"excluded mask must be [{self.n_channels}], got {excluded.shape}")
         key = excluded.tobytes()
-        hit = self._cache.get(key)
+        hit = self._reduced.get(key)
         if hit is None:
             keep = np.flatnonzero(~excluded)
             if keep.size == 0:
                 raise ValueError("all channels excluded: nothing to reconstruct from")
             hit = self.with_hyperparameter(self.hyperparameter, channels=keep)
-            self._cache[key] = hit
+            self._reduced[key] = hit
         return hit
 
     # ----------------------------------------------------------- imaging
@@ -409,169 +424,24 @@ class ReconstructionMatrix:
         d = np.asarray(dv)
         if self.channels.size != self.n_channels:
             d = d[..., self.channels]
-        return d.astype(np.float32) @ self._matrix32_t()
+        return d.astype(np.float32) @ self.matrix32_t
 
-    def _matrix32_t(self) -> np.ndarray:
-        """float32 ``[Mu, N]`` C-contiguous transpose of :attr:`matrix` (cached).
+    @cached_property
+    def matrix32_t(self) -> np.ndarray:
+        """float32 ``[Mu, N]`` C-contiguous transpose of :attr:`matrix` (made on first use).
 
         ``frame @ R.T`` on this layout is OpenBLAS's column-update matrix-vector kernel,
-        20-30 % faster than row dot products on the ``[N, Mu]`` rows (bench/REPORT.md).
+        20-30 % faster than row dot products on the ``[N, Mu]`` rows
+        (bench/standing/reconstruction.md).
         """
-        m = self._cache.get("float32_t")
-        if m is None:
-            m = np.ascontiguousarray(np.asarray(self.matrix).T, dtype=np.float32)
-            self._cache["float32_t"] = m
-        return m
+        return np.ascontiguousarray(np.asarray(self.matrix).T, dtype=np.float32)
 
-    def pixel_matrix(
-        self,
-        grid: ImageGrid,
-        scale: float = 1.0,
-        floor: float = -np.inf,
-        ceiling: float = np.inf,
-    ) -> PixelMatrix:
-        """This matrix on ``grid``: unit ``scale``, clip to ``[floor, ceiling]`` (cached)."""
+    @cached_property
+    def merged(self) -> MergedColumns:
+        """The matrix with its reciprocal channels merged (made on first use; every channel)."""
         if self.channels.size != self.n_channels:
-            raise ValueError("pixel_matrix: the matrix must use every channel")
-        key = ("pixels", id(grid), float(scale), float(floor), float(ceiling))
-        hit = self._cache.get(key)
-        if hit is None or hit[0] is not grid:
-            pixels = PixelMatrix.build(grid, self.matrix, scale, floor, ceiling)
-            hit = self._cache[key] = (grid, pixels)
-        return hit[1]
-
-    def images(
-        self,
-        frames: np.ndarray,
-        reference: np.ndarray,
-        grid: ImageGrid,
-        scale: float = 1.0,
-        floor: float = -np.inf,
-        excluded: np.ndarray | None = None,
-        ceiling: float = np.inf,
-        out: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Frames (volts) -> float32 images ``[H, W]``/``[T, H, W]``, NaN outside the sheet.
-
-        Pixel value: ``scale`` times the relative change, clipped to ``[floor, ceiling]``.
-        Frames with every channel usable are one product with :meth:`pixel_matrix`
-        (``[K, P]``, the ``K`` elements under pixels, reciprocal channels merged); one frame
-        runs in preallocated buffers (:class:`FrameImager`); others go through
-        :meth:`reconstruct` (left-out channels) and the same gather. Same values as
-        ``scale *`` :meth:`reconstruct` gridded, to float32 rounding. ``out``: optional
-        float32 C-contiguous ``[H, W]`` the image of a single frame is written to (and
-        returned); default a new array.
-        """
-        if excluded is None:
-            image = self.frame_imager(grid, scale, floor, ceiling).image(frames, reference, out)
-            if image is not None:
-                return image
-        pixels = self.pixel_matrix(grid, scale, floor, ceiling)
-        if excluded is None and self.channels.size == self.n_channels:
-            f = np.asarray(frames)
-            if f.shape[-1:] == (self.n_channels,) and f.ndim == 2:
-                ref_scale = self._reference_scale(reference)
-                # NaN/Inf anywhere in the frames makes their sum non-finite (so does an
-                # overflow of finite volts, which then takes the exact path below too)
-                if ref_scale is not None and math.isfinite(np.add.reduce(f, axis=None)):
-                    return pixels.apply(np.subtract(f, ref_scale[0]) / ref_scale[1])
-        images = pixels.from_elements(self.reconstruct(frames, reference, excluded))
-        if out is not None and images.ndim == 2:
-            out[...] = images
-            return out
-        return images
-
-    def frame_imager(
-        self,
-        grid: ImageGrid,
-        scale: float = 1.0,
-        floor: float = -np.inf,
-        ceiling: float = np.inf,
-    ) -> FrameImager:
-        """The single-frame imager of :meth:`images` on ``grid`` (cached per grid and unit).
-
-        The last one used is checked first (four comparisons, no key to build).
-        """
-        plan = self._cache.get("frame_imager")
-        if (
-            plan is None
-            or plan.grid is not grid
-            or plan.scale != scale
-            or plan.floor != floor
-            or plan.ceiling != ceiling
-        ):
-            key = ("frame_imager", id(grid), float(scale), float(floor), float(ceiling))
-            plan = self._cache.get(key)
-            if plan is None or plan.grid is not grid:
-                pixels = self.pixel_matrix(grid, scale, floor, ceiling)
-                plan = FrameImager(pixels, grid, self.n_channels, scale, floor, ceiling)
-                self._cache[key] = plan
-            self._cache["frame_imager"] = plan
-        return plan
-
-    def _solve_finite_frame(self, v: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
-        """One frame ``[M]`` against ``ref`` ``[M]`` (float64 V) in the fewest numpy calls.
-
-        The numbers of the general path of :meth:`reconstruct` to float32 rounding: the same
-        float64 quotient ``(v - ref) / s_ref``, whose reciprocal channels are then combined
-        (:meth:`merged_matrix`, half the product for an adjacent protocol) and rounded once to
-        float32, and one ``sgemv``. None when the reference, the frame or the product is not
-        finite (or overflows float32): the general path handles those. A node calls this once
-        per frame against a reference that drift moves every frame, so nothing here is cached
-        but the merged matrix.
-        """
-        a, index, weights, gemv = self.merged_matrix()
-        floor = reference_floor(ref)
-        if not math.isfinite(floor):
-            return None
-        m = ref.size
-        scale = np.abs(ref)
-        np.maximum(scale, floor, out=scale)
-        d = np.empty(m + 1)
-        d[m] = 0.0  # the zero input of unpaired channels
-        dm = d[:m]
-        np.subtract(v, ref, out=dm)
-        np.divide(dm, scale, out=dm)  # finite ref: no invalid operation
-        g = d.take(index, mode="wrap")
-        np.multiply(g, weights, out=g)
-        p = a.shape[1]
-        g0 = g[:p]
-        np.add(g0, g[p:], out=g0)
-        y = gemv(1.0, a, g0.astype(np.float32))  # no FP warning: NaN/Inf show in y[0]
-        return y if math.isfinite(y[0]) else None
-
-    def merged_matrix(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
-        """The matrix with its reciprocal channels merged (cached; every channel used).
-
-        Returns ``(a, index, weights, gemv)``: ``a`` float32 ``[N, P]`` column-major, ``index``
-        and ``weights`` ``[2P]`` (:func:`~eit_skin.fem.image_grid.proportional_columns`
-        flattened: ``x`` ``[M]`` with a zero appended maps to ``u = g[:P] + g[P:]``,
-        ``g = weights * x[index]``), and SciPy's float32 ``gemv`` (``a @ u`` is
-        ``gemv(1.0, a, u)``).
-        """
-        hit = self._cache.get("merged")
-        if hit is None:
-            inputs, weights = proportional_columns(np.asarray(self.matrix))
-            a = np.asfortranarray(np.asarray(self.matrix)[:, inputs[0]], dtype=np.float32)
-            gemv = sla.get_blas_funcs("gemv", dtype=np.float32)
-            hit = self._cache["merged"] = (a, inputs.ravel(), weights.ravel(), gemv)
-        return hit
-
-    def _reference_scale(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(reference, reference_scale(reference))`` float64 ``[M]``, None unless finite.
-
-        Cached while the reference's bytes stay the same.
-        """
-        ref = np.asarray(reference, dtype=np.float64)
-        if ref.shape != (self.n_channels,):
-            return None
-        key = ref.tobytes()
-        cached = self._cache.get("reference_scale")
-        if cached is None or cached[0] != key:
-            usable = bool(np.isfinite(ref).all())
-            value = (ref.copy(), reference_scale(ref)) if usable else None
-            cached = self._cache["reference_scale"] = (key, value)
-        return cached[1]
+            raise ValueError("merged: the matrix must use every channel")
+        return MergedColumns.of(np.asarray(self.matrix))
 
     def reconstruct(
         self,
@@ -600,7 +470,7 @@ class ReconstructionMatrix:
             )
         single = v.ndim == 1
         if single and excluded is None and self.channels.size == self.n_channels:
-            out = self._solve_finite_frame(v, ref)
+            out = self.merged.solve_frame(v, ref)
             if out is not None:
                 return out
         v2 = v[None] if single else v
@@ -626,124 +496,60 @@ class ReconstructionMatrix:
         return out[0] if single else out
 
 
-class FrameImager:
-    """One frame ``[M]`` V -> its image through a :class:`PixelMatrix`, in preallocated buffers.
+@dataclass(frozen=True, eq=False)
+class MergedColumns:
+    """A matrix ``[N, M]`` with its reciprocal channels merged: half the product.
 
-    Per frame: ``d = v - ref``; ``g = d[inputs]``; ``g *= w``; ``u = g[0] + g[1]`` (float64,
-    rounded once to float32); ``y = A u`` (BLAS ``sgemv`` into ``y``); clip; one gather of
-    ``y`` (NaN last) onto the ``[H, W]`` pixels: seven numpy calls and one BLAS call, nothing
-    allocated but the returned image. ``w = weights / s_ref[inputs]`` is computed once per
-    reference (cached while the reference's bytes stay the same): the one-step data
-    convention ``dv = (v - v_ref) / s_ref`` folded into the channel merge.
-
-    NaN/Inf need no check before the product: any non-finite input makes every product value
-    non-finite (IEEE arithmetic, no term of a matrix-vector sum is skipped), so the first
-    value tells, and the caller takes its exact path; ``sgemv``, unlike ``np.matmul``, raises
-    no floating-point warning for it. A call made while another thread uses the buffers
-    returns None (the caller's allocating path) instead of waiting.
+    ``x`` ``[M]`` with a zero appended maps to ``u = g[:P] + g[P:]``, ``g = weights *
+    x[index]`` (float64, rounded once to float32), and ``R x = matrix @ u``
+    (:func:`~eit_skin.fem.image_grid.proportional_columns`, flattened).
 
     Attributes:
-        pixels: the folded matrix (``K`` rows, ``P`` merged columns).
-        grid: the grid it was folded onto.
-        scale, floor, ceiling: as in :meth:`ReconstructionMatrix.images`.
-        n_channels: ``M``.
+        matrix: float32 ``[N, P]`` column-major (one ``sgemv`` of contiguous column updates).
+        index: int64 ``[2P]`` channel of each merged input (``M``: the appended zero).
+        weights: float64 ``[2P]`` their weights.
     """
 
-    __slots__ = (
-        "_d", "_dm", "_frame_shape", "_g", "_g0", "_g1", "_gemv", "_high", "_index", "_key",
-        "_lock", "_low", "_matrix", "_owner", "_ref", "_u", "_w", "_y", "_yk", "ceiling",
-        "floor", "grid", "n_channels", "pixels", "scale",
-    )  # fmt: skip
+    matrix: np.ndarray
+    index: np.ndarray
+    weights: np.ndarray
 
-    def __init__(
-        self,
-        pixels: PixelMatrix,
-        grid: ImageGrid,
-        n_channels: int,
-        scale: float,
-        floor: float,
-        ceiling: float,
-    ) -> None:
-        self.pixels, self.grid = pixels, grid
-        self.scale, self.floor, self.ceiling = scale, floor, ceiling
-        self.n_channels = m = int(n_channels)
-        self._frame_shape = (m,)
-        self._matrix = pixels.matrix
-        self._owner = pixels.owner.reshape(pixels.shape)  # the gather gives [H, W] directly
-        k, p = pixels.matrix.shape
-        self._index = pixels.inputs.ravel()  # [2P] into d, whose last entry stays 0
-        self._d = np.zeros(m + 1)
-        self._dm = self._d[:m]
-        self._g = np.empty(2 * p)
-        self._g0, self._g1 = self._g[:p], self._g[p:]
-        self._u = np.zeros(p, dtype=np.float32)
-        self._y = np.zeros(k + 1, dtype=np.float32)
-        self._y[k] = np.nan
-        self._yk = self._y[:k]
-        # full-length bounds: a ufunc without broadcasting costs less per call
-        self._low = None if floor == -np.inf else np.full(k, floor, dtype=np.float32)
-        self._high = None if ceiling == np.inf else np.full(k, ceiling, dtype=np.float32)
-        self._key: bytes | None = None
-        self._lock = threading.Lock()
-        self._ref = np.empty(m)
-        self._w = np.empty(2 * p)
-        # f2py's sgemv with positional arguments (keywords cost ~1.5 us per call); used only
-        # if it writes into y in place, as it does for a contiguous float32 y
-        gemv = sla.get_blas_funcs("gemv", dtype=np.float32)
-        product = gemv(1.0, self._matrix, self._u, 0.0, self._yk, 0, 1, 0, 1, 0, 1)
-        self._gemv = gemv if np.shares_memory(product, self._yk) else None
+    @classmethod
+    def of(cls, matrix: np.ndarray) -> MergedColumns:
+        """Merge the proportional columns of ``matrix`` ``[N, M]``."""
+        inputs, weights = proportional_columns(matrix)
+        a = np.asfortranarray(matrix[:, inputs[0]], dtype=np.float32)
+        index = np.ascontiguousarray(inputs.ravel(), dtype=np.int64)
+        return cls(a, index, np.ascontiguousarray(weights.ravel(), dtype=np.float64))
 
-    def image(
-        self, frame: np.ndarray, reference: np.ndarray, out: np.ndarray | None = None
-    ) -> np.ndarray | None:
-        """Frame ``[M]`` V against ``reference`` ``[M]`` V -> float32 ``[H, W]``, or None.
+    def solve_frame(self, v: np.ndarray, ref: np.ndarray) -> np.ndarray | None:
+        """One frame ``[M]`` against ``ref`` ``[M]`` (float64 V) -> float32 ``[N]``, or None.
 
-        None: not a single finite frame against a finite reference, or the buffers are in use
-        by another thread (the caller's general path handles it). ``out``: float32
-        C-contiguous ``[H, W]`` to write the image to.
+        The numpy reference of the compiled kernel's product
+        (:mod:`eit_skin.pipeline.frame_kernel`): the float64 quotient ``(v - ref) / s_ref``,
+        its reciprocal channels combined and rounded once to float32, one float32 ``sgemv``
+        of SciPy's BLAS. None when the reference, the frame or the product is not finite (or
+        overflows float32): :meth:`ReconstructionMatrix.reconstruct`'s general path then
+        leaves the bad channels out.
         """
-        if getattr(frame, "shape", None) != self._frame_shape:
-            return None  # not one [M] frame (T frames, a list: the caller's general path)
-        if not self._lock.acquire(False):  # positional: a keyword costs 0.4 us
+        floor = reference_floor(ref)
+        if not math.isfinite(floor):
             return None
-        try:  # one function body: a further call costs as much as a small numpy step
-            ref = np.asarray(reference, dtype=np.float64)
-            key = ref.tobytes()
-            if key != self._key and not self._use_reference(ref, key):
-                return None
-            g, g0, u, yk = self._g, self._g0, self._u, self._yk
-            np.subtract(frame, self._ref, out=self._dm)
-            self._d.take(self._index, out=g, mode="wrap")  # the method: np.take wraps it slowly
-            np.multiply(g, self._w, out=g)
-            np.add(g0, self._g1, out=g0)
-            u[...] = g0  # the float64 sum rounded once (cheaper than add's casting output)
-            if self._gemv is not None:
-                self._gemv(1.0, self._matrix, u, 0.0, yk, 0, 1, 0, 1, 0, 1)
-            else:
-                with np.errstate(all="ignore"):
-                    np.matmul(self._matrix, u, out=yk)
-            if not math.isfinite(yk[0]):
-                yk.fill(0.0)  # no NaN left behind for the next product (beta 0 may keep NaN)
-                return None
-            if self._low is not None:
-                np.maximum(yk, self._low, out=yk)
-            if self._high is not None:
-                np.minimum(yk, self._high, out=yk)
-            if out is None:
-                return self._y.take(self._owner, mode="wrap")
-            return self._y.take(self._owner, out=out, mode="wrap")
-        finally:
-            self._lock.release()
-
-    def _use_reference(self, ref: np.ndarray, key: bytes) -> bool:
-        """Weights for a new reference ``[M]``; False (nothing kept) unless it is finite."""
-        if ref.shape != (self.n_channels,) or not np.isfinite(ref).all():
-            return False
-        s = np.append(reference_scale(ref), 1.0)  # the zero input's scale
-        np.divide(self.pixels.weights.ravel(), s[self._index], out=self._w)
-        self._ref[:] = ref
-        self._key = key
-        return True
+        m = ref.size
+        scale = np.abs(ref)
+        np.maximum(scale, floor, out=scale)
+        d = np.empty(m + 1)
+        d[m] = 0.0  # the zero input of unpaired channels
+        dm = d[:m]
+        np.subtract(v, ref, out=dm)
+        np.divide(dm, scale, out=dm)  # finite ref: no invalid operation
+        g = d.take(self.index, mode="wrap")
+        np.multiply(g, self.weights, out=g)
+        p = self.matrix.shape[1]
+        g0 = g[:p]
+        np.add(g0, g[p:], out=g0)
+        y = _GEMV(1.0, self.matrix, g0.astype(np.float32))  # no FP warning: NaN/Inf in y[0]
+        return y if math.isfinite(y[0]) else None
 
 
 def _matrix(
@@ -754,7 +560,7 @@ def _matrix(
     return r if scale is None else r / scale[channels][None, :]
 
 
-def _checked_jacobian(jacobian: np.ndarray, mesh: Mesh) -> np.ndarray:
+def checked_jacobian(jacobian: np.ndarray, mesh: Mesh) -> np.ndarray:
     """``jacobian`` as float64 ``[M, N]``; ValueError unless finite with ``N`` = mesh elements."""
     j = np.asarray(jacobian, dtype=np.float64)
     if j.ndim != 2 or j.shape[1] != mesh.n_triangles:

@@ -239,7 +239,7 @@ def make_prior(
         return Prior(kind, p, None, SparseFactor(p))
     if kind == "greit":
         raise ValueError(
-            "'greit' is a method, not a prior: ReconstructionMatrix.greit or "
+            "'greit' is a method, not a prior: eit_skin.inverse.greit.greit_matrix or "
             "eit_skin.inverse.dispatch.make_reconstructor('greit', ...)"
         )
     raise ValueError(f"unknown prior {kind!r}; expected one of {', '.join(PRIOR_KINDS)}")

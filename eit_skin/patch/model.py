@@ -154,6 +154,11 @@ METHODS_WITH_PRIOR: tuple[str, ...] = ("one_step", "gauss_newton")
 PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
 """Names ``solver.prior`` may take; :func:`eit_skin.inverse.priors.make_prior` builds each."""
 
+DEFAULT_PRIOR = "noser"
+"""``solver.prior`` when not given: chosen with the one-step default noise figure and the
+model-error share by leaving one set out over the real recordings and the simulator
+(``bench/standing/real_data.md``)."""
+
 
 @dataclass(frozen=True)
 class SolverSpec:
@@ -163,7 +168,8 @@ class SolverSpec:
         method: ``"one_step"`` (linearised, precomputed matrix with ``prior``), ``"greit"``
             (the trained one-step matrix, no prior) or ``"gauss_newton"`` (iterative, with
             ``prior``); :data:`METHODS`.
-        prior: regularisation ``"laplace"``, ``"tikhonov"`` or ``"noser"``.
+        prior: regularisation ``"noser"``, ``"laplace"`` or ``"tikhonov"`` (default
+            :data:`DEFAULT_PRIOR`).
         hyperparameter: regularisation weight, or ``None`` to choose it from ``noise_figure``.
         noise_figure: target noise figure for the automatic hyperparameter (> 0), or ``None``
             for the method's default (:data:`eit_skin.inverse.methods.DEFAULT_NOISE_FIGURE`).
@@ -176,7 +182,7 @@ class SolverSpec:
     """
 
     method: str = "one_step"
-    prior: str = "laplace"
+    prior: str = DEFAULT_PRIOR
     hyperparameter: float | None = None
     noise_figure: float | None = None
     max_iterations: int = 5

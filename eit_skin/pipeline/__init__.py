@@ -4,8 +4,9 @@ Modules: ``builder`` (the only place that builds layer -> meshes -> forward mode
 layer's reconstruction method, cached on disk by content hash), ``model_choice`` (the
 coarsest model meeting a layer's accuracy target), ``reference`` (no-load
 reference: capture, drift, posture), ``processor`` (the per-frame pipeline of one layer:
-reference, drift, flags, faults, units, images), ``frame_kernel`` (its common case compiled
-with numba, bit for bit the numpy step), ``colour_scale`` (false colour for rviz),
+reference, drift, flags, faults, units, images), ``frame_plan`` (its common frame planned
+once: the frozen plan and the numpy reference step), ``frame_kernel`` (the same step compiled
+with numba, bit for bit), ``colour_scale`` (false colour for rviz),
 ``accuracy_map`` (a design's predicted position error, resolution and amplitude response over
 the sheet, from simulated small targets: ``eit-skin patch --predict`` and the designer).
 """
@@ -20,7 +21,7 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "ColourScale": "colour_scale",
-    "FrameKernel": "frame_kernel",
+    "FramePlan": "frame_plan",
     "LayerImager": "builder",
     "Operator": "builder",
     "LayerImages": "processor",
@@ -37,7 +38,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "ColourScale",
-    "FrameKernel",
+    "FramePlan",
     "LayerImager",
     "LayerImages",
     "LayerProcessor",
@@ -64,7 +65,7 @@ if TYPE_CHECKING:
         with_method,
     )
     from eit_skin.pipeline.colour_scale import ColourScale
-    from eit_skin.pipeline.frame_kernel import FrameKernel
+    from eit_skin.pipeline.frame_plan import FramePlan
     from eit_skin.pipeline.processor import LayerImages, LayerProcessor
     from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 

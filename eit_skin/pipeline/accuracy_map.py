@@ -194,19 +194,7 @@ def predict_accuracy(
     built = time.perf_counter()
     radius = equivalent_radius(explicit)
     target_r = TARGET_RADIUS_R * radius
-    inverse_edge = explicit.mesh.inverse_max_edge_m or explicit.mesh.max_edge_m
-    data_edge = data_fraction * min(inverse_edge, explicit.mesh.max_edge_m)
-    data_mesh = build_mesh(
-        replace(
-            explicit,
-            mesh=MeshSpec(
-                data_edge,
-                min(data_edge, explicit.mesh.electrode_edge_m),
-                explicit.mesh.min_angle_deg,
-                None,
-            ),
-        )
-    )
+    data_mesh = _data_mesh(explicit, data_fraction)
     if centres is None:
         centres = _centres(explicit, data_mesh, lattice, EDGE_CLEARANCE * target_r)
     centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
@@ -223,24 +211,9 @@ def predict_accuracy(
     values = _element_images(imager, phantoms.frames, phantoms.reference)
     grid = imager.grid
     pictures = grid.to_image(values)
-    k = centres.shape[0]
-    pe, res = np.full(k, np.inf), np.ones(k)
-    for i, (picture, centre) in enumerate(zip(pictures, centres, strict=True)):
-        try:
-            merit = figures_of_merit(picture, grid.x, grid.y, centre, sign=1.0)
-        except ValueError:  # imaged as nothing
-            continue
-        pe[i], res[i] = merit.position_error_m, merit.resolution
+    pe, res = _merits(pictures, grid, centres)
     amp = values.astype(np.float64) @ np.abs(imager.mesh.areas) / phantoms.change_integral
-    inside = np.isfinite(pictures[0]) if k else np.zeros(grid.shape, bool)
-    maps = {
-        name: _interpolated(centres, v, grid.x, grid.y, inside)
-        for name, v in (
-            ("position_error_m", np.where(np.isfinite(pe), pe, np.nanmax(pe[np.isfinite(pe)]))),
-            ("resolution", res),
-            ("amplitude_response", amp),
-        )
-    }
+    maps = _maps(grid, pictures, centres, (pe, res, amp))
     done = time.perf_counter()
     return AccuracyMap(
         layer=explicit,
@@ -262,6 +235,50 @@ def predict_accuracy(
             "total": done - started,
         },
     )
+
+
+def _data_mesh(layer: Layer, fraction: float) -> Any:
+    """The mesh the phantoms are simulated on: ``fraction`` of the layer's finest edge."""
+    inverse_edge = layer.mesh.inverse_max_edge_m or layer.mesh.max_edge_m
+    edge = fraction * min(inverse_edge, layer.mesh.max_edge_m)
+    spec = MeshSpec(edge, min(edge, layer.mesh.electrode_edge_m), layer.mesh.min_angle_deg, None)
+    return build_mesh(replace(layer, mesh=spec))
+
+
+def _maps(
+    grid: Any, pictures: np.ndarray, centres: np.ndarray, figures: tuple[np.ndarray, ...]
+) -> dict[str, np.ndarray]:
+    """The ``[H, W]`` maps of ``(position error, resolution, amplitude response)`` ``[K]`` each.
+
+    Interpolated between the targets ``[K, 2]`` over the sheet of images ``[K, H, W]``; an
+    infinite position error (nothing imaged) counts as the largest finite one.
+    """
+    pe, res, amp = figures
+    inside = np.isfinite(pictures[0]) if len(centres) else np.zeros(grid.shape, bool)
+    return {
+        name: _interpolated(centres, v, grid.x, grid.y, inside)
+        for name, v in (
+            ("position_error_m", np.where(np.isfinite(pe), pe, np.nanmax(pe[np.isfinite(pe)]))),
+            ("resolution", res),
+            ("amplitude_response", amp),
+        )
+    }
+
+
+def _merits(pictures: np.ndarray, grid: Any, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(position error [K] m, resolution [K])`` of images ``[K, H, W]`` of targets ``[K, 2]``.
+
+    A target imaged as nothing gets an infinite position error and resolution 1.
+    """
+    k = centres.shape[0]
+    pe, res = np.full(k, np.inf), np.ones(k)
+    for i, (picture, centre) in enumerate(zip(pictures, centres, strict=True)):
+        try:
+            merit = figures_of_merit(picture, grid.x, grid.y, centre, sign=1.0)
+        except ValueError:  # imaged as nothing
+            continue
+        pe[i], res[i] = merit.position_error_m, merit.resolution
+    return pe, res
 
 
 def _centres(layer: Layer, data_mesh: Any, lattice: int, clearance_m: float) -> np.ndarray:

@@ -37,7 +37,7 @@ from eit_skin.inverse.channel_noise import (
 )
 from eit_skin.inverse.dispatch import make_reconstructor
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.hyperparameter import (
     MODEL_ERROR_SHARE,
     choose_for_model_error,
@@ -54,6 +54,7 @@ from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.model import Layer
 from eit_skin.patch.protocol import Protocol, build_protocol
+from eit_skin.pipeline.frame_plan import FramePlan, pressure_image
 from eit_skin.pipeline.model_choice import ModelChoice, choose_model
 
 #: Bumped whenever the cached quantities change meaning.
@@ -297,6 +298,8 @@ class LayerImager:
         if self.reconstructor is None:
             self.reconstructor = self.matrix
         self._unweighted = self.reconstructor
+        self._plan: FramePlan | None = None
+        self._plan_of: Reconstructor | None = None  # the reconstructor _plan was built for
         self.signs = None
         if self.protocol.magnitude:
             if self.model_voltages is None:
@@ -437,36 +440,35 @@ class LayerImager:
             excluded = None
         return excluded
 
+    @property
+    def frame_plan(self) -> FramePlan | None:
+        """The plan of this layer's common frames (:mod:`eit_skin.pipeline.frame_plan`).
+
+        None unless a pressure layer with a linear matrix over every channel; built again
+        when the reconstructor changes (:meth:`use_reference` re-weights it).
+        """
+        rec = self.reconstructor
+        if self._plan_of is not rec:
+            material = self.layer.material
+            pascals = (
+                (material.pressure_scale_pa or 0.0) if material.quantity == "pressure" else 0.0
+            )
+            self._plan = FramePlan.build(rec, self.grid, pascals, self.signs)
+            self._plan_of = rec
+        return self._plan
+
     def frame_images(
         self, frames: np.ndarray, reference: np.ndarray, flags: np.ndarray | None = None
     ) -> np.ndarray:
         """Frames ``[M]``/``[T, M]`` V -> physical images ``[H, W]``/``[T, H, W]`` (float32).
 
-        ``images(physical(relative_change(...)))`` in one step: for a linear matrix and a
-        linear unit (pressure) the gridding, the unit and the clip at
-        :data:`~eit_skin.patch.material.RELATIVE_CHANGE_RANGE` are folded into one
-        ``[pixels' elements, M]`` float32
-        product (:meth:`~eit_skin.inverse.one_step.ReconstructionMatrix.images`); otherwise
-        (Gauss-Newton, stretch) the three steps are run.
+        ``images(physical(relative_change(...)))``; one frame: :meth:`physical_image` of its
+        relative change, the node's numbers bit for bit.
         """
-        rec, material = self.reconstructor, self.layer.material
-        if (
-            isinstance(rec, ReconstructionMatrix)
-            and material.quantity == "pressure"
-            and material.pressure_scale_pa > 0
-        ):
-            scale = material.pressure_scale_pa
-            low, high = RELATIVE_CHANGE_RANGE
-            return rec.images(
-                self._signed(frames),
-                self._signed(reference),
-                self.grid,
-                scale,
-                scale * low,
-                self._excluded(flags),
-                ceiling=scale * high,
-            )
-        return self.images(self.physical(self.relative_change(frames, reference, flags)))
+        values = self.relative_change(frames, reference, flags)
+        if values.ndim == 1:
+            return self.physical_image(values)
+        return self.images(self.physical(values))
 
     def images(self, element_values: np.ndarray) -> np.ndarray:
         """Element values ``[N]``/``[T, N]`` -> float32 images ``[H, W]``/``[T, H, W]``."""
@@ -475,22 +477,15 @@ class LayerImager:
     def physical_image(self, relative_change: np.ndarray) -> np.ndarray:
         """One frame's relative change ``[N]`` -> its physical image ``[H, W]`` float32.
 
-        Bit for bit ``images(physical(relative_change))``; for pressure (a linear unit) in
-        five numpy calls into one preallocated row (clip, float64 product rounded once to
-        float32, gather) instead of a dozen: the per-frame step of a node.
+        Bit for bit ``images(physical(relative_change))``; for pressure (a linear unit) the
+        planned step's image (:func:`~eit_skin.pipeline.frame_plan.pressure_image`).
         """
         material = self.layer.material
         v = np.asarray(relative_change)
-        n = self.mesh.n_triangles
-        if material.quantity != "pressure" or v.shape != (n,):
+        if material.quantity != "pressure" or v.shape != (self.mesh.n_triangles,):
             return self.images(self.physical(v))
-        low, high = RELATIVE_CHANGE_RANGE
-        clipped = np.maximum(v, low)
-        np.minimum(clipped, high, out=clipped)
-        row = np.empty(n + 1, dtype=np.float32)
-        np.multiply(clipped, material.pressure_scale_pa, out=row[:n], dtype=np.float64)
-        row[n] = np.nan
-        return self.grid.image_of_row(row)
+        grid = self.grid
+        return pressure_image(v, material.pressure_scale_pa, grid.pixel_owner, grid.shape)
 
     def physical(self, relative_images: np.ndarray) -> np.ndarray:
         """Relative change -> the layer's quantity (Pa for pressure, strain for stretch).

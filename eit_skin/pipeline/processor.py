@@ -41,8 +41,9 @@ Per frame ``[M]`` volts at frame time ``t_s``:
 4. **Image.** Relative change per element against the current reference, then contact
    decision and drift tracking (the reference follows untouched frames), then the physical
    image (the layer's unit) on the image grid. A frame of a pressure layer whose every
-   channel is used takes these four in one compiled call
-   (:class:`~eit_skin.pipeline.frame_kernel.FrameKernel`), bit for bit the numpy steps.
+   channel is used takes these four in one planned step
+   (:mod:`eit_skin.pipeline.frame_plan`: numpy's or the compiled kernel, bit for bit alike);
+   the others take the reconstructor's general path.
 
 Same frames, same times, same settings: bit-identical images, whichever process runs it.
 """
@@ -67,7 +68,8 @@ from eit_skin.inverse.channel_noise import UnusableReferenceError
 from eit_skin.inverse.electrode_faults import faulty_electrodes
 from eit_skin.patch.material import CONDUCTANCE_RATIO_LIMIT
 from eit_skin.pipeline.builder import LayerImager, ReferenceReport
-from eit_skin.pipeline.frame_kernel import FrameKernel
+from eit_skin.pipeline.frame_kernel import compiled_step, frame_step
+from eit_skin.pipeline.frame_plan import FrameChecks, FrameResult
 from eit_skin.pipeline.reference import PostureReferences, ReferenceTracker
 
 #: Defaults shared by the node's parameters and the offline commands' options.
@@ -186,7 +188,7 @@ class LayerProcessor:
             float(contact_k),
             posture,
         )
-        self._kernel = FrameKernel(imager, compiled_step)
+        self._frame_step = frame_step(compiled_step)  # the compiled kernel or numpy's step
         self._excluded_seen: np.ndarray | None = None
         self._excluded_any = False
         self.fault_check_period_s = float(fault_check_period_s)
@@ -211,7 +213,7 @@ class LayerProcessor:
         self.frames_in = 0
         self.frames_imaged = 0
         self.frames_unusable = 0
-        self.frames_compiled = 0  # imaged by the compiled step (FrameKernel)
+        self.frames_compiled = 0  # imaged by the compiled kernel (frame_kernel.compiled_step)
 
     # ------------------------------------------------------------ diagnostics
     @property
@@ -298,12 +300,52 @@ class LayerProcessor:
             images = self._common_step(frame_v, t_s)
             if images is not None:
                 return images
+        frame = self._screen(frame_v, t_s, flags)
+        t_s = float(t_s)
+        self.frames_in += 1
+        tracker = self.tracker
+        if angle_rad is not None and np.isfinite(angle_rad):
+            tracker.angle_rad = float(angle_rad)
+        if not tracker.ready:
+            if tracker.capture(frame, t_s):
+                self._noise_frames = tracker.captured_frames
+                self._reference_ready(t_s)
+            return None
+        if self.reference_error is not None:
+            self.frames_unusable += 1
+            return None
+        reference = tracker.reference()
+        if not np.isfinite(frame).any():
+            self.frames_unusable += 1
+            return None
+        self._recent.append(frame)
+        self._check_faults_if_due(t_s, reference)
+        used = self._channels_used(frame, reference)
+        if used == 0:
+            self.frames_unusable += 1
+            return None
+        planned = self._planned_step(frame, reference, t_s, None) if used < 0 else None
+        if planned is None:
+            values = self.imager.relative_change(frame, reference, self._fault_flags)
+            touching = tracker.touching(values)
+            tracker.track(frame, t_s, touching)
+            image = self.imager.physical_image(values)
+        else:
+            values, image, touching = planned
+        self.frames_imaged += 1
+        used = self.n_measurements if used < 0 else used
+        return LayerImages(t_s, values, image, touching, used, self._faulty_names, frame)
+
+    def _screen(self, frame_v: np.ndarray, t_s: float, flags: np.ndarray | None) -> np.ndarray:
+        """Check a frame's shapes, flagged and implausible values NaN (a copy) ``[M]`` V.
+
+        Keeps the previous frame and each channel's last value for the jump check.
+        """
         m = self.n_measurements
         frame = np.asarray(frame_v, dtype=np.float64)
         if frame.shape != (m,):
             raise ValueError(f"a frame must be [{m}] volts, got shape {frame.shape}")
-        t_s = float(t_s)
-        if not math.isfinite(t_s):
+        if not math.isfinite(float(t_s)):
             raise ValueError(f"frame time must be finite, got {t_s}")
         if flags is not None and np.size(flags) and np.shape(flags) != (m,):
             raise ValueError(f"flags must be [{m}] (or empty), got shape {np.shape(flags)}")
@@ -323,54 +365,23 @@ class LayerProcessor:
             self._accepted = frame
         else:
             self._accepted = np.where(np.isfinite(frame), frame, accepted)
-        self.frames_in += 1
-        tracker = self.tracker
-        if angle_rad is not None and np.isfinite(angle_rad):
-            tracker.angle_rad = float(angle_rad)
-        if not tracker.ready:
-            if tracker.capture(frame, t_s):
-                self._noise_frames = tracker.captured_frames
-                self._reference_ready(t_s)
-            return None
-        if self.reference_error is not None:
-            self.frames_unusable += 1
-            return None
-        reference = tracker.reference()
+        return frame
+
+    def _channels_used(self, frame: np.ndarray, reference: np.ndarray) -> int:
+        """Channels that go into the frame's image; -1: every one (a plannable frame)."""
         finite = np.isfinite(frame)
-        n_finite = int(np.count_nonzero(finite))
-        if n_finite == 0:
-            self.frames_unusable += 1
-            return None
-        self._recent.append(frame)
-        self._check_faults_if_due(t_s, reference)
         excluded = self._reference_excluded()
-        common = (
-            n_finite == m
+        if (
+            finite.all()
             and not self._faulty.size
             and excluded is None
             and np.isfinite(reference).all()
-        )
-        if common:
-            used = m  # the common case, without building the mask
-        else:
-            usable = finite & np.isfinite(reference) & ~self._fault_mask
-            if excluded is not None:
-                usable &= ~excluded
-            used = int(np.count_nonzero(usable))
-        if used == 0:
-            self.frames_unusable += 1
-            return None
-        compiled = self._compiled_step(frame, reference, t_s, None) if common else None
-        if compiled is None:
-            values = self.imager.relative_change(frame, reference, self._fault_flags)
-            touching = tracker.touching(values)
-            tracker.track(frame, t_s, touching)
-            image = self.imager.physical_image(values)
-        else:
-            values, image, touching = compiled
-            self.frames_compiled += 1
-        self.frames_imaged += 1
-        return LayerImages(t_s, values, image, touching, used, self._faulty_names, frame)
+        ):
+            return -1  # the common case, without building the mask
+        usable = finite & np.isfinite(reference) & ~self._fault_mask
+        if excluded is not None:
+            usable &= ~excluded
+        return int(np.count_nonzero(usable))
 
     def process(
         self, frames_v: np.ndarray, t_s: np.ndarray, flags: np.ndarray | None = None
@@ -391,11 +402,12 @@ class LayerProcessor:
         """:meth:`step` of the frame most frames are, in the fewest calls; None: not one.
 
         That frame: a ready, usable reference without excluded channels, no faulty electrode,
-        no posture table, no fault check due, every value finite (the kernel finds out), a
-        layer the compiled kernel takes. The same result and bookkeeping as the full step,
-        without its finiteness checks and masks (about 3 us less per frame at 50 patches, a
-        tenth of the step). Nothing changes when it returns None: the full step then takes
-        the frame (a frame with a missing value has then gone through the kernel twice).
+        no posture table, no fault check due, every value finite (the planned step finds
+        out), a layer with a frame plan (:attr:`LayerImager.frame_plan`). The same result and
+        bookkeeping as the full step, without its finiteness checks and masks (about 3 us less
+        per frame at 50 patches, a tenth of the step). Nothing changes when it returns None:
+        the full step then takes the frame (a frame with a missing value has then gone
+        through the planned step twice).
         """
         tracker = self.tracker
         if (
@@ -413,15 +425,14 @@ class LayerProcessor:
         if self._reference_excluded() is not None:
             return None
         frame = np.array(frame_v, dtype=np.float64)  # a copy: the fault window keeps it
-        compiled = self._compiled_step(frame, tracker.reference(), t, self._previous)
-        if compiled is None:
+        planned = self._planned_step(frame, tracker.reference(), t, self._previous)
+        if planned is None:
             return None
-        values, image, touching = compiled
+        values, image, touching = planned
         self._previous = self._accepted = frame
         self.last_flags = None
         self.frames_in += 1
         self._recent.append(frame)
-        self.frames_compiled += 1
         self.frames_imaged += 1
         return LayerImages(
             t, values, image, touching, self.n_measurements, self._faulty_names, frame
@@ -438,27 +449,26 @@ class LayerProcessor:
             self._excluded_any = excluded is not None and bool(excluded.any())
         return excluded if self._excluded_any else None
 
-    def _compiled_step(
+    def _planned_step(
         self,
         frame: np.ndarray,
         reference: np.ndarray,
         t_s: float,
         previous: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, bool] | None:
-        """Relative change, image and contact of a frame by the compiled kernel, or None.
+        """Relative change, image and contact of a frame by its plan, or None.
 
-        For frames whose every channel is used; drift tracking included. None: the frame
-        takes the numpy path (which flags the values beyond the full scale or jumped from
-        ``previous`` ``[M]`` V: the kernel only finds that there may be some; None: the
-        numpy step checked the frame already).
+        The compiled kernel or numpy's step (:mod:`eit_skin.pipeline.frame_plan`), drift
+        tracking included. None: no plan, or the frame takes the general path (which flags
+        the values beyond the full scale or jumped from ``previous`` ``[M]`` V: the planned
+        step only finds that there may be some; None: the general step checked the frame).
         """
-        kernel, tracker = self._kernel, self.tracker
-        if tracker.posture is not None or not kernel.usable():
+        tracker = self.tracker
+        plan = self.imager.frame_plan
+        if tracker.posture is not None or plan is None:
             return None
         alpha = tracker.drift_alpha(t_s)
-        out = kernel.step(
-            frame,
-            reference,
+        checks = FrameChecks(
             tracker.element_noise,
             tracker.contact_k,
             alpha,
@@ -466,12 +476,14 @@ class LayerProcessor:
             previous,
             self._jump_limit,
         )
+        out: FrameResult | None = self._frame_step(plan, frame, reference, checks)
         if out is None:
             return None
-        values, image, base, touching = out
-        if not touching and alpha is not None:
-            tracker.follow(base, t_s)
-        return values, image, touching
+        if self._frame_step is compiled_step:
+            self.frames_compiled += 1
+        if not out.touching and alpha is not None:
+            tracker.follow(out.reference_v, t_s)
+        return out.values, out.image, out.touching
 
     def _count_implausible(self, flags: np.ndarray) -> None:
         """Note one frame's :func:`~eit_skin.frames.implausible_flags` (some set)."""

@@ -27,8 +27,9 @@ frames of another size are counted (``frames_rejected``) and left out.
 
 Calibrated positions: when the reconstruction publishes ``calibrated_contacts`` (its
 ``calibration`` parameter), an event's centroid is the calibrated press of the same
-``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then; otherwise
-it stays the image centroid. Segmented ``contacts`` carry NaN depth and confidence.
+``header.stamp`` if one with confidence >= ``MIN_CONFIDENCE`` has arrived by then (and it is
+the frame's only calibrated press); otherwise it stays the image centroid. Segmented
+``contacts`` carry NaN depth and confidence.
 """
 
 from __future__ import annotations
@@ -50,12 +51,13 @@ from eit_skin.pipeline.builder import default_cache_dir
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     REJECT_LOG_PERIOD_S,
+    LiveParameters,
     ThrottledLog,
-    declare_read_only,
+    declare_parameters,
     diagnostic_status,
     run_node,
 )
-from eit_skin.ros.parameters import CLASSIFIER
+from eit_skin.ros.parameters import CLASSIFIER, WRITABLE
 from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
 from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import RECONSTRUCTION_NODE, patch_topics
@@ -64,7 +66,7 @@ from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.events import LABELS, STATES
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.pairing import StampPairer
-from eit_skin.touch.settings import settings_from
+from eit_skin.touch.settings import setting_values, settings_from
 from eit_skin.touch.shapes import contact_geometry
 
 
@@ -73,7 +75,7 @@ class ClassifierNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_classifier", **kwargs)
-        p = declare_read_only(self, CLASSIFIER)
+        p = declare_parameters(self, CLASSIFIER, "eit_classifier")
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)  # PatchError: refuse to start (see main)
         layer, stretch = classifier_layers(self.patch)  # PatchError: no pressure layer
@@ -184,13 +186,37 @@ class ClassifierNode(Node):
             10,
             qos_overriding_options=OVERRIDABLE,
         )
-        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.diagnostics_timer = self.create_timer(
+            float(p["diagnostics_period_s"]), self._publish_diagnostics
+        )
+        self.live = LiveParameters(
+            self, WRITABLE["eit_classifier"], self._apply_parameters, self._settings_with
+        )
         self.get_logger().info(
             f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
             f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
             f"{stretch.name if stretch else None!r}; single-finger spread from "
             f"{geometry.source} in {geometry_s:.2f} s"
         )
+
+    # ------------------------------------------------------------------ live tuning
+    def _settings_with(self, values: dict[str, object]) -> ClassifierConfig:
+        """The classifier's settings with ``values`` (name -> value) changed.
+
+        Raises:
+            ValueError: a value out of its bounds, or settings that contradict each other.
+        """
+        return settings_from(ClassifierConfig, {**setting_values(self.classifier.config), **values})
+
+    def _apply_parameters(self, values: dict[str, object]) -> None:
+        """Writable parameters set while running: in effect from the next image."""
+        self.classifier.update_settings(self._settings_with(values))
+        if "image_timeout_s" in values:
+            self.image_timeout_s = float(values["image_timeout_s"])
+        if "diagnostics_period_s" in values:
+            self.diagnostics_timer.timer_period_ns = round(
+                float(values["diagnostics_period_s"]) * 1e9
+            )
 
     # ------------------------------------------------------------------ input
     def _decode(self, msg: Image) -> np.ndarray | None:
@@ -264,7 +290,9 @@ class ClassifierNode(Node):
         return frame
 
     def _on_calibrated(self, msg) -> None:
-        if msg.contacts and msg.contacts[0].confidence >= MIN_CONFIDENCE:
+        # one calibrated press: the event's centroid; several (calibration_max_touches > 1):
+        # the event spans them, its image centroid stands
+        if len(msg.contacts) == 1 and msg.contacts[0].confidence >= MIN_CONFIDENCE:
             c = msg.contacts[0].centroid
             self._calibrated[self._stamp_ns(msg)] = (c.x, c.y)
             while len(self._calibrated) > 50:

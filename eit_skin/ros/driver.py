@@ -1,8 +1,10 @@
 """``eit_driver``: raw EIT frames of one skin patch from a board, the simulator or a recording.
 
-Publishes ``eit_skin_msgs/EitFrame`` on ``<namespace>/<layer>/frames`` (sensor-data QoS),
-one topic per layer, stamped with the acquisition time, and ``/diagnostics`` (names:
-:mod:`eit_skin.ros.topics`).
+Publishes ``eit_skin_msgs/EitFrame`` on ``<namespace>/<layer>/frames`` (reliable, bounded
+depth: :mod:`eit_skin.ros.qos`), one topic per layer, stamped with the acquisition time, and
+``/diagnostics`` (names: :mod:`eit_skin.ros.topics`) with its lifecycle state. A lifecycle
+node by default that configures and activates itself (``managed``, ``autostart``:
+:class:`DriverNode`); ``ros2 lifecycle set <ns>/eit_driver deactivate`` stops its frames.
 
 Sources, chosen by parameters:
 
@@ -19,10 +21,12 @@ from __future__ import annotations
 
 import math
 import sys
+import traceback
 
 import rclpy
 import rclpy.time
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -42,26 +46,127 @@ from eit_skin.hardware.sources import (
 )
 from eit_skin.io.mcap import McapFrameWriter
 from eit_skin.patch.loading import load_patch
+from eit_skin.patch.model import PatchError
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
-    declare_read_only,
+    LiveParameters,
+    declare_parameters,
     diagnostic_status,
     run_node,
 )
-from eit_skin.ros.parameters import DRIVER
+from eit_skin.ros.parameters import DRIVER, WRITABLE
 from eit_skin.ros.qos import OVERRIDABLE, RAW_FRAMES
-from eit_skin.ros.topics import patch_topics
+from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.faults import parse_faults
 
 
-class DriverNode(Node):
-    """Thin adapter: parameters -> a frame source -> EitFrame messages."""
+class DriverNode(LifecycleNodeMixin, Node):
+    """Thin adapter: parameters -> a frame source -> EitFrame messages; a lifecycle node.
+
+    States (``managed``, the default, as the ouster-ros and realsense-ros drivers):
+    *unconfigured* (nothing open); *configure*: load the patch, open the board (its reader
+    thread starts, retrying an absent port) or set up the simulator or recording, publish the
+    static transform; *activate*: publish frames; *deactivate*: stop publishing (a board's
+    frames are read and dropped, its port stays open; the simulator's script pauses);
+    *cleanup* / *shutdown*: close the port and the recording. ``autostart`` (default true)
+    configures and activates at construction, so the node behaves like a plain one unless a
+    lifecycle manager is wanted. ``managed:=false``: no lifecycle services at all, the same
+    configure and activate at construction. ``/diagnostics`` report the lifecycle state from
+    construction on.
+    """
 
     def __init__(self, **kwargs) -> None:
-        super().__init__("eit_driver", **kwargs)
-        p = declare_read_only(self, DRIVER)
+        Node.__init__(self, "eit_driver", **kwargs)
+        self.params = p = declare_parameters(self, DRIVER, "eit_driver")
+        self.managed = bool(p["managed"])
+        LifecycleNodeMixin.__init__(self, enable_communication_interface=self.managed)
+        self.diagnostics = self.create_publisher(
+            DiagnosticArray, DIAGNOSTICS, 10, qos_overriding_options=OVERRIDABLE
+        )
+        self.diagnostics_timer = self.create_timer(
+            float(p["diagnostics_period_s"]), self._publish_diagnostics
+        )
+        self.live = LiveParameters(self, WRITABLE["eit_driver"], self._apply_parameters)
+        self.patch = None
+        self.source = None
+        self.recorder: McapFrameWriter | None = None
+        self.factories: dict[str, LayerFrameFactory] = {}
+        self.frame_publishers: dict[str, object] = {}
+        self.joint_states = None
+        self.static_tf = None
+        self.acquire_timer = None
+        self.active = False
+        self.frames_held = 0  # frames read from a board while inactive (not published)
+        self.hardware_id = str(p["port"]) or ("replay" if p["replay_path"] else "simulator")
+        self.waits_for = 0
+        self.configure_error: Exception | None = None
+        self._constructed = False
+        if not self.managed or p["autostart"]:
+            self.trigger_configure()
+            if self.configure_error is not None:
+                raise self.configure_error  # a bad configuration: refuse to start (see main)
+            self.trigger_activate()
+        self._constructed = True
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load the patch, open the board or set up the simulator or replay (not publishing)."""
+        self.configure_error = None
+        try:
+            self._configure()
+        except (PatchError, FileNotFoundError, KeyError, ValueError, OSError) as error:
+            self._release()
+            self.configure_error = error
+            if self._constructed:  # a manager's request: say why it failed
+                self.get_logger().error(f"configure failed: {error}")
+            return TransitionCallbackReturn.FAILURE
+        except Exception as error:  # rclpy would swallow it without a word
+            self._release()
+            self.configure_error = error
+            self.get_logger().error(f"configure failed: {traceback.format_exc()}")
+            return TransitionCallbackReturn.ERROR
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Publish frames from now on (the simulator's or replay's steps run again)."""
+        self.active = True
+        if self.acquire_timer is not None:
+            self.acquire_timer.reset()
+        self.get_logger().info(f"active: publishing {', '.join(self.factories)}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop publishing; a board's port stays open, the simulator's script pauses."""
+        self.active = False
+        if self.acquire_timer is not None:
+            self.acquire_timer.cancel()
+        self.get_logger().info("inactive: not publishing")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close the port and the recording, forget the patch."""
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close everything (from any state)."""
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """An error in a transition: close everything and go back to unconfigured."""
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    @property
+    def lifecycle_state(self) -> str:
+        """``unconfigured``, ``inactive``, ``active`` or ``finalized`` (or a transition)."""
+        return str(self._state_machine.current_state[1])
+
+    def _configure(self) -> None:
+        p = self.params
         path = config_path(str(p["patch_config"]))
-        self.patch = load_patch(path)  # PatchError: refuse to start (see main)
+        self.patch = load_patch(path)  # PatchError: refuse to configure
         frame_id = str(p["frame_id"]) or self.patch.frame_id
         port, replay = str(p["port"]), str(p["replay_path"])
         if p["layer"]:
@@ -90,17 +195,16 @@ class DriverNode(Node):
         }
         #: recordings hold absolute topic names (the node's namespace resolved)
         self.record_topics = patch_topics(self.patch, self.get_namespace())
-        self.diagnostics = self.create_publisher(
-            DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
-        )
         # thread-safe, and flushed at least every 0.5 s: a killed driver leaves a readable file
         self.recorder = McapFrameWriter(p["record_path"]) if p["record_path"] else None
-        self.hardware_id = port or ("replay" if replay else "simulator")
         self.waits_for = int(p["wait_for_subscribers"])
+        self.frames_held = 0
 
         if replay:
             self.source = ReplaySource(replay, list(self.factories), bool(p["replay_realtime"]))
-            self.create_timer(0.001, lambda: self._when_subscribed(self.source.tick))
+            self.acquire_timer = self.create_timer(
+                0.001, lambda: self._when_subscribed(self.source.tick), autostart=False
+            )
         elif port:
             (layer,) = layers
             self.source = board_source(
@@ -110,15 +214,15 @@ class DriverNode(Node):
         else:
             self.source = self._simulated_source(p)
             self.joint_name = str(p["sim_joint_name"])
-            self.joint_states = None
             if self.source.simulator.scenario.posture is not None:
                 self.joint_states = self.create_publisher(
                     JointState, topics.joint_states, 10, qos_overriding_options=OVERRIDABLE
                 )
-            self.create_timer(
-                1.0 / float(p["rate_hz"]), lambda: self._when_subscribed(self._simulate)
+            self.acquire_timer = self.create_timer(
+                1.0 / float(p["rate_hz"]),
+                lambda: self._when_subscribed(self._simulate),
+                autostart=False,
             )
-        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         mount = self.patch.mount
         pose = p["tf_pose"] if p["tf_pose"] is not None else [*mount.xyz, *mount.rpy]
         self.static_tf = (
@@ -134,6 +238,34 @@ class DriverNode(Node):
             f"patch {self.patch.name!r} ({path}), layers {list(self.factories)}, "
             f"source {self.hardware_id}, frame_id {frame_id!r}"
         )
+
+    def _release(self) -> None:
+        """Close the port and the recording, drop the frames' publishers and timers.
+
+        Idempotent; the serial reader thread is joined first.
+        """
+        self.active = False
+        if isinstance(self.source, BOARD_SOURCES):
+            self.source.stop()
+        self.source = None
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+        if self.acquire_timer is not None:
+            self.destroy_timer(self.acquire_timer)
+            self.acquire_timer = None
+        for publisher in [*self.frame_publishers.values(), self.joint_states, self.static_tf]:
+            if publisher is not None:
+                self.destroy_publisher(publisher)
+        self.frame_publishers, self.joint_states, self.static_tf = {}, None, None
+        self.factories = {}
+
+    def _apply_parameters(self, values: dict[str, object]) -> None:
+        """Writable parameters set while running (the diagnostics period)."""
+        if "diagnostics_period_s" in values:
+            self.diagnostics_timer.timer_period_ns = round(
+                float(values["diagnostics_period_s"]) * 1e9
+            )
 
     def _publish_static_transform(self, parent: str, child: str, pose: list[float]):
         """``parent -> child`` on /tf_static, latched like tf2_ros's static broadcaster.
@@ -207,7 +339,10 @@ class DriverNode(Node):
         return self.get_clock().now().nanoseconds
 
     def publish(self, record: FrameRecord) -> None:
-        """Publish one frame (callable from the serial reader thread)."""
+        """Publish one frame while active (callable from the serial reader thread)."""
+        if not self.active:
+            self.frames_held += 1  # a board read while inactive: its port stays open
+            return
         self.frame_publishers[record.layer].publish(record.to_msg())
         if self.recorder is not None:
             self.recorder.write(
@@ -215,28 +350,45 @@ class DriverNode(Node):
             )
 
     def _publish_diagnostics(self) -> None:
-        status: SourceStatus = self.source.status()
-        if self.waits_for and not isinstance(self.source, BOARD_SOURCES):
-            # holding the script until a subscriber listens is normal, not a fault
-            topics = ", ".join(
-                self.resolve_topic_name(p.topic) for p in self.frame_publishers.values()
-            )
-            status = SourceStatus(
-                0,
-                f"waiting for {self.waits_for} subscriber(s) on {topics}",
-                {**status.values, "waiting_for_subscribers": str(self.waits_for)},
-            )
+        state = self.lifecycle_state
+        values = {"lifecycle_state": state, "managed": str(self.managed).lower()}
+        if self.source is None:
+            status = SourceStatus(0, f"{state}: no source open (lifecycle)", values)
+        else:
+            status = self.source.status()
+            status = SourceStatus(status.level, status.message, {**values, **status.values})
+            if not self.active:
+                # a paused simulator or replay is no fault; a board's port state still counts
+                board = isinstance(self.source, BOARD_SOURCES)
+                status = SourceStatus(
+                    status.level if board else 0,
+                    f"{state}: not publishing (lifecycle)"
+                    + (f"; board: {status.message}" if board else ""),
+                    {**status.values, "frames_held_inactive": str(self.frames_held)},
+                )
+            elif self.waits_for and not isinstance(self.source, BOARD_SOURCES):
+                # holding the script until a subscriber listens is normal, not a fault
+                topics = ", ".join(
+                    self.resolve_topic_name(p.topic) for p in self.frame_publishers.values()
+                )
+                status = SourceStatus(
+                    0,
+                    f"waiting for {self.waits_for} subscriber(s) on {topics}",
+                    {**status.values, "waiting_for_subscribers": str(self.waits_for)},
+                )
         # one call site per severity: rclpy refuses a severity change at one call site
         if status.level > 1:
             self.get_logger().error(status.message, throttle_duration_sec=10.0)
         elif status.level == 1:
             self.get_logger().warning(status.message, throttle_duration_sec=10.0)
+        layers = ", ".join(self.factories) or str(self.params["layer"])
+        name = self.get_fully_qualified_name() + (f": {layers}" if layers else "")
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [
             diagnostic_status(
                 status.level,
-                f"{self.get_fully_qualified_name()}: {', '.join(self.factories)}",
+                name,
                 status.message,
                 self.hardware_id,
                 status.values,
@@ -246,10 +398,7 @@ class DriverNode(Node):
 
     def close_resources(self) -> None:
         """Stop the serial reader thread and close the recording (idempotent)."""
-        if isinstance(self.source, BOARD_SOURCES):
-            self.source.stop()
-        if self.recorder is not None:
-            self.recorder.close()
+        self._release()
 
     def destroy_node(self) -> None:
         self.close_resources()

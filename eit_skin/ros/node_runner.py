@@ -1,4 +1,4 @@
-"""What every eit_skin node does the same way: read-only parameters, diagnostics, main()."""
+"""What every eit_skin node does the same way: parameters, diagnostics, main()."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
@@ -25,17 +25,33 @@ from rclpy.task import Future
 
 from eit_skin.patch.model import PatchError
 from eit_skin.ros.exit_timer import exit_after
-from eit_skin.ros.parameters import UNSET_DOUBLES, ParameterTable
+from eit_skin.ros.parameters import UNSET_DOUBLES, WRITABLE, ParameterTable
+from eit_skin.touch.settings import Setting
+
+READ_ONLY_NOTE = " [read-only: read once at start]"
+"""End of a read-only parameter's description (``ros2 param describe``)."""
+WRITABLE_NOTE = " [writable while running: takes effect on the next frame]"
+"""End of a writable parameter's description."""
 
 
-def declare_read_only(node: Node, table: ParameterTable) -> dict[str, object]:
-    """Declare every parameter with a descriptor (read once at start) and return the values.
+def declare_parameters(node: Node, table: ParameterTable, executable: str) -> dict[str, object]:
+    """Declare every parameter with a descriptor and return the values.
 
-    A parameter whose default is :data:`~eit_skin.ros.parameters.UNSET_DOUBLES` is a double
-    array that stays unset (value None) unless given.
+    The parameters of ``WRITABLE[executable]`` (:data:`~eit_skin.ros.parameters.WRITABLE`)
+    may be set while the node runs (:class:`LiveParameters` checks and applies them); the
+    others are read-only. ``ros2 param describe`` says which, after the meaning, and shows a
+    writable one's bounds as its constraints. A parameter whose default is
+    :data:`~eit_skin.ros.parameters.UNSET_DOUBLES` is a double array that stays unset (value
+    None) unless given.
     """
+    writable = WRITABLE[executable]
     for name, default, description in table:
-        descriptor = ParameterDescriptor(description=description, read_only=True)
+        live = writable.get(name)
+        descriptor = ParameterDescriptor(
+            description=description + (WRITABLE_NOTE if live else READ_ONLY_NOTE),
+            read_only=live is None,
+            additional_constraints=live.bounds_text() if live else "",
+        )
         if default is UNSET_DOUBLES:
             default = Parameter.Type.DOUBLE_ARRAY
         node.declare_parameter(name, default, descriptor)
@@ -46,6 +62,59 @@ def declare_read_only(node: Node, table: ParameterTable) -> dict[str, object]:
         except ParameterUninitializedException:
             values[name] = None
     return values
+
+
+class LiveParameters:
+    """The writable parameters of a node: a new value is checked, then handed to the node.
+
+    A value outside its bounds (or one ``check`` refuses) is refused as a whole request with
+    the reason (``ros2 param set`` prints it); read-only parameters are refused by rclpy.
+    Accepted values go to ``apply`` after rclpy stored them, before the next callback of the
+    node runs (its next frame).
+
+    Args:
+        node: the node, its parameters declared (:func:`declare_parameters`).
+        writable: parameter name -> its bounds (``WRITABLE[executable]``).
+        apply: called with the changed writable parameters (name -> value).
+        check: optional, called with every writable value after the change (name -> value);
+            raises ValueError with the reason to refuse it.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        writable: Mapping[str, Setting],
+        apply: Callable[[dict[str, object]], None],
+        check: Callable[[dict[str, object]], None] | None = None,
+    ) -> None:
+        self.node = node
+        self.writable = writable
+        self.apply = apply
+        self.check = check
+        node.add_on_set_parameters_callback(self._validate)
+        node.add_post_set_parameters_callback(self._changed)
+
+    def values(self) -> dict[str, object]:
+        """Every writable parameter's current value."""
+        return {name: self.node.get_parameter(name).value for name in self.writable}
+
+    def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
+        changed = {p.name: p.value for p in parameters if p.name in self.writable}
+        try:
+            for name, value in changed.items():
+                self.writable[name].check(value)
+            if changed and self.check is not None:
+                self.check({**self.values(), **changed})
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    def _changed(self, parameters: list[Parameter]) -> None:
+        changed = {p.name: p.value for p in parameters if p.name in self.writable}
+        if changed:
+            self.apply(changed)
+            text = ", ".join(f"{name} = {value}" for name, value in changed.items())
+            self.node.get_logger().info(f"parameters set: {text}")
 
 
 def diagnostic_status(

@@ -14,7 +14,7 @@ import re
 import sys
 from pathlib import Path
 
-from eit_skin.ros.parameters import NODE_PARAMETERS, ParameterTable, format_default
+from eit_skin.ros.parameters import NODE_PARAMETERS, WRITABLE, format_default
 
 DOCS_PAGE = Path(__file__).resolve().parents[2] / "docs" / "nodes.md"
 """docs/nodes.md of the checkout."""
@@ -22,13 +22,19 @@ DOCS_PAGE = Path(__file__).resolve().parents[2] / "docs" / "nodes.md"
 _BLOCK = re.compile(r"(<!-- parameters: (\w+) -->\n)(.*?)(<!-- end parameters -->)", re.DOTALL)
 
 
-def parameter_table(table: ParameterTable) -> str:
-    """A Markdown table: parameter, type, default, meaning (one row per descriptor)."""
-    rows = ["| parameter | type | default | meaning |", "|---|---|---|---|"]
-    for name, default, description in table:
+def parameter_table(executable: str) -> str:
+    """A Markdown table of a node's parameters, one row per descriptor.
+
+    Columns: name, type, default, live (writable while running with its bounds, or
+    read-only), meaning.
+    """
+    writable = WRITABLE[executable]
+    rows = ["| parameter | type | default | live | meaning |", "|---|---|---|---|---|"]
+    for name, default, description in NODE_PARAMETERS[executable]:
         kind = "double[]" if isinstance(default, (list, tuple)) else type(default).__name__
         meaning = description.replace("|", "\\|")
-        rows.append(f"| `{name}` | {kind} | `{format_default(default)}` | {meaning} |")
+        live = f"writable {writable[name].bounds_text()}" if name in writable else "read-only"
+        rows.append(f"| `{name}` | {kind} | `{format_default(default)}` | {live} | {meaning} |")
     return "\n".join(rows) + "\n"
 
 
@@ -45,7 +51,7 @@ def render(text: str) -> str:
         if executable not in NODE_PARAMETERS:
             raise ValueError(f"docs/nodes.md: no node {executable!r} (known: {NODE_PARAMETERS})")
         seen.add(executable)
-        return match.group(1) + parameter_table(NODE_PARAMETERS[executable]) + match.group(4)
+        return match.group(1) + parameter_table(executable) + match.group(4)
 
     rendered = _BLOCK.sub(block, text)
     missing = sorted(set(NODE_PARAMETERS) - seen)

@@ -1,7 +1,7 @@
 """Every parameter of the three nodes: name, default (which fixes the type) and meaning.
 
 One home for them, free of rclpy: the nodes declare them with these descriptors
-(:func:`eit_skin.ros.node_runner.declare_read_only`), the launch files offer each one as a
+(:func:`eit_skin.ros.node_runner.declare_parameters`), the launch files offer each one as a
 launch argument (:func:`launch_overrides`), and ``python -m eit_skin.ros.param_docs`` writes
 the parameter tables of docs/nodes.md from them (a test fails when the page is stale). The
 classifier's settings are declared once, in :class:`~eit_skin.touch.config.ClassifierConfig`,
@@ -18,8 +18,9 @@ from eit_skin.pipeline.processor import (
     FAULT_WINDOW_FRAMES,
 )
 from eit_skin.sim.faults import fault_help
+from eit_skin.touch.classifier import LIVE_SETTINGS
 from eit_skin.touch.config import ClassifierConfig
-from eit_skin.touch.settings import declared_settings
+from eit_skin.touch.settings import Setting, declared_settings
 
 #: (name, default, description) of a node parameter; the default fixes its type.
 ParameterTable = list[tuple[str, object, str]]
@@ -35,6 +36,19 @@ PATCH_CONFIG = (
 
 DRIVER: ParameterTable = [
     PATCH_CONFIG,
+    (
+        "managed",
+        True,
+        "a lifecycle node (configure: load the patch, open the board or set up the simulator; "
+        "activate: publish; deactivate: stop publishing, keep the port; cleanup, shutdown: "
+        "close it); false: a plain node that acquires and publishes from start to stop",
+    ),
+    (
+        "autostart",
+        True,
+        "managed only: configure and activate at start (as without a lifecycle manager); "
+        "false: wait unconfigured for the manager's transitions",
+    ),
     (
         "layer",
         "",
@@ -147,6 +161,12 @@ RECONSTRUCTION: ParameterTable = [
         "empty: off. Refused at start unless the patch has the model's layer, unchanged "
         "(content hash) and with the model's channel count",
     ),
+    (
+        "calibration_max_touches",
+        1,
+        "calibrated contacts per frame at most (several touches at once); > 1 needs a "
+        "calibration made with `eit-skin calibrate --max-touches`",
+    ),
 ]
 
 CLASSIFIER: ParameterTable = [
@@ -177,6 +197,42 @@ CLASSIFIER: ParameterTable = [
     ),
     ("diagnostics_period_s", 1.0, "period of /diagnostics messages, s"),
 ]
+
+
+def _non_negative(table: ParameterTable, name: str, *, zero: bool) -> Setting:
+    """Parameter ``name`` of ``table`` as a :class:`Setting` bounded ``>= 0`` (``> 0``).
+
+    ``zero``: whether 0 is allowed. The bounds check a value set while the node runs.
+    """
+    _, default, description = next(row for row in table if row[0] == name)
+    return Setting(name, default, description, low=0.0, low_open=not zero)
+
+
+WRITABLE: dict[str, dict[str, Setting]] = {
+    "eit_driver": {
+        "diagnostics_period_s": _non_negative(DRIVER, "diagnostics_period_s", zero=False)
+    },
+    "eit_reconstruction": {
+        s.name: s
+        for s in (
+            _non_negative(RECONSTRUCTION, "pressure_range_pa", zero=False),
+            _non_negative(RECONSTRUCTION, "stretch_range", zero=False),
+            _non_negative(RECONSTRUCTION, "drift_time_constant_s", zero=True),
+            _non_negative(RECONSTRUCTION, "contact_k", zero=False),
+            _non_negative(RECONSTRUCTION, "frame_timeout_s", zero=True),
+            _non_negative(RECONSTRUCTION, "diagnostics_period_s", zero=False),
+        )
+    },
+    "eit_classifier": {
+        **{s.name: s for s in declared_settings(ClassifierConfig) if s.name in LIVE_SETTINGS},
+        "image_timeout_s": _non_negative(CLASSIFIER, "image_timeout_s", zero=True),
+        "diagnostics_period_s": _non_negative(CLASSIFIER, "diagnostics_period_s", zero=False),
+    },
+}
+"""Executable -> its parameters that may change while it runs (``ros2 param set``), with the
+bounds a new value is checked against; they take effect on the next frame. Every other
+parameter is read-only: read once at start (the patch, the matrices, what calibration learnt
+and the buffers depend on it). Why each is safe: docs/nodes.md, "Live tuning"."""
 
 NODE_PARAMETERS: dict[str, ParameterTable] = {
     "eit_driver": DRIVER,

@@ -7,6 +7,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +69,29 @@ def stop_node(process: subprocess.Popen, timeout: float = 10.0) -> int:
             process.kill()
             process.wait()
     return process.returncode
+
+
+def lifecycle_set(node: str, transition: str, timeout_s: float = 120.0) -> str:
+    """``ros2 lifecycle set NODE TRANSITION`` with the real CLI; its output.
+
+    The venv's ros2cli (../shared/ros2-tools) has no ros2lifecycle: there the same request
+    goes to the same service with ``ros2 service call NODE/change_state`` (what
+    ``ros2 lifecycle set`` sends).
+
+    Raises:
+        AssertionError: the CLI failed or the node refused the transition, with the output.
+    """
+    ros2 = str(BIN / "ros2")
+    if "lifecycle" in {e.name for e in entry_points(group="ros2cli.command")}:
+        command, ok = [ros2, "lifecycle", "set", node, transition], "Transitioning successful"
+    else:
+        request = f"{{transition: {{label: {transition}}}}}"
+        service = [f"{node}/change_state", "lifecycle_msgs/srv/ChangeState", request]
+        command, ok = [ros2, "service", "call", *service], "success=True"
+    result = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0 and ok in output, output
+    return output
 
 
 class Probe:

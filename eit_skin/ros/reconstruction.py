@@ -13,11 +13,14 @@ offline), then publishes, per layer with quantity Q (``pressure`` or ``stretch``
 * ``Q/skin_marker``: a coloured TRIANGLE_LIST of the layer on the patch's 3-D surface (one
   topic per layer: stacked layers would hide each other in one display);
 * ``calibrated_contacts`` (only with the ``calibration`` parameter): per imaged frame of the
-  calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with one press
-  located by the press calibration when the processor calls the frame touched, else empty
+  calibrated layer an ``eit_skin_msgs/ContactArray`` stamped like the frame, with the presses
+  (at most ``calibration_max_touches``, one confidence each) located by the press calibration
+  when the processor calls the frame touched, else empty (also while the sheet has changed:
+  a warning says so)
   (:mod:`eit_skin.calibration.online`, docs/press-calibration.md);
 * ``/diagnostics``: rate, latency, dropped and rejected frames, reference age, faults,
-  values left out (beyond the full scale, one-frame jumps).
+  values left out (beyond the full scale, one-frame jumps), a changed sheet of the
+  calibrated layer (WARN, :mod:`eit_skin.calibration.online`).
 """
 
 from __future__ import annotations
@@ -56,12 +59,13 @@ from eit_skin.pipeline.reference import JointAngleHistory, PostureReferences, Po
 from eit_skin.resources import config_path
 from eit_skin.ros.node_runner import (
     REJECT_LOG_PERIOD_S,
+    LiveParameters,
     ThrottledLog,
-    declare_read_only,
+    declare_parameters,
     diagnostic_status,
     run_node,
 )
-from eit_skin.ros.parameters import RECONSTRUCTION
+from eit_skin.ros.parameters import RECONSTRUCTION, WRITABLE
 from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
 from eit_skin.ros.surface_fields import place_on_surface
 from eit_skin.ros.topics import patch_topics
@@ -108,12 +112,16 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("eit_reconstruction", **kwargs)
-        p = declare_read_only(self, RECONSTRUCTION)
+        p = declare_parameters(self, RECONSTRUCTION, "eit_reconstruction")
         path = config_path(str(p["patch_config"]))
         self.patch = load_patch(path)
         # refused (CalibrationError, a ValueError) before any matrix is built
         self.calibration = (
-            OnlineLocaliser.load(str(p["calibration"]), self.patch) if p["calibration"] else None
+            OnlineLocaliser.load(
+                str(p["calibration"]), self.patch, int(p["calibration_max_touches"])
+            )
+            if p["calibration"]
+            else None
         )
         cache = str(p["cache_dir"]) or default_cache_dir()
         joint = str(p["joint_name"])
@@ -136,7 +144,7 @@ class ReconstructionNode(Node):
                 joint = joint or posture.joint
             quantity = layer.material.quantity
             topic = topics.layers[layer.name]
-            top = p["pressure_range_pa"] if quantity == "pressure" else p["stretch_range"]
+            top = p[_range_parameter(quantity)]
             self.layers[layer.name] = LayerState(
                 layer=layer,
                 imager=imager,
@@ -206,7 +214,10 @@ class ReconstructionNode(Node):
         self.diagnostics = self.create_publisher(
             DiagnosticArray, topics.diagnostics, 10, qos_overriding_options=OVERRIDABLE
         )
-        self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
+        self.diagnostics_timer = self.create_timer(
+            float(p["diagnostics_period_s"]), self._publish_diagnostics
+        )
+        self.live = LiveParameters(self, WRITABLE["eit_reconstruction"], self._apply_parameters)
         if float(p["marker_period_s"]) > 0:
             self.marker_pubs = {
                 name: self.create_publisher(
@@ -223,6 +234,25 @@ class ReconstructionNode(Node):
             f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}; "
             f"per-frame step {compiled_step_status()}"
         )
+
+    # ------------------------------------------------------------------ live tuning
+    def _apply_parameters(self, values: dict[str, object]) -> None:
+        """Writable parameters set while running: in effect from the next frame."""
+        for state in self.layers.values():
+            top = values.get(_range_parameter(state.quantity))
+            if top is not None:
+                state.scale = ColourScale.named(0.0, float(top))
+            tracker = state.processor.tracker  # read on every frame
+            if "drift_time_constant_s" in values:
+                tracker.drift_time_constant_s = float(values["drift_time_constant_s"])
+            if "contact_k" in values:
+                tracker.contact_k = float(values["contact_k"])
+        if "frame_timeout_s" in values:
+            self.frame_timeout_s = float(values["frame_timeout_s"])
+        if "diagnostics_period_s" in values:
+            self.diagnostics_timer.timer_period_ns = round(
+                float(values["diagnostics_period_s"]) * 1e9
+            )
 
     # ------------------------------------------------------------------ frames
     def _reject(self, state: LayerState, reason: str) -> None:
@@ -322,14 +352,18 @@ class ReconstructionNode(Node):
             state.colour_pub.publish(colour)
 
     def _publish_calibrated(self, header, frame, flags, out, processor: LayerProcessor) -> None:
-        """The frame's calibrated contact (none if untouched), before its images."""
+        """The frame's calibrated contacts (none if untouched), before its images."""
         Contact, ContactArray = _contact_types()
         array = ContactArray(header=header, patch=self.patch.name)
-        contact = self.calibration.contact(frame, flags, out, processor)
-        if contact is not None:
+        changed = self.calibration.sheet_changed
+        contacts = self.calibration.contacts(frame, flags, out, processor)
+        if self.calibration.sheet_changed is not None and changed is None:
+            self.get_logger().warning(self.calibration.sheet_changed)
+        peak = float(np.nanmax(out.image, initial=-np.inf))
+        for contact in contacts:
             item = Contact(layer=self.calibration.layer_name, area_m2=0.0, mean=float("nan"))
             item.centroid.x, item.centroid.y = (float(v) for v in contact.xy_m)
-            item.peak = float(np.nanmax(out.image, initial=-np.inf))
+            item.peak = peak
             item.depth_m = contact.depth_m
             item.confidence = contact.confidence
             place_on_surface([item], self.patch.placement, [contact.xy_m])
@@ -450,6 +484,12 @@ class ReconstructionNode(Node):
                 level, text = 1, report.check.summary
             elif faulty.size:
                 level, text = 1, f"imaging without faulty electrodes {values['faulty_electrodes']}"
+            elif (
+                self.calibration is not None
+                and self.calibration.layer_name == name
+                and (self.calibration.sheet_changed is not None)
+            ):
+                level, text = 1, self.calibration.sheet_changed
             elif implausible > self._implausible_reported.get(name, 0):
                 level, text = (
                     1,
@@ -474,6 +514,11 @@ class ReconstructionNode(Node):
                 )
             )
         self.diagnostics.publish(msg)
+
+
+def _range_parameter(quantity: str) -> str:
+    """The parameter with the top of a layer's colour scale, by its quantity."""
+    return "pressure_range_pa" if quantity == "pressure" else "stretch_range"
 
 
 def _stamped(header: Header, msg: EitFrameFields) -> Header:

@@ -5,7 +5,9 @@ fit), ``scripts`` (built-in scripts; a scenario by name or path), ``random_scene
 hard scenes), ``scenario_yaml`` (scenario files),
 ``adc`` (the board's gain, 12-bit ADC and averaging), ``faults`` (hardware faults), ``drift``
 (background drift), ``recording`` (simulated frames and recordings), ``simulator``
-(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration).
+(:class:`SkinSimulator`), ``press_session`` (simulated labelled presses for press calibration),
+``multi_press`` (presses at several places at once), ``hand_session`` (a simulated
+hand-guided calibration: a finger on printed targets).
 The phantom set of every accuracy figure is ``eit_skin.fem.phantoms``.
 """
 

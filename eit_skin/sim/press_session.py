@@ -12,11 +12,16 @@ force follows Hertz's law ``F ~ depth^1.5``, scaled so the depth range spans ``f
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from eit_skin.calibration.session import PressSession
+from eit_skin.fem.device_fit import DeviceFit, fit_device
+from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch.geometry import points_in_polygon
 from eit_skin.patch.model import Patch
+from eit_skin.patch.protocol import build_protocol
 from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import EDGE_MARGIN_M, Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
@@ -105,3 +110,40 @@ def simulate_press_session(
     return PressSession(
         baselines[0], frames, xy, depth, baselines, f"simulated:{patch.name}/{name}/seed={seed}"
     )
+
+
+def calibrated_to_device(
+    patch: Patch, layer: str, reference: np.ndarray
+) -> tuple[Patch, DeviceFit]:
+    """``patch`` with ``layer``'s contact impedance fitted to a device's unloaded frame.
+
+    The fit (:func:`~eit_skin.fem.device_fit.fit_device`, gain 1) gives a conductance that
+    absorbs the device's unknown gain; only ``z sigma`` shapes relative changes. The layer keeps
+    its own sheet conductance (the simulator's ADC works in volts) and takes the contact
+    impedance with the fitted ``z sigma``: the frames of the device at the gain that
+    conductance implies (``fit-device``'s "gain at the patch's conductance").
+
+    Args:
+        patch: the skin patch.
+        layer: the layer the device measures.
+        reference: ``[M]`` the device's unloaded frame (protocol order, any gain).
+
+    Returns:
+        The calibrated patch and the fit (residual, bad contacts).
+    """
+    chosen = patch.layer(layer)
+    protocol = build_protocol(chosen.protocol, chosen.n_electrodes)
+    fit = fit_device(
+        build_mesh(chosen),
+        protocol,
+        np.asarray(reference, float),
+        chosen.material.sheet_conductance_s,
+        chosen.contact_impedance_ohm_m,
+        chosen.current_a,
+        magnitude=protocol.magnitude,
+    )
+    ratio = fit.sheet_conductance_s / chosen.material.sheet_conductance_s
+    z = [float(v) * ratio for v in fit.contact_impedance_ohm_m]
+    fitted = replace(chosen, contact_impedance_ohm_m=tuple(z) if fit.per_electrode else z[0])
+    layers = tuple(fitted if lay.name == layer else lay for lay in patch.layers)
+    return replace(patch, layers=layers), fit

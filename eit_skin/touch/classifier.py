@@ -35,6 +35,7 @@ from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import Contact, PooledDetector
 from eit_skin.touch.events import TouchEvent, TouchFeatures
 from eit_skin.touch.frame_evidence import FrameEvidence
+from eit_skin.touch.settings import setting_values
 from eit_skin.touch.start_gates import StartGates
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -63,6 +64,54 @@ def classifier_layers(patch: Patch) -> tuple[Layer, Layer | None]:
             f"no layer measures pressure ({quantities}); the touch classifier needs one",
         )
     return first["pressure"], first.get("stretch")
+
+
+LIVE_SETTINGS = frozenset(
+    {
+        # segmentation and START thresholds, read on every frame
+        "k_high",
+        "k_low",
+        "split_fraction",
+        "artifact_fraction",
+        "min_pixels",
+        "k_detect",
+        "learn_fraction",
+        "start_frames",
+        "confirm_s",
+        "start_roughness",
+        # tracking and event assembly
+        "gate_pixels",
+        "track_missed_frames",
+        "end_hold_s",
+        "update_period_s",
+        "count_frames",
+        "strong_fraction",
+        "travel_fraction",
+        "closing_window",
+        # labels and confidence
+        "rub_travel",
+        "pinch_closing",
+        "pinch_trend",
+        "pinch_narrowing",
+        "pinch_shape_z",
+        "grab_spread",
+        "grab_major",
+        "stretch_ratio_rub",
+        "confidence_gain",
+        "fault_radius",
+        "fault_confidence",
+        # how fast the baseline and noise maps follow, the sheet-wide offset
+        "baseline_tau_s",
+        "noise_tau_s",
+        "offset_margin",
+        "offset_deadband",
+    }
+)
+"""Settings :meth:`TouchClassifier.update_settings` may change while a stream runs: each is
+read on every frame, or gives a value recomputed there. The others shape what calibration
+learnt or what the classifier was built with (``calibration_s``, ``average_frames``,
+``noise_window``, ``noise_floor_fraction``, ``detect_kernel``, ``lookback_frames``, the
+fingertip's ``blob_fraction`` and ``finger_radius_m``) and stay as they started."""
 
 
 class TouchClassifier:
@@ -201,6 +250,41 @@ class TouchClassifier:
         """Whether ``(x, y)`` m is within ``fault_radius`` finger spreads of a faulty electrode."""
         return self.events.near_fault(point_m)
 
+    # ------------------------------------------------------------------ live settings
+    def update_settings(self, config: ClassifierConfig) -> None:
+        """Classify with ``config`` from the next frame on, keeping the running state.
+
+        The baseline, noise maps, START detectors' noise, the touch going on and its track
+        stay; every value derived from a setting (the tracking gate in metres, the offset
+        margin in pixels, the detectors' thresholds) is recomputed here, in one place.
+
+        Raises:
+            ValueError: ``config`` changes a setting outside :data:`LIVE_SETTINGS`, naming it.
+        """
+        old, new = setting_values(self.config), setting_values(config)
+        fixed = sorted(n for n in new if new[n] != old[n] and n not in LIVE_SETTINGS)
+        if fixed:
+            raise ValueError(
+                f"{', '.join(fixed)}: cannot change while classifying (fixed by calibration or "
+                "at construction)"
+            )
+        self.config = self.gates.config = self.events.config = config
+        self.events.tracker.gate_m = config.gate_pixels * self.pixel_m
+        self.events.tracker.max_missed = config.track_missed_frames
+        for detector in (self.gates.detector, self.gates.start_detector):
+            if detector is not None:
+                detector.k = float(config.k_detect)
+                detector.learn_fraction = float(config.learn_fraction)
+        if self.background is not None:
+            self.background.config = config
+            self.background.segmenter.config = config.segmentation
+            self.background.margin_px = self._offset_margin_px()
+
+    def _offset_margin_px(self) -> int:
+        """``offset_margin`` single-finger spreads in pixels (median spread of the sheet)."""
+        unit_px = float(np.median(self.contact_spread_m)) / self.pixel_m
+        return max(round(self.config.offset_margin * unit_px), 0)
+
     @property
     def calibrated(self) -> bool:
         """Whether the first ``calibration_s`` of no-touch frames are in (background learnt)."""
@@ -240,7 +324,6 @@ class TouchClassifier:
         stack = np.stack(self._calibration)
         n_avg = min(self.config.average_frames, len(stack))
         self._recent = list(stack[len(stack) - n_avg + 1 :]) if n_avg > 1 else []
-        unit_px = float(np.median(self.contact_spread_m)) / self.pixel_m
         self.background = bg = Background(
             self.x,
             self.y,
@@ -249,7 +332,7 @@ class TouchClassifier:
             np.stack(self._calibration_stretch) if self._calibration_stretch else None,
             pressure_noise_pa=self.pressure_noise_pa,
             stretch_noise=self.stretch_noise,
-            margin_px=max(round(self.config.offset_margin * unit_px), 0),
+            margin_px=self._offset_margin_px(),
         )
         self.pressure_noise_pa, self.stretch_noise = bg.pressure_noise_pa, bg.stretch_noise
         if len(self._calibration_volts) >= 3:

@@ -172,3 +172,18 @@ def settings_from(cls: type, values: Mapping[str, Any]) -> Any:
             if dataclasses.is_dataclass(nested):
                 kwargs[f.name] = settings_from(type(nested), values)
     return cls(**kwargs)
+
+
+def setting_values(config: Any) -> dict[str, Any]:
+    """Setting name -> value of a config instance, nested configs flattened.
+
+    The inverse of :func:`settings_from`.
+    """
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            values.update(setting_values(value))
+        else:
+            values[f.name] = value
+    return values

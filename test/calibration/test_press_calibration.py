@@ -116,7 +116,7 @@ def test_online_localiser_binds_to_its_layer_and_ignores_missing_channels(
     with pytest.raises(CalibrationError, match=r"src: key 'n_measurements'"):
         online.check_measurements(fitted.n_measurements - 1)
     k = 110
-    whole = online.locate(session.frames[k], session.references[k])
+    (whole,) = online.locate(session.frames[k], session.references[k])
     np.testing.assert_allclose(
         whole.xy_m, fitted.locate(session.frames[k], session.references[k]).xy[0]
     )
@@ -125,7 +125,7 @@ def test_online_localiser_binds_to_its_layer_and_ignores_missing_channels(
     frame[3] = np.nan
     excluded = np.zeros(frame.size, dtype=bool)
     excluded[40:44] = True
-    holed = online.locate(frame, session.references[k], excluded)
+    (holed,) = online.locate(frame, session.references[k], excluded)
     assert np.isfinite(holed.xy_m).all() and np.isfinite(holed.depth_m)
     assert 0.0 <= holed.confidence <= 1.0
 
@@ -168,7 +168,8 @@ def test_contacts_near_an_excluded_electrode_lose_confidence(fitted, session, el
     def contact(k: int, t: float):
         frame = with_loose_electrode(k)
         images[k] = processor.step(frame, t)
-        return online.contact(frame, None, images[k], processor), frame
+        found = online.contacts(frame, None, images[k], processor)
+        return (found[0] if found else None), frame
 
     first, _ = contact(near, 0.1)  # before the first check: nothing excluded yet
     assert processor.faulty_electrodes.size == 0 and first is not None
@@ -177,7 +178,7 @@ def test_contacts_near_an_excluded_electrode_lose_confidence(fitted, session, el
     assert processor.faulty_electrodes.tolist() == [e]
     for k, nearby in ((near, True), (far, False)):
         got, frame = contact(k, 1.2)
-        alone = online.locate(frame, processor.reference(), loose)
+        (alone,) = online.locate(frame, processor.reference(), loose)
         np.testing.assert_array_equal(got.xy_m, alone.xy_m)
         # the image of this frame (reconstructed without e's channels) puts the press near
         # its true place; the localiser may not (here: 33 mm off, confidence 0 already)

@@ -15,9 +15,11 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import TouchEvent
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -26,8 +28,8 @@ from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.node_graph import ROBOT_PATCHES
-from eit_skin.ros.probe import Probe
-from eit_skin.ros.topics import patch_topics
+from eit_skin.ros.probe import Probe, lifecycle_set, stamp_ns
+from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 
 ROS2 = Path(sys.executable).with_name("ros2")
 pytestmark = [
@@ -142,21 +144,48 @@ def flowing(probe: Probe, topics: list[str], process: subprocess.Popen, log: Pat
 
 def test_patch_launch_images_touches_and_ctrl_c(tmp_path: Path, env: dict[str, str]) -> None:
     """The face patch with rviz:=true where rviz2 is not installed: the skin runs anyway; a
-    params file reaches the nodes (here the driver's parent frame on /tf_static)."""
+    params file reaches the nodes (here the driver's parent frame on /tf_static); with
+    autostart:=false the driver waits for its lifecycle manager (here the ros2 CLI):
+    configure and activate start the images, deactivate stops them."""
     log = tmp_path / "launch.log"
     params = tmp_path / "params.yaml"
     params.write_text("/**/eit_driver:\n  ros__parameters:\n    tf_parent_frame: from_params\n")
     probe = Probe("launch_probe")
     topics = watch(probe, ["face"])
-    args = ["skin_patch.launch.py", "patch:=face", "rviz:=true", f"params_file:={params}"]
+    probe.subscribe(DiagnosticArray, DIAGNOSTICS, 50)
+    args = [
+        "skin_patch.launch.py",
+        "patch:=face",
+        "rviz:=true",
+        f"params_file:={params}",
+        "autostart:=false",
+        "diagnostics_period_s:=0.2",
+    ]
     process = launch(args, env, log)
     try:
+        for transition in ("configure", "activate"):  # waits for the driver's service
+            lifecycle_set("/face/eit_driver", transition, STARTUP_S)
         flowing(probe, topics, process, log)
         assert process.poll() is None
         probe.subscribe(TFMessage, "/tf_static", LATCHED)
         assert probe.spin_until(lambda: bool(probe.messages["/tf_static"]), STARTUP_S)
         (transform,) = probe.messages["/tf_static"][0][1].transforms
         assert transform.header.frame_id == "from_params"
+
+        lifecycle_set("/face/eit_driver", "deactivate")
+        deactivated_ns = time.time_ns()
+
+        def inactive() -> int:
+            return sum(
+                kv.key == "lifecycle_state" and kv.value == "inactive"
+                for _, msg in probe.messages[DIAGNOSTICS]
+                for status in msg.status
+                for kv in status.values
+            )
+
+        assert probe.spin_until(lambda: inactive() >= 3, STARTUP_S)
+        images = [m for t in topics if t.endswith("/image") for _, m in probe.messages[t]]
+        assert max(stamp_ns(m) for m in images) < deactivated_ns  # no frame, no image
     finally:
         output = interrupt(process, log)
         probe.close()

@@ -2,8 +2,8 @@
 
 The matrix under test is the shipped default: GREIT-trained (``method: greit``) at the shipped
 noise figure. Resolution is compared with pyEIT JAC in
-``bench/standing/bench_reconstruction.py`` (same meshes and data); here it is bounded by the
-value pyEIT reaches there (0.248).
+``bench/standing/bench_reconstruction.py`` (same
+meshes and data); here it is bounded by the value pyEIT reaches there (0.248).
 
 Inverse mesh: chosen the way docs/reconstruction.md chooses the coarsest sufficient model.
 Candidate inverse meshes (edge 0.16 R .. 0.11 R, the range of the bench's inverse-mesh sweep)
@@ -27,7 +27,8 @@ from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.inverse.figures_of_merit import figures_of_merit
-from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
+from eit_skin.inverse.greit import greit_matrix
+from eit_skin.inverse.one_step import imaging_jacobian
 from test.support.reconstruction_phantoms import (
     CONTACT_OHM_M,
     RADIUS_M,
@@ -76,9 +77,7 @@ def coarsest_sufficient_model(data):
     for edge in CANDIDATE_EDGES:
         model = ForwardModel(disk_mesh(R, h_m=edge * R), data.fine.protocol, CONTACT_OHM_M)
         s = Setup(data.fine, model, ImageGrid.build(model.mesh, 64), data.v0)
-        rm = ReconstructionMatrix.greit(
-            imaging_jacobian(model), model.mesh, noise_figure=NOISE_FIGURE
-        )
+        rm = greit_matrix(imaging_jacobian(model), model.mesh, noise_figure=NOISE_FIGURE)
         pe = max(f.position_error_m for f in merits(s, rm, centres, frames))
         if pe <= SELECTION_MARGIN * PE_TARGET * R:
             return s, rm
@@ -201,7 +200,7 @@ def test_all_electrodes_on_one_half():
         protocol,
         1e-4,
     )
-    rm = ReconstructionMatrix.greit(
+    rm = greit_matrix(
         imaging_jacobian(fine, inverse_mesh=coarse.mesh), coarse.mesh, noise_figure=NOISE_FIGURE
     )
     sigma = np.ones(fine.mesh.n_triangles)

@@ -7,8 +7,8 @@ import pytest
 
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.inverse.dual_form import lambda_squared
-from eit_skin.inverse.greit import GreitModel, equivalent_radius, training_set
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.inverse.greit import GreitModel, equivalent_radius, greit_matrix, training_set
+from eit_skin.inverse.one_step import ReconstructionMatrix, linear_matrix
 
 pytestmark = pytest.mark.filterwarnings("error")
 R = 0.05
@@ -53,8 +53,8 @@ def test_desired_images_positive_centred_same_integral(mesh, training):
 
 def test_closed_form_and_reduced_channels(mesh, training):
     j = np.random.default_rng(0).normal(size=(40, mesh.n_triangles))
-    model = GreitModel.build(j, training)
-    rm = ReconstructionMatrix.greit(j, mesh, hyperparameter=0.2, model=model)
+    model = GreitModel.build(j, mesh, training)
+    rm = linear_matrix(model, hyperparameter=0.2)
     assert rm.method == "greit" and rm.model is model
     y = np.asarray(training.targets.T @ j.T).T  # [M, K]
     kk = y @ y.T
@@ -64,16 +64,14 @@ def test_closed_form_and_reduced_channels(mesh, training):
     excluded = np.zeros(40, dtype=bool)
     excluded[[3, 7, 30]] = True
     reduced = rm.without_channels(excluded)
-    direct = ReconstructionMatrix.greit(
-        j[~excluded], mesh, hyperparameter=0.2, model=GreitModel.build(j[~excluded], training)
-    )
+    direct = linear_matrix(GreitModel.build(j[~excluded], mesh, training), hyperparameter=0.2)
     np.testing.assert_allclose(reduced.matrix, direct.matrix, rtol=1e-8, atol=1e-12)
 
 
 def test_trained_matrix_is_deterministic_and_images_zero_change(mesh):
     j = np.random.default_rng(1).normal(size=(30, mesh.n_triangles))
-    a = ReconstructionMatrix.greit(j, mesh, noise_figure=0.13)
-    b = ReconstructionMatrix.greit(j, mesh, hyperparameter=a.hyperparameter)
+    a = greit_matrix(j, mesh, noise_figure=0.13)
+    b = greit_matrix(j, mesh, hyperparameter=a.hyperparameter)
     np.testing.assert_array_equal(a.matrix, b.matrix)
     ref = np.linspace(1.0, 2.0, 30)
     assert (a.reconstruct(ref, ref) == 0).all()

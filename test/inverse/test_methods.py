@@ -8,11 +8,12 @@ import pytest
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.inverse.dispatch import build_method, make_reconstructor
 from eit_skin.inverse.electrode_faults import FaultTolerantReconstructor
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
+from eit_skin.inverse.greit import greit_matrix
 from eit_skin.inverse.hyperparameter import noise_figure
-from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, METHODS
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE, DEFAULT_PRIOR, METHODS
 from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
-from eit_skin.inverse.priors import make_prior
 from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 pytestmark = pytest.mark.filterwarnings("error")
@@ -40,15 +41,20 @@ def built(s, mesh, jacobian):
 
 
 def test_each_method_is_what_its_own_constructor_builds(s, mesh, jacobian, built):
-    one = ReconstructionMatrix.from_jacobian(jacobian, mesh, "laplace", noise_figure=0.3)
+    one = ReconstructionMatrix.from_jacobian(
+        jacobian, mesh, DEFAULT_PRIOR, noise_figure=DEFAULT_NOISE_FIGURE["one_step"]
+    )
     np.testing.assert_array_equal(built["one_step"].matrix, one.matrix)
-    greit = ReconstructionMatrix.greit(jacobian, mesh, noise_figure=0.13)
+    greit = greit_matrix(jacobian, mesh, noise_figure=0.13)
     np.testing.assert_array_equal(built["greit"].matrix, greit.matrix)
     gn = built["gauss_newton"]
     assert isinstance(gn, GaussNewtonReconstructor)
     # h by the same noise-figure rule on the first linearised step (the one-step matrix)
-    assert gn.hyperparameter == one.hyperparameter == gn.linearised.hyperparameter
-    np.testing.assert_array_equal(gn.linearised.matrix, one.matrix)
+    first = ReconstructionMatrix.from_jacobian(
+        jacobian, mesh, DEFAULT_PRIOR, noise_figure=DEFAULT_NOISE_FIGURE["gauss_newton"]
+    )
+    assert gn.hyperparameter == first.hyperparameter == gn.linearised.hyperparameter
+    np.testing.assert_array_equal(gn.linearised.matrix, first.matrix)
     for method, rec in built.items():
         assert rec.method == method and rec.mesh is mesh
         assert (rec.n_channels, rec.n_elements) == (s.coarse.n_measurements, mesh.n_triangles)
@@ -84,7 +90,7 @@ def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
     gn = built["gauss_newton"]
     gn.reset()
     solver = GaussNewtonSolver(
-        s.coarse, 1.0, make_prior("laplace", mesh), gn.hyperparameter, parameter_mesh=mesh
+        s.coarse, 1.0, gn.solver.prior, gn.hyperparameter, parameter_mesh=mesh
     )
     frames = np.stack([phantom(s, [(-0.4 * R, 0.1 * R, 0.2 * R, c)]) for c in (5.0, 0.3)])
     x = gn.reconstruct(frames, s.v0)
@@ -93,13 +99,15 @@ def test_gauss_newton_reconstructor_is_its_solver_per_frame(s, mesh, built):
         res = solver.difference(
             frame,
             s.v0,
-            max_iterations=gn.max_iterations,
             warm=warm,
-            step_tolerance=gn.step_tolerance,
-            relinearise=gn.relinearise,
+            options=FitOptions(
+                max_iterations=gn.max_iterations,
+                step_tolerance=gn.step_tolerance,
+                relinearise=gn.relinearise,
+            ),
         )
         np.testing.assert_allclose(got, res.parameter_change.astype(np.float32), rtol=1e-6)
-        cold = solver.difference(frame, s.v0, max_iterations=gn.max_iterations)
+        cold = solver.difference(frame, s.v0, options=FitOptions(max_iterations=gn.max_iterations))
         assert cold.iterations == gn.max_iterations  # a large contrast takes every step
         k = np.argmax(np.abs(cold.parameter_change))
         assert abs(got[k] / cold.parameter_change[k] - 1.0) < 0.05
@@ -128,10 +136,8 @@ def test_arguments_a_method_does_not_take_are_refused(s, jacobian, mesh):
     with pytest.raises(ValueError, match="expected \\[208, "):
         make_reconstructor("gauss_newton", s.coarse, mesh=mesh, jacobian=jacobian[:10])
     # a linear method needs no forward model once the Jacobian is known
-    assert (
-        make_reconstructor("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1).mesh
-        is mesh
-    )
+    one_step = make_reconstructor("one_step", jacobian=jacobian, mesh=mesh, hyperparameter=0.1)
+    assert one_step.mesh is mesh
 
 
 def test_the_old_name_build_method_still_works_and_says_it_is_deprecated(mesh, jacobian):

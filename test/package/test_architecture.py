@@ -294,11 +294,10 @@ def test_tests_are_laid_out_like_the_package():
 #: documented kernel, at most 25 functions with more than 5 parameters (self and cls not
 #: counted, keyword-only ones counted).
 MODULE_LINES, FUNCTION_LINES, PARAMETERS = 600, 80, 5
-#: Modules over the limit that the one-frame-path work (issue 36 item 1) is splitting;
-#: remove a name when its module is under the limit.
-MODULES_BEING_SPLIT = {"eit_skin/inverse/one_step.py", "eit_skin/inverse/gauss_newton.py"}
+#: Modules over the limit being split (none since the one-frame-path work, issue 36 item 1).
+MODULES_BEING_SPLIT: set[str] = set()
 #: Today's counts: the tests fail when a change adds to them (lower them as they fall).
-MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 15, 49
+MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 13, 40
 
 
 def code_sizes() -> dict[str, list[str]]:

@@ -8,7 +8,8 @@ import pytest
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.frames import FLAG_SATURATED
-from eit_skin.inverse.gauss_newton import GaussNewtonReconstructor, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton import FitOptions, GaussNewtonSolver, WarmStart
+from eit_skin.inverse.gauss_newton_method import GaussNewtonReconstructor
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
@@ -81,13 +82,15 @@ def test_gauss_newton_layer_images_what_its_solver_gives(gn_layer, data, tmp_pat
                 frame,
                 reference,
                 excluded,
-                max_iterations=3,
                 warm=warm,
-                step_tolerance=rec.step_tolerance,
-                relinearise=rec.relinearise,
+                options=FitOptions(
+                    max_iterations=3, step_tolerance=rec.step_tolerance, relinearise=rec.relinearise
+                ),
             )
             np.testing.assert_allclose(values, res.parameter_change, rtol=1e-5, atol=1e-6)
-            cold = solver.difference(frame, reference, excluded, max_iterations=3)
+            cold = solver.difference(
+                frame, reference, excluded, options=FitOptions(max_iterations=3)
+            )
             assert abs(values.max() / cold.parameter_change.max() - 1) < 0.05
         # the press is found, more conductive, and the larger contrast reads larger
         k = np.argmax(got, axis=1)

@@ -1,5 +1,6 @@
-"""Frame -> image in one product (issue 16 item 2): the folded pixel matrix gives the images
-of the element chain (reconstruct, unit, clip, gridding, mask) to float32 rounding."""
+"""Frame -> relative change -> image: the merged single-frame product (reciprocal channels
+share a column) gives the element chain to float32 rounding; frames with left-out channels
+take the reduced matrices; a layer's frame images are the node's numbers."""
 
 from __future__ import annotations
 
@@ -10,11 +11,11 @@ import numpy as np
 import pytest
 
 from eit_skin.fem.forward import ForwardModel
-from eit_skin.fem.image_grid import ImageGrid, PixelMatrix, proportional_columns
-from eit_skin.inverse.one_step import ReconstructionMatrix
+from eit_skin.fem.image_grid import proportional_columns
+from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
 from eit_skin.patch.loading import load_patch
-from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.pipeline.builder import LayerImager
+from eit_skin.pipeline.frame_plan import FrameChecks, reference_step
 from test.support.patch_copies import small_disc_patch
 from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
@@ -31,46 +32,45 @@ def matrix(s):
     return ReconstructionMatrix.build(s.coarse, prior="laplace", hyperparameter=0.03)
 
 
-def _chain(matrix, grid, frames, v0, scale, floor, excluded=None):
-    """The element chain in float64: reconstruct, unit, clip, then gridding."""
-    x = np.asarray(matrix.reconstruct(frames, v0, excluded), dtype=np.float64)
-    return grid.to_image(np.maximum(scale * x, floor))
+def _chain(matrix, frame, v0, excluded=None):
+    """The float64 element chain: the (reduced) matrix times the relative change."""
+    keep = np.ones(matrix.n_channels, bool) if excluded is None else ~excluded
+    keep &= np.isfinite(frame)
+    rm = matrix if keep.all() else matrix.without_channels(~keep)
+    d = relative_difference(frame, v0)[keep]
+    return np.asarray(rm.matrix, dtype=np.float64) @ d
 
 
-def test_images_are_the_element_chain_in_one_product(s, matrix):
-    frames = np.stack(
-        [
-            phantom(s, [(0.3 * R, -0.2 * R, 0.15 * R, 3.0)]),
-            phantom(s, [(-0.5 * R, 0.1 * R, 0.2 * R, 0.05)]),  # deep enough to be clipped
-        ]
-    )
-    scale, floor = 2.0e4, 2.0e4 * RELATIVE_CHANGE_RANGE[0]
-    got = matrix.images(frames, s.v0, s.grid, scale, floor)
-    want = _chain(matrix, s.grid, frames, s.v0, scale, floor)
-    assert got.dtype == np.float32 and got.shape == (2, *s.grid.shape)
-    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
-    np.testing.assert_array_equal(np.isnan(got[0]), ~s.grid.inside)
-    peak = np.nanmax(np.abs(want))
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * peak)
-    assert np.nanmin(got[1]) == np.float32(floor)  # the clip acts in the product path
-    single = matrix.images(frames[0], s.v0, s.grid, scale, floor)
-    np.testing.assert_allclose(single, got[0], rtol=0, atol=1e-6 * peak)
-    # only the elements under pixels are kept
-    pixels = matrix.pixel_matrix(s.grid, scale, floor)
-    assert pixels.matrix.shape[0] == np.unique(pixels.elements).size <= s.coarse.mesh.n_triangles
+def test_one_frame_is_the_merged_product_of_the_element_chain(s, matrix):
+    v = phantom(s, [(0.3 * R, -0.2 * R, 0.15 * R, 3.0)])
+    got = matrix.reconstruct(v, s.v0)
+    want = _chain(matrix, v, s.v0)
+    assert got.dtype == np.float32 and got.shape == (matrix.n_elements,)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.abs(want).max())
+    np.testing.assert_array_equal(got, matrix.merged.solve_frame(v, s.v0))
+    drifted = s.v0 * 1.001  # the reference is read every frame, never cached
+    assert matrix.reconstruct(v, drifted).tobytes() != got.tobytes()
 
 
-def test_frames_with_left_out_channels_take_the_element_path(s, matrix):
+def test_frames_with_left_out_channels_take_the_reduced_matrices(s, matrix):
+    """NaN and Inf values and excluded channels: no warning, the reduced matrix's values."""
     v = phantom(s, [(0.1 * R, 0.4 * R, 0.15 * R, 2.0)])
-    nan = v.copy()
-    nan[[5, 77]] = np.nan
     dead = s.coarse.protocol.touching([4])
-    for frame, excluded in ((nan, None), (v, dead)):
-        got = matrix.images(frame, s.v0, s.grid, 3.0, excluded=excluded)
-        want = _chain(matrix, s.grid, frame, s.v0, 3.0, -np.inf, excluded)
-        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7 * np.nanmax(np.abs(want)))
-    # and they differ from the all-channel image (the channels really were left out)
-    assert np.nanmax(np.abs(matrix.images(v, s.v0, s.grid, 3.0) - got)) > 0
+    cases = [(v, dead)]
+    for value in (np.nan, np.inf, -np.inf):
+        bad = v.copy()
+        bad[[3, 100]] = value
+        cases.append((bad, None))
+    for frame, excluded in cases:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            got = matrix.reconstruct(frame, s.v0, excluded)
+        want = _chain(matrix, frame, s.v0, excluded)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.abs(want).max())
+        assert np.abs(matrix.reconstruct(v, s.v0) - got).max() > 0  # really left out
+    np.testing.assert_array_equal(  # the next finite frame is imaged as before them
+        matrix.reconstruct(v, s.v0), matrix.merged.solve_frame(v, s.v0)
+    )
 
 
 def test_proportional_columns_are_merged_and_others_kept():
@@ -95,71 +95,27 @@ def test_proportional_columns_are_merged_and_others_kept():
 
 
 def test_reciprocal_channels_share_a_column_weighted_or_not(s, matrix):
-    """The adjacent protocol's 208 channels are 104 reciprocal pairs: the folded matrix has
+    """The adjacent protocol's 208 channels are 104 reciprocal pairs: the merged matrix has
     104 columns, also with per-channel noise weights (weights then differ within a pair)."""
     m = matrix.n_channels
     weighted = matrix.with_channel_scale(np.random.default_rng(0).uniform(0.5, 3.0, m))
     measurements = s.coarse.protocol.measurements
     for rm in (matrix, weighted):
-        pixels = rm.pixel_matrix(s.grid, 2.0)
-        assert pixels.matrix.shape[1] == m // 2
-        first, second = pixels.inputs
+        merged = rm.merged
+        p = merged.matrix.shape[1]
+        assert p == m // 2
+        first, second = merged.index[:p], merged.index[p:]
         # each pair is a reciprocal measurement: drive and measure pairs swapped
         a, b = measurements[first], measurements[second]
         assert np.array_equal(a[:, 0], b[:, 1]) and np.array_equal(a[:, 1], b[:, 0])
-    w = pixels.weights[1]
+    w = merged.weights[p:]
     assert w.min() < 0.5 and w.max() > 2.0  # the noise weights moved into the merge
     v = phantom(s, [(0.2 * R, 0.3 * R, 0.15 * R, 2.0)])
-    want = _chain(weighted, s.grid, v, s.v0, 2.0, -np.inf)
-    got = weighted.images(v, s.v0, s.grid, 2.0)
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.nanmax(np.abs(want)))
-
-
-def test_single_frame_buffers_recover_from_bad_frames_and_write_into_out(s, matrix):
-    """NaN and Inf frames take the element path without a warning; the next finite frame is
-    imaged as before them (no NaN left in the buffers); a changed reference is used."""
-    v = phantom(s, [(-0.3 * R, 0.1 * R, 0.15 * R, 3.0)])
-    scale, floor, ceiling = 2.0e4, -1.8e4, 1.0e5
-    before = matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling)
-    for value in (np.nan, np.inf, -np.inf):
-        bad = v.copy()
-        bad[[3, 100]] = value
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            got = matrix.images(bad, s.v0, s.grid, scale, floor, ceiling=ceiling)
-        want = np.maximum(_chain(matrix, s.grid, bad, s.v0, scale, floor), floor)
-        want = np.minimum(want, ceiling)
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.nanmax(np.abs(want)))
-        assert np.nanmax(np.abs(got - before)) > 0  # channels 3 and 100 were left out
-        again = matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling)
-        np.testing.assert_array_equal(again, before)
-    out = np.empty(s.grid.shape, dtype=np.float32)
-    assert matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling, out=out) is out
-    np.testing.assert_array_equal(out, before)
-    plan = matrix.frame_imager(s.grid, scale, floor, ceiling)
-    with plan._lock:  # buffers busy (another thread): the allocating path, same image
-        assert plan.image(v, s.v0) is None
-        busy = matrix.images(v, s.v0, s.grid, scale, floor, ceiling=ceiling)
-    np.testing.assert_allclose(busy, before, rtol=0, atol=1e-6 * np.nanmax(np.abs(before)))
-    other = ImageGrid.build(s.coarse.mesh, 16)  # alternating grids keep their imagers
-    small = matrix.images(v, s.v0, other, scale)
-    assert matrix.frame_imager(s.grid, scale, floor, ceiling) is plan
-    assert matrix.frame_imager(other, scale) is matrix.frame_imager(other, scale)
-    np.testing.assert_array_equal(matrix.images(v, s.v0, other, scale), small)
-    drifted = s.v0 * 1.001
-    want = _chain(matrix, s.grid, v, drifted, scale, floor)
-    got = matrix.images(v, drifted, s.grid, scale, floor)
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.nanmax(np.abs(want)))
-    assert matrix.images(v, s.v0, s.grid, scale, floor).tobytes() != got.tobytes()
-
-
-def test_pixel_matrix_checks_its_input(s, matrix):
-    with pytest.raises(ValueError, match="element_matrix"):
-        PixelMatrix.build(s.grid, np.ones((3, 208)))
-    with pytest.raises(ValueError, match="scale"):
-        PixelMatrix.build(s.grid, matrix.matrix, 0.0)
-    other = ImageGrid.build(s.coarse.mesh, 16)
-    assert matrix.pixel_matrix(other).shape == other.shape  # cached per grid
+    want = _chain(weighted, v, s.v0)
+    got = weighted.reconstruct(v, s.v0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * np.abs(want).max())
+    with pytest.raises(ValueError, match="every channel"):
+        _ = matrix.without_channels(s.coarse.protocol.touching([2])).merged
 
 
 SMALL = small_disc_patch(
@@ -182,9 +138,14 @@ def test_layer_frame_images_match_the_three_steps(tmp_path):
     imager.use_reference(v0)
     steps = imager.images(imager.physical(imager.relative_change(v, v0)))
     got = imager.frame_images(v, v0)
-    np.testing.assert_array_equal(np.isnan(got), np.isnan(steps))
-    np.testing.assert_allclose(got, steps, rtol=0, atol=1e-5 * np.nanmax(np.abs(steps)))
+    np.testing.assert_array_equal(got, steps)  # bit for bit
+    plan = imager.frame_plan  # and the node's planned step
+    np.testing.assert_array_equal(got, reference_step(plan, v, v0, FrameChecks()).image)
     assert np.nanmax(got) > 0.2 * layer.material.pressure_scale_pa  # a real press
+    batch = imager.frame_images(np.stack([v, v0]), v0)
+    np.testing.assert_array_equal(
+        batch, imager.images(imager.physical(imager.relative_change(np.stack([v, v0]), v0)))
+    )
     # a stretch layer (non-linear unit) runs the three steps themselves
     stretch = replace(
         imager,

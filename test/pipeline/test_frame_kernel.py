@@ -1,6 +1,6 @@
-"""The compiled per-frame step (FrameKernel) against the numpy step it replaces: the same
-images, contact decisions and drifting references, bit for bit, and the numpy path wherever
-the kernel does not apply."""
+"""The processor's planned step, compiled and in numpy: the same images, contact decisions
+and drifting references, bit for bit, and the general path wherever no plan applies (the
+parity over every method, prior and exclusion case: test_frame_plan_parity.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from eit_skin.fem.forward import ForwardModel
 from eit_skin.frames import FLAG_SATURATED
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.pipeline.frame_kernel import FrameKernel, compiled_step_status
+from eit_skin.pipeline.frame_kernel import compiled_step, compiled_step_status, frame_step
+from eit_skin.pipeline.frame_plan import FrameChecks, reference_step
 from eit_skin.pipeline.processor import LayerProcessor
 from test.support.patch_copies import small_disc_patch
 
@@ -146,11 +147,15 @@ def test_a_reference_channel_under_the_floor_is_normalised_by_it_as_in_numpy(tmp
     frames = stream(imager, layer)
     reference = frames[:20].mean(axis=0)
     reference[5] = 1e-4 * np.sqrt(np.mean(reference**2))  # far below the floor
-    kernel = FrameKernel(imager)
-    assert kernel.usable()
+    plan = imager.frame_plan
+    assert plan is not None
     noise = np.full(imager.mesh.n_triangles, 1e-3)
     for frame in frames[20::40]:
-        values, image, base, touching = kernel.step(frame, reference, noise, 5.0, 0.25)
+        checks = FrameChecks(noise, 5.0, 0.25)
+        values, image, base, touching = compiled_step(plan, frame, reference, checks)
+        numpy_step = reference_step(plan, frame, reference, checks)
+        for a, b in zip(numpy_step, (values, image, base, touching), strict=True):
+            np.testing.assert_array_equal(a, b)
         expected = imager.relative_change(frame, reference)
         np.testing.assert_array_equal(values, expected)
         np.testing.assert_array_equal(image, imager.physical_image(expected))
@@ -160,17 +165,17 @@ def test_a_reference_channel_under_the_floor_is_normalised_by_it_as_in_numpy(tmp
         np.testing.assert_array_equal(base, reference if touching else moved)
 
 
-def test_a_stretch_layer_and_a_disabled_kernel_image_with_numpy_only(tmp_path):
+def test_a_stretch_layer_has_no_plan_and_a_disabled_kernel_is_the_numpy_step(tmp_path):
     stretch = layer_of(
         tmp_path,
         material="{quantity: stretch, volume_resistivity: 7.6, thickness: 0.0005, "
         "gauge_factor: 5.0}",
     )
-    imager = LayerImager.build(stretch, cache_dir=None)
-    assert FrameKernel(imager).kernel is None
+    assert LayerImager.build(stretch, cache_dir=None).frame_plan is None
     pressure = LayerImager.build(layer_of(tmp_path), cache_dir=None)
-    assert FrameKernel(pressure, enabled=False).kernel is None
-    assert FrameKernel(pressure).kernel is not None
+    assert pressure.frame_plan is not None
+    assert frame_step(compiled=False) is reference_step
+    assert frame_step() is compiled_step
 
 
 def test_the_environment_switch_keeps_a_process_on_the_numpy_path():

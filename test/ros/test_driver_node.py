@@ -17,6 +17,7 @@ from eit_skin.hardware.wire import DeviceFrame, PatternId
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
+from eit_skin.ros.node_runner import READ_ONLY_NOTE
 from eit_skin.ros.probe import BIN, Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.faults import FAULT_KINDS, Fault, parse_faults
@@ -273,7 +274,9 @@ def test_every_fault_in_the_faults_help_parses(probe: Probe, tmp_path) -> None:
     assert {kind for kind, _ in examples} == set(FAULT_KINDS), descriptor.description
     for kind, index in examples:
         assert parse_faults(f"{kind}:{index}") == (Fault(kind, int(index)),)
-    listed = descriptor.description.rsplit(" ", 1)[-1]  # the comma-separated example itself
+    assert descriptor.read_only and descriptor.description.endswith(READ_ONLY_NOTE)
+    meaning = descriptor.description.removesuffix(READ_ONLY_NOTE)
+    listed = meaning.rsplit(" ", 1)[-1]  # the comma-separated example itself
     assert {f.kind for f in parse_faults(listed)} == set(FAULT_KINDS)
 
 
