@@ -104,7 +104,7 @@ $(VENV)/.stamp-chromium: | $(BIN)/python
 lint: setup
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
-# The standing benchmarks (bench/standing/reconstruction.md), one after another, as modules of the bench package.
+# The standing benchmarks (bench/REPORT.md), one after another, as modules of the bench package.
 bench: setup
 	@for script in bench/standing/bench_*.py; do module=$${script%.py}; module=$${module//\//.}; \
 	  echo "== $$module"; $(BIN)/python -m $$module; done

@@ -1,2 +1,2 @@
 """Standing benchmarks: rerun for every report; each writes its result file beside it
-(bench/standing/reconstruction.md is their index)."""
+(bench/REPORT.md is their index)."""
