@@ -18,6 +18,11 @@ method; REPORT seeds only for the report (``--set report`` writes bench/hard_sce
 MEASURED IN SIMULATION ONLY.
 
     .venv/bin/python bench/bench_hard_scenes.py [--set report|tuning] [--patches arm face elbow]
+        [--methods patch greit one_step:laplace ... | all] [--no-learned]
+
+``--methods``: image the same simulated frames with each method (and prior) the patch may
+choose (:data:`METHOD_CHOICES`), one table row per patch and method, and every false event
+listed with the electrodes the pipeline named faulty around it.
 """
 
 from __future__ import annotations
