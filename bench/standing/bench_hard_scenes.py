@@ -19,6 +19,11 @@ MEASURED IN SIMULATION ONLY.
 
     .venv/bin/python -m bench.standing.bench_hard_scenes [--set report|tuning]
         [--patches arm face elbow]
+        [--methods patch greit one_step:laplace ... | all] [--no-learned]
+
+``--methods``: image the same simulated frames with each method (and prior) the patch may
+choose (:data:`METHOD_CHOICES`), one table row per patch and method, and every false event
+listed with the electrodes the pipeline named faulty around it.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import argparse
 import hashlib
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +41,9 @@ from bench.header import load_average, run_header
 from bench.standing import touch_learned
 from bench.standing.touch_scoring import balanced_accuracy, confusion, match, recalls, score
 from eit_skin.frames import flagged_as_nan
+from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.patch.loading import load_patch
-from eit_skin.patch.model import Patch
+from eit_skin.patch.model import METHODS, METHODS_WITH_PRIOR, PRIOR_KINDS, Patch, SolverSpec
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase
 from eit_skin.resources import config_path
@@ -60,6 +66,17 @@ LATENCY_TARGET_S = 0.100
 OVERRUN_S = 0.5
 DEGRADE_WINDOW_S = (5.0, 10.0)
 DEGRADE_NOISE = 10.0
+METHOD_CHOICES = (
+    "patch",
+    *(
+        f"{m}:{p}" if m in METHODS_WITH_PRIOR else m
+        for m in METHODS
+        for p in (PRIOR_KINDS if m in METHODS_WITH_PRIOR else ("",))
+    ),
+)
+"""``--methods`` values: ``patch`` (the patch's own solver), every method of
+:data:`~eit_skin.patch.model.METHODS` with each prior it takes; ``one_step:laplace`` is the
+package default (:class:`~eit_skin.patch.model.SolverSpec`)."""
 CACHE_VERSION = 5
 """Part of the cached scenes' key: 3 since the pipeline's fault check names noisy electrodes
 (the imaged frames and faulty sets of earlier versions are stale); 4 since the raw frames of
@@ -102,19 +119,52 @@ def _simulator(patch: Patch, scene: str, seed: int, seconds: float) -> SkinSimul
     return SkinSimulator(patch, scenario, RATE_HZ, seed=seed, drift=drift, adc=adc)
 
 
-def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, cache: Path) -> Run:
-    """One scene, simulated, imaged by LayerProcessor and cached."""
-    path = data / f"{patch.name}-{scene}-{seed}-{_key(patch, scene, seed, seconds)}.npz"
+def with_method(patch: Patch, method: str) -> Patch:
+    """``patch`` with every layer imaged by ``method`` (:data:`METHOD_CHOICES`).
+
+    ``"patch"`` keeps the patch's own solver; another name sets ``solver.method`` (and
+    ``solver.prior`` after a colon) with the method's default noise figure and no fixed
+    hyperparameter, as a user who writes only the method would; the image grid is kept.
+    """
+    if method == "patch":
+        return patch
+    name, _, prior = method.partition(":")
+    layers = []
+    for layer in patch.layers:
+        own = layer.solver
+        solver = replace(
+            own,
+            method=name,
+            prior=prior or SolverSpec.prior,
+            noise_figure=DEFAULT_NOISE_FIGURE[name],
+            hyperparameter=None,
+        )
+        if (
+            own.hyperparameter is None
+            and (own.noise_figure or DEFAULT_NOISE_FIGURE[own.method]) == (solver.noise_figure)
+            and (own.method, own.prior) == (solver.method, solver.prior)
+        ):
+            solver = own  # the patch's own solver already (elbow: one-step Laplace, NF 0.3)
+        layers.append(replace(layer, solver=solver))
+    if all(a is b for a, b in zip(patch.layers, layers, strict=True)):
+        return patch
+    return replace(patch, layers=tuple(layers))
+
+
+def _simulate_frames(patch: Patch, scene: str, seed: int, seconds: float, data: Path) -> dict:
+    """Raw frames of one scene (every classified layer), flags and truth; cached.
+
+    The degrading electrode's extra noise is added here, so every method images the same
+    frames. Keys: ``t``, ``frames/<layer>``, ``flags/<layer>``, ``truth`` (JSON).
+    """
+    path = data / f"{patch.name}-{scene}-{seed}-raw-{_key(patch, scene, seed, seconds)}.npz"
     if path.is_file():
         with np.load(path) as d:
-            stretch = d["stretch"] if d["stretch"].size else None
-            truth = json.loads(str(d["truth"]))
-            return Run(d["t"], d["pressure"], stretch, d["faulty"], truth, d["volts"])
+            return {k: d[k] for k in d.files}
     sim = _simulator(patch, scene, seed, seconds)
     rec = sim.run(duration_s=seconds)
-    pressure_layer, stretch_layer = classifier_layers(patch)
-    out, faulty, volts = {}, None, None
-    for layer in (pressure_layer, stretch_layer):
+    out = {"t": rec.t}
+    for layer in classifier_layers(patch):
         if layer is None:
             continue
         lr = rec.layers[layer.name]
@@ -129,37 +179,73 @@ def simulate(patch: Patch, scene: str, seed: int, seconds: float, data: Path, ca
             chans = protocol.touching([electrode])
             extra = rng.normal(size=frames.shape) * sigma * np.sqrt(DEGRADE_NOISE**2 - 1)
             frames[np.ix_(when, chans)] += extra[np.ix_(when, chans)]
+        out[f"frames/{layer.name}"] = frames
+        out[f"flags/{layer.name}"] = lr.flags
+    out["truth"] = np.array(
+        json.dumps(
+            [
+                {"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s + tr.settle_s}
+                for tr in rec.truth
+            ]
+        )
+    )
+    data.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **out)
+    return out
+
+
+def simulate(
+    patch: Patch,
+    scene: str,
+    seed: int,
+    seconds: float,
+    data: Path,
+    cache: Path,
+    method: str = "patch",
+) -> Run:
+    """One scene, simulated (once for every method), imaged by LayerProcessor; cached."""
+    imaged = with_method(patch, method)
+    path = data / f"{patch.name}-{scene}-{seed}-{_key(imaged, scene, seed, seconds)}.npz"
+    if path.is_file():
+        with np.load(path) as d:
+            stretch = d["stretch"] if d["stretch"].size else None
+            truth = json.loads(str(d["truth"]))
+            return Run(d["t"], d["pressure"], stretch, d["faulty"], truth, d["volts"])
+    raw = _simulate_frames(patch, scene, seed, seconds, data)
+    t = raw["t"]
+    pressure_layer, stretch_layer = classifier_layers(imaged)
+    out, faulty, volts = {}, None, None
+    for layer in (pressure_layer, stretch_layer):
+        if layer is None:
+            continue
+        frames, flags = raw[f"frames/{layer.name}"], raw[f"flags/{layer.name}"]
         imager = LayerImager.build(layer, cache_dir=cache)
         proc = LayerProcessor(imager, fault_check_phase=fault_check_phase(patch.name, layer.name))
         n_ref = proc.reference_frames
-        proc.set_reference(frames[:n_ref].mean(axis=0), float(rec.t[0]), frames[:n_ref])
-        images = np.full((len(rec.t), *imager.grid.shape), np.nan, dtype=np.float32)
-        bad = np.zeros((len(rec.t), layer.n_electrodes), dtype=bool)
-        for k in range(len(rec.t)):
-            res = proc.step(frames[k], float(rec.t[k]), lr.flags[k])
+        proc.set_reference(frames[:n_ref].mean(axis=0), float(t[0]), frames[:n_ref])
+        images = np.full((len(t), *imager.grid.shape), np.nan, dtype=np.float32)
+        bad = np.zeros((len(t), layer.n_electrodes), dtype=bool)
+        for k in range(len(t)):
+            res = proc.step(frames[k], float(t[k]), flags[k])
             if res is not None:
                 images[k] = res.image
             bad[k, proc.faulty_electrodes] = True
         out[layer.name] = images
         if layer is pressure_layer:
             faulty = bad
-            volts = flagged_as_nan(frames, lr.flags)  # as the nodes hand frames on
+            volts = flagged_as_nan(frames, flags)  # as the nodes hand frames on
     stretch = out[stretch_layer.name] if stretch_layer is not None else None
-    truth = [
-        {"label": tr.label, "t_start": tr.t_start_s, "t_end": tr.t_end_s + tr.settle_s}
-        for tr in rec.truth
-    ]
-    data.mkdir(parents=True, exist_ok=True)
+    truth = json.loads(str(raw["truth"]))
     np.savez(
         path,
-        t=rec.t,
+        t=t,
         pressure=out[pressure_layer.name],
         stretch=np.zeros(0) if stretch is None else stretch,
         faulty=faulty,
         truth=json.dumps(truth),
         volts=volts,
     )
-    return Run(rec.t, out[pressure_layer.name], stretch, faulty, truth, volts)
+    return Run(t, out[pressure_layer.name], stretch, faulty, truth, volts)
 
 
 def classify(
@@ -234,15 +320,20 @@ def evaluate(
     cache: Path,
     faults: bool = True,
     detector: str = "frames",
+    method: str = "patch",
+    faulty_at: dict | None = None,
 ):
-    """Per-scene rows and false events of one patch.
+    """Per-scene rows and false events of one patch imaged by ``method`` (:func:`with_method`).
+
+    ``faulty_at``: a dict that receives, per false event ``(scene, touch id)``, the
+    electrodes the pipeline named faulty from 1 s before it to its end (text).
 
     ``detector``: what STARTs a touch before its contacts, ``"frames"`` the pooled image and
     the raw frames' filter (as the node and ``eit-skin classify``), ``"image"`` the pooled
     image alone (the classifier before 2026-11-27).
     """
     patch = load_patch(config_path(patch_name))
-    layer, _ = classifier_layers(patch)
+    layer, _ = classifier_layers(with_method(patch, method))
     imager = LayerImager.build(layer, cache_dir=cache)
     geometry = contact_geometry(layer, cache)
     spread = geometry.spread_m
@@ -255,7 +346,7 @@ def evaluate(
     for scene in SCENES:
         rows, false, quiet = [], [], 0.0
         for seed in seeds:
-            run = simulate(patch, scene, seed, seconds, data, cache)
+            run = simulate(patch, scene, seed, seconds, data, cache, method)
             feats = {}
             events = classify(
                 run,
@@ -271,6 +362,14 @@ def evaluate(
                 contact,
             )
             r, f = score(events, run.truth)
+            if faulty_at is not None:
+                for e in f:
+                    when = (run.t >= e.t_start_s - 1.0) & (run.t <= e.t_end_s)
+                    named = np.flatnonzero(run.faulty[when].any(axis=0))
+                    first = [float(run.t[run.faulty[:, i]][0]) for i in named]
+                    faulty_at[(scene, e.touch_id)] = ", ".join(
+                        f"e{i} from {t:.2f} s" for i, t in zip(named, first, strict=True)
+                    )
             rows += r
             false += f
             quiet += no_touch_s(run, 0.5)
@@ -341,6 +440,19 @@ def scene_lines(per_scene: dict) -> list[str]:
     return lines
 
 
+def false_lines(name: str, method: str, per_scene: dict, faulty_at: dict) -> list[str]:
+    """One row per false event: where, when, what, and whether a fault was named meanwhile."""
+    lines = []
+    for scene, (_, false, _) in per_scene.items():
+        for e in false:
+            named = faulty_at.get((scene, e.touch_id), "")
+            lines.append(
+                f"| {name} | {method} | {scene} | {e.t_start_s:.2f}-{e.t_end_s:.2f} | {e.label} | "
+                f"{e.peak_pa / 1e3:.2f} | {e.n_contacts} | {named or '-'} |"
+            )
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--patches", nargs="+", default=["arm", "face", "elbow"])
@@ -353,6 +465,19 @@ def main() -> None:
         default="frames",
         help="early START from the pooled image and the raw frames' filter, or the image alone",
     )
+    parser.add_argument(
+        "--methods",
+        nargs="+",
+        choices=(*METHOD_CHOICES, "all"),
+        default=["patch"],
+        help="image the scenes with these methods too (all: every one of them)",
+    )
+    parser.add_argument(
+        "--no-learned",
+        dest="learned",
+        action="store_false",
+        help="skip the learned alternative (it simulates the tuning scenes too)",
+    )
     parser.add_argument("--data-dir", type=Path, default=Path("/tmp/eit_skin_hard_scenes"))
     parser.add_argument("--cache-dir", type=Path, default=Path("/tmp/eit_skin_classifier_cache"))
     parser.add_argument(
@@ -361,62 +486,81 @@ def main() -> None:
     args = parser.parse_args()
     if args.out is None and args.set == "report":
         args.out = Path(__file__).with_name("hard_scenes.md")
+    methods = list(METHOD_CHOICES) if "all" in args.methods else args.methods
     seeds = SEEDS[args.set]
     table = [
-        "| patch | touches | balanced accuracy | recall push / rub / pinch / grab | missed | "
-        "false events / min no-touch | events > touch + 0.5 s | START median / max (ms) | "
-        "within 100 ms |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| patch | method | touches | balanced accuracy | recall push / rub / pinch / grab | "
+        "missed | false events / min no-touch | events > touch + 0.5 s | START median / max "
+        "(ms) | within 100 ms |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    falses = [
+        "| patch | method | scene | event (s) | label | peak (kPa) | contacts | faulty named |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     load = load_average()
     details, held_out, train = [], {}, []
-    for name in args.patches:
-        t0 = time.time()
-        per_scene, held_out[name] = evaluate(
-            name,
-            seeds,
-            args.seconds,
-            args.data_dir,
-            args.cache_dir,
-            not args.no_faults,
-            args.detector,
-        )
-        if args.set == "report":  # the tuning scenes train the learned alternative
-            train += evaluate(
-                name,
-                SEEDS["tuning"],
-                args.seconds,
-                args.data_dir,
-                args.cache_dir,
-                not args.no_faults,
-                args.detector,
-            )[1]
-        s = summarise(name, per_scene)
-        rec = " / ".join(f"{v:.2f}" for v in s["recall"])
-        line = (
-            f"| {name} | {s['touches']} | {s['balanced']:.3f} | {rec} | {s['missed']} | "
-            f"{s['false_per_min']:.2f} ({s['false']}) | {s['overruns']} | "
-            f"{s['lat_median']:.0f} / {s['lat_max']:.0f} | {s['lat_within']:.0%} |"
-        )
-        print(line, f"({time.time() - t0:.0f} s)", flush=True)
-        table.append(line)
-        block = [
-            f"### {name}",
-            "",
-            "| scene | true labels | correct | predicted | false events | no-touch s |",
-            "|---|---|---|---|---|---|",
-            *scene_lines(per_scene),
-            "",
-            "| true \\ predicted | " + " | ".join(LABELS) + " | missed |",
-            "|---" * 6 + "|",
-            *(
-                f"| {lab} | " + " | ".join(str(v) for v in s["cm"][i]) + " |"
-                for i, lab in enumerate(LABELS)
-            ),
-            "",
-        ]
-        print("\n".join(block), flush=True)
-        details += block
+    done = {}  # (patch, imaging key) -> scores: a method that is the patch's own is run once
+    for method in methods:
+        for name in args.patches:
+            t0 = time.time()
+            imaged = with_method(load_patch(config_path(name)), method)
+            key = (name, _key(imaged))
+            if key not in done:
+                faulty_at: dict = {}
+                scores = evaluate(
+                    name,
+                    seeds,
+                    args.seconds,
+                    args.data_dir,
+                    args.cache_dir,
+                    not args.no_faults,
+                    args.detector,
+                    method,
+                    faulty_at,
+                )
+                done[key] = (*scores, faulty_at)
+            per_scene, touches, faulty_at = done[key]
+            if method == "patch":
+                held_out[name] = touches
+            if args.set == "report" and method == "patch" and args.learned:  # tuning trains it
+                train += evaluate(
+                    name,
+                    SEEDS["tuning"],
+                    args.seconds,
+                    args.data_dir,
+                    args.cache_dir,
+                    not args.no_faults,
+                    args.detector,
+                )[1]
+            s = summarise(name, per_scene)
+            rec = " / ".join(f"{v:.2f}" for v in s["recall"])
+            line = (
+                f"| {name} | {method} | {s['touches']} | {s['balanced']:.3f} | {rec} | "
+                f"{s['missed']} | {s['false_per_min']:.2f} ({s['false']}) | {s['overruns']} | "
+                f"{s['lat_median']:.0f} / {s['lat_max']:.0f} | {s['lat_within']:.0%} |"
+            )
+            print(line, f"({time.time() - t0:.0f} s)", flush=True)
+            table.append(line)
+            falses += false_lines(name, method, per_scene, faulty_at)
+            block = [
+                f"### {name}, {method}",
+                "",
+                "| scene | true labels | correct | predicted | false events | no-touch s |",
+                "|---|---|---|---|---|---|",
+                *scene_lines(per_scene),
+                "",
+                "| true \\ predicted | " + " | ".join(LABELS) + " | missed |",
+                "|---" * 6 + "|",
+                *(
+                    f"| {lab} | " + " | ".join(str(v) for v in s["cm"][i]) + " |"
+                    for i, lab in enumerate(LABELS)
+                ),
+                "",
+            ]
+            print("\n".join(block), flush=True)
+            details += block
+    print("\n".join(falses), flush=True)
     learned = learned_lines(train, held_out) if train else []
     print("\n".join(learned), flush=True)
     if args.out is None:
@@ -428,7 +572,11 @@ def main() -> None:
         f"{args.seconds:g} s per scene, one scene per category and patch, seeds "
         f"{list(seeds)} (tuning seeds {list(SEEDS['tuning'])} were looked at while choosing the",
         "method; these were not). Frames imaged by LayerProcessor (the reconstruction node's",
-        "pipeline), its faulty electrodes passed to the classifier every frame.",
+        "pipeline), its faulty electrodes passed to the classifier every frame. Method `patch`:",
+        "the patch's own solver (arm, face: GREIT; elbow: one-step Laplace); the others: every",
+        "layer imaged by that method (and prior) at its default noise figure, as a user who",
+        "writes only `solver: {method: ...}` gets; `one_step:noser` is the package default",
+        "(before issue 35's leave-one-set-out choice: `one_step:laplace`).",
         "",
         "Every figure here is in simulated frame time and does not depend on the machine's load.",
         "",
@@ -438,6 +586,10 @@ def main() -> None:
         "of no-touch time, no event longer than its touch + 0.5 s, START within 100 ms of",
         "contact. Latency is counted from the first frame of force (onset of the ramp); a",
         "touch's end includes a rub's relaxing trail.",
+        "",
+        "## False events",
+        "",
+        *falses,
         "",
         "## Rules or a learned classifier?",
         "",

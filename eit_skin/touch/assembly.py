@@ -166,6 +166,7 @@ class EventAssembler:
         keep = before["t_s"] >= t_first - 1e-9
         touch.shapes = ShapeHistory(before[keep])
         touch.changes = [c for c, k in zip(self._run_changes[:-1], keep, strict=True) if k]
+        touch.faulty = [self.gates.faulty] * len(touch.changes)
         self._run_shapes = []
         self._run_changes = []
         if contacts:
@@ -249,18 +250,52 @@ class EventAssembler:
         if shape is not None:
             touch.shapes.append(shape)
             touch.changes.append(self.change)
+            touch.faulty.append(self.gates.faulty)
         touch.max_pressure = max(touch.max_pressure, max(c.peak for c in contacts))
         if stretch_peak is not None:
             touch.max_stretch = max(touch.max_stretch or 0.0, stretch_peak)
 
+    def sound_frames(self, touch: OngoingTouch) -> np.ndarray:
+        """``[T]`` bool: which of a touch's shape frames were imaged without a hidden fault.
+
+        An electrode that fails during a touch spoils the images until the pipeline's fault
+        check names it (up to a second later); its first sign in the raw frames is its
+        channels left out as one-frame jumps (NaN). The frames from that sign to the naming,
+        and the ``average_frames - 1`` averaged images after it (they still hold one), are
+        not sound: the features and the centroid leave them out (issue 38: a pinch while an
+        electrode died was labelled grab from them). Without raw frames, all are sound.
+        """
+        n = len(touch.shapes)
+        sound = np.ones(n, dtype=bool)
+        channels = self.gates.evidence.channel_electrodes
+        if channels is None or len(touch.faulty) != n or not self.gates.faulty:
+            return sound
+        missing = np.array(
+            [c is not None and not np.all(np.isfinite(c)) for c in touch.changes], dtype=bool
+        )
+        for e in self.gates.faulty:
+            before = np.array([e not in f for f in touch.faulty], dtype=bool)  # not named yet
+            mine = channels[:, e]
+            gone = np.array(
+                [c is not None and bool(np.any(~np.isfinite(c[mine]))) for c in touch.changes],
+                dtype=bool,
+            )
+            signs = np.flatnonzero(before & missing & gone)
+            if signs.size:
+                named = signs[0] + int(np.count_nonzero(before[signs[0] :]))
+                # and the averaged images that still hold a frame of before the naming
+                sound[signs[0] : named + self.config.average_frames - 1] = False
+        return sound if sound.any() else np.ones(n, dtype=bool)
+
     def features(self, touch: OngoingTouch) -> TouchFeatures:
-        """Features of a touch on the evidence so far."""
-        f = shape_features(touch.shapes.rows, self.config)
+        """Features of a touch on the evidence so far (its sound frames: :meth:`sound_frames`)."""
+        sound = self.sound_frames(touch)
+        f = shape_features(touch.shapes.rows[sound], self.config)
         ratio = None
         if touch.max_stretch is not None and touch.max_pressure > 0:
             ratio = touch.max_stretch / touch.max_pressure
         count = max(touch.count(self.config.count_frames), 1)
-        shape_z = self._shape_z(touch) if self.config.pinch_shape_z > 0 else math.nan
+        shape_z = self._shape_z(touch, sound) if self.config.pinch_shape_z > 0 else math.nan
         return TouchFeatures(
             count,
             f["travel"],
@@ -275,14 +310,15 @@ class EventAssembler:
             shape_z,
         )
 
-    def _shape_z(self, touch: OngoingTouch) -> float:
-        """``shape_z`` of a touch's frames with a raw frame (NaN without enough of them)."""
+    def _shape_z(self, touch: OngoingTouch, sound: np.ndarray) -> float:
+        """``shape_z`` of a touch's ``sound`` frames with a raw frame (NaN: too few)."""
         if not self.gates.evidence.ready or not any(c is not None for c in touch.changes):
             return math.nan
-        rows = touch.shapes.rows
+        rows = touch.shapes.rows[sound]
         m = self.gates.evidence.reference.size
         blank = np.full(m, np.nan)
-        x = np.stack([blank if c is None else c for c in touch.changes])
+        changes = [c for c, ok in zip(touch.changes, sound, strict=True) if ok]
+        x = np.stack([blank if c is None else c for c in changes])
         x[:, ~self.gates.evidence.usable(self.gates.faulty)] = np.nan
         xy = np.column_stack([rows["x_m"], rows["y_m"]])
         return shape_change_z(x, rows["t_s"], xy, self.gates.evidence.drift_pattern())
@@ -319,7 +355,7 @@ class EventAssembler:
             centroid = np.mean([c.centroid_m for c in contacts], axis=0)
         else:
             centroid = np.asarray(early.centroid_m if early is not None else (0.0, 0.0))
-        shapes = touch.shapes.rows
+        shapes = touch.shapes.rows[self.sound_frames(touch)]
         shapes = shapes[np.isfinite(shapes["x_m"]) & np.isfinite(shapes["y_m"])]
         if shapes.size:  # the blob centroid of the latest frame pressed at full strength
             strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()

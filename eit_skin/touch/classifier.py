@@ -417,9 +417,13 @@ class TouchClassifier:
         shape = None
         if contacts:
             shape = self.events.shape(t_s, signal, mask)
-        elif not self.events.active:
+        # contacts below the START bar are noise, not a touch: the baseline (and the raw
+        # frames' reference) keep following a drifting sheet through them; before, they
+        # froze it and a slow drift grew into a touch (data/real/hydrogel_ohmc16)
+        if not self.events.active and not (contacts and self.events.strong):
             bg.follow(dt, pressure, stretch)
-            self._follow_noise(dt, signal)
+            if not contacts:
+                self._follow_noise(dt, signal)
             if volts is not None:
                 self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
         return self.events.advance(t_s, contacts, stretch_peak, shape, detected)

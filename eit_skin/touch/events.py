@@ -214,6 +214,7 @@ class OngoingTouch:
         self.confidence = 0.5
         self.early = None  # EarlyEstimate while no contact is segmented (pooled START)
         self.changes: list[np.ndarray | None] = []  # whitened raw frame per shape record
+        self.faulty: list[tuple[int, ...]] = []  # electrodes named faulty, per shape record
 
     def count(self, min_frames: int) -> int:
         if not self.counts:

@@ -83,8 +83,9 @@ def test_classify_names_the_dead_electrode_reconstruct_names(pinch, cache, capsy
 
 
 def test_an_electrode_dying_during_the_pinch_marks_the_touch(pinch, cache, capsys):
-    """The dead channels spoil the images until the next fault check names the electrode:
-    the pinch is then labelled a grab, but no longer silently."""
+    """The dead channels spoil the images until the next fault check names the electrode.
+    The touch is marked, and those frames (from the electrode's first one-frame jumps to its
+    naming) no longer decide its label: it was labelled a grab from them."""
     with np.load(pinch / "dead" / "pressure.npz") as dead:
         dead_frames = dead["frames"]
 
@@ -99,6 +100,7 @@ def test_an_electrode_dying_during_the_pinch_marks_the_touch(pinch, cache, capsy
     (touch,) = touches(lines)
     assert touch["fault"] and touch["faulty_electrodes"] == [5]
     assert touch["t_start"] <= faults[0]["t"] <= touch["t_end"]
+    assert touch["label"] == "pinch"
     assert "one-frame jumps" in err and "frame 60 channel" in err
 
 
