@@ -161,19 +161,10 @@ def fit_device(
     """
     v = np.asarray(reference, dtype=np.float64)
     n_el = mesh.n_electrodes
-    if v.shape != (protocol.n_measurements,):
-        raise ValueError(f"reference: expected [{protocol.n_measurements}] values, got {v.shape}")
-    if not (np.isfinite(gain) and gain > 0):
-        raise ValueError(f"gain: must be finite and > 0, got {gain}")
-    used = np.isfinite(v) & (v != 0)
     if per_electrode is None:
         per_electrode = measures_driven(protocol)
     n_par = 1 + (n_el if per_electrode else 1)
-    if used.sum() < 2 * n_par:
-        raise ValueError(
-            f"reference: {int(used.sum())} usable channels for {n_par} parameters; "
-            "need twice as many"
-        )
+    used = _usable_channels(v, protocol.n_measurements, gain, n_par)
     z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,)).copy()
     if not per_electrode:
         z[:] = np.exp(np.mean(np.log(z)))
@@ -313,6 +304,21 @@ def _levenberg_marquardt(
         if fraction < RELATIVE_TOLERANCE:
             break
     return sigma, z, r, J, done
+
+
+def _usable_channels(v: np.ndarray, n_measurements: int, gain: float, n_par: int) -> np.ndarray:
+    """``[M]`` bool: the finite, non-zero channels of ``v``, at least twice ``n_par`` of them."""
+    if v.shape != (n_measurements,):
+        raise ValueError(f"reference: expected [{n_measurements}] values, got {v.shape}")
+    if not (np.isfinite(gain) and gain > 0):
+        raise ValueError(f"gain: must be finite and > 0, got {gain}")
+    used = np.isfinite(v) & (v != 0)
+    if used.sum() < 2 * n_par:
+        raise ValueError(
+            f"reference: {int(used.sum())} usable channels for {n_par} parameters; "
+            "need twice as many"
+        )
+    return used
 
 
 def _electrode_residual(protocol: Protocol, used: np.ndarray, r: np.ndarray) -> np.ndarray:

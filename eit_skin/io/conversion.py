@@ -84,19 +84,27 @@ def mcap_to_npz(
             )
         if rows:
             writer.append(frames=np.stack(rows), t=np.asarray(stamps, dtype=np.int64) / 1e9)
-        head = np.stack(head)
-        reference = np.full(m, np.nan)
-        for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
-            missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
-            reference[missing] = np.nanmean(values[:, missing], axis=0)
-        if not np.isfinite(reference).all():
-            raise ValueError(
-                f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is "
-                f"invalid in all of the first {len(head)} frames, so there is no reference; "
-                "raise reference_frames"
-            )
+        reference = _reference(mcap_path, np.stack(head), np.stack(raw_head))
         writer.append(reference=reference)
     return n_frames
+
+
+def _reference(mcap_path: str | Path, head: np.ndarray, raw_head: np.ndarray) -> np.ndarray:
+    """``[M]`` NaN-ignoring mean of the first frames ``head`` ``[n, M]`` (flagged as NaN).
+
+    A channel flagged in all of them takes the mean of its flagged values ``raw_head``.
+    """
+    reference = np.full(head.shape[1], np.nan)
+    for values in (head, raw_head):  # flagged values only where nothing else
+        missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
+        reference[missing] = np.nanmean(values[:, missing], axis=0)
+    if not np.isfinite(reference).all():
+        raise ValueError(
+            f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is "
+            f"invalid in all of the first {len(head)} frames, so there is no reference; "
+            "raise reference_frames"
+        )
+    return reference
 
 
 def npz_to_mcap(
