@@ -60,6 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--count", type=int, default=0, metavar="N", help="stop after N frames (0 = run forever)"
     )
+    _add_board_options(parser)
+    parser.add_argument(
+        "--linger",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="with --count, keep the pty open S seconds after the last frame so readers drain it",
+    )
+
+
+def _add_board_options(parser: argparse.ArgumentParser) -> None:
+    """The options of one emulated board each (:data:`DEVICE_OPTIONS`)."""
     parser.add_argument(
         "--encoding",
         choices=("volts", "counts"),
@@ -107,13 +119,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="sciospec: the channel (1-based) the layer's board electrode 0 is wired to "
         "(default 1)",
-    )
-    parser.add_argument(
-        "--linger",
-        type=float,
-        default=1.0,
-        metavar="S",
-        help="with --count, keep the pty open S seconds after the last frame so readers drain it",
     )
 
 
@@ -242,10 +247,7 @@ def _board(args: argparse.Namespace):
         what = f"OpenEIT, {protocol.frame_size} magnitudes x {scale:g}"
     elif args.device == "lines":
         separator = SEPARATORS[args.separator or "comma-space"]
-        device = board_emulators.LinesEmulator(
-            measurements,
-            protocol,
-            args.rate,
+        line_format = board_emulators.LineFormat(
             separator=separator,
             label=args.label or "",
             line_ending="\r\n" if args.line_ending == "crlf" else "\n",
@@ -255,6 +257,7 @@ def _board(args: argparse.Namespace):
             ),
             scale=scale,
         )
+        device = board_emulators.LinesEmulator(measurements, protocol, args.rate, line_format)
         what = f"lines, {protocol.frame_size} values x {scale:g}, separator {separator!r}"
     else:
         first = args.first_channel or (
