@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _wire_device(args: argparse.Namespace):
     """eit_skin's own wire protocol: the FakeDevice of today."""
-    from eit_skin.hardware.fake_device import FakeDevice, npz_frame_source
+    from eit_skin.hardware.fake_device import FakeDevice, WireHeader, npz_frame_source
     from eit_skin.hardware.wire import ValueEncoding
 
     pattern = {}
@@ -212,9 +212,7 @@ def _wire_device(args: argparse.Namespace):
             return protocol.device_frame(measurements(index))
 
     encoding = args.encoding or "volts"
-    device = FakeDevice(
-        source,
-        args.rate,
+    header = WireHeader(
         n_electrodes=electrodes,
         current_a=current,
         value_encoding=(
@@ -222,6 +220,7 @@ def _wire_device(args: argparse.Namespace):
         ),
         **pattern,
     )
+    device = FakeDevice(source, args.rate, header=header)
     return device, f"{label}; wire protocol, {encoding}"
 
 
