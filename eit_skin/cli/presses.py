@@ -76,11 +76,10 @@ def run(args: argparse.Namespace) -> int:
                 reference, frames, t, args.probe, args.baseline_offset, str(args.frames)
             )
         else:
-            from eit_skin.sim.press_session import simulate_press_session
+            from eit_skin.sim.press_session import PressDraw, simulate_press_session
 
-            session = simulate_press_session(
-                patch, args.count, layer.name, args.seed, drift=not args.no_drift
-            )
+            draw = PressDraw(drift=not args.no_drift)
+            session = simulate_press_session(patch, args.count, layer.name, args.seed, draw)
         session.check_layer(layer)
         session.save(args.out)
     except (PatchError, OSError, KeyError, ValueError) as error:
