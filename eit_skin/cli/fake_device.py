@@ -266,9 +266,9 @@ def _board(args: argparse.Namespace):
             measurements,
             protocol,
             args.rate,
-            channels=args.channels,
-            channel_electrodes=protocol.board_to_config.tolist(),
-            first_channel=first,
+            wiring=sciospec_emulator.SciospecWiring(
+                args.channels, tuple(protocol.board_to_config.tolist()), first
+            ),
         )
         what = f"Sciospec, {device.channels} channels, waiting for start"
     return device, f"{label}; {what}"

@@ -32,6 +32,7 @@ from eit_skin.hardware.sciospec_emulator import (
     SCIOSPEC_NACK_UNKNOWN,
     SCIOSPEC_TIMEOUT,
     SciospecEmulator,
+    SciospecWiring,
     potentials_from_differences,
 )
 from eit_skin.io.npz import load_frames_npz
@@ -417,7 +418,7 @@ def test_sciospec_electrodes_on_the_second_channel_group(sciospec):
     """16 electrodes on channels 17-32 of an EIT32: group 1 reads 0 V, group 2 carries them;
     an injection the protocol only has reversed is sent negated, one it lacks as 0 V."""
     protocol, frames = sciospec
-    board = SciospecEmulator(lambda i: frames[i], protocol, first_channel=17)
+    board = SciospecEmulator(lambda i: frames[i], protocol, wiring=SciospecWiring(first_channel=17))
     assert board.injections[:2] == [(17, 18), (18, 19)]
     got = data_frames(board.data_frames(0, 0.0, 10.0))
     values = np.array([f[7:-1] for f in got]).reshape(16, 2, 16, 2)[..., 0]
