@@ -35,7 +35,7 @@ from sensor_msgs.msg import Image
 
 from bench.header import run_header
 from eit_skin.hardware.board_emulators import OpenEITEmulator
-from eit_skin.hardware.sciospec_emulator import SciospecEmulator
+from eit_skin.hardware.sciospec_emulator import SciospecEmulator, SciospecWiring
 from eit_skin.io.npz import load_frames_npz
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import build_protocol
@@ -170,7 +170,10 @@ def main() -> None:
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     base = forward_model(layer).voltages(layer.material.sheet_conductance_s)  # the empty tank
     board = SciospecEmulator(
-        lambda i: base * (1 + 0.01 * np.sin(0.1 * i)), protocol, rate_hz=10.3, channels=32
+        lambda i: base * (1 + 0.01 * np.sin(0.1 * i)),
+        protocol,
+        rate_hz=10.3,
+        wiring=SciospecWiring(channels=32),
     )
     rows.append(
         (

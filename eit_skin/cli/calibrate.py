@@ -19,6 +19,10 @@ import argparse
 import itertools
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 POOR_FIT = 0.1
 """Device fit residual (share of the unloaded frame's rms) above which the model is called poor."""
@@ -63,6 +67,26 @@ def depth_bands(depth_m, n_bands: int = 3):
         return [(float(v), float(v)) for v in values]
     edges = np.quantile(depth_m, np.linspace(0, 1, n_bands + 1))
     return [(float(a), float(b)) for a, b in itertools.pairwise(edges)]
+
+
+def _print_depth_errors(
+    depth_m: np.ndarray, error_mm: np.ndarray, depth_error_m: np.ndarray
+) -> None:
+    """Print the held-out depth error, then position and depth errors per depth band.
+
+    ``depth_m`` ``[n]`` the presses' depths, ``error_mm`` ``[n]`` their position errors.
+    """
+    import numpy as np
+
+    print(f"  depth error median {np.median(depth_error_m) * 1e3:.2f} mm")
+    for lo, hi in depth_bands(depth_m):
+        rows = (depth_m >= lo) & (depth_m <= hi)
+        band = f"{lo * 1e3:.1f} mm" if lo == hi else f"{lo * 1e3:.1f}-{hi * 1e3:.1f} mm"
+        print(
+            f"  depth {band} ({int(rows.sum())} presses): position median "
+            f"{np.median(error_mm[rows]):.1f} mm, p90 {np.percentile(error_mm[rows], 90):.1f} mm; "
+            f"depth median {np.median(depth_error_m[rows]) * 1e3:.2f} mm"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,15 +152,7 @@ def run(args: argparse.Namespace) -> int:
         f"{np.median(e):.1f} mm, p90 {np.percentile(e, 90):.1f} mm"
     )
     if cv.depth_error is not None:
-        print(f"  depth error median {np.median(cv.depth_error) * 1e3:.2f} mm")
-        for lo, hi in depth_bands(session.depth):
-            rows = (session.depth >= lo) & (session.depth <= hi)
-            band = f"{lo * 1e3:.1f} mm" if lo == hi else f"{lo * 1e3:.1f}-{hi * 1e3:.1f} mm"
-            print(
-                f"  depth {band} ({int(rows.sum())} presses): position median "
-                f"{np.median(e[rows]):.1f} mm, p90 {np.percentile(e[rows], 90):.1f} mm; "
-                f"depth median {np.median(cv.depth_error[rows]) * 1e3:.2f} mm"
-            )
+        _print_depth_errors(session.depth, e, cv.depth_error)
     if model.multi_touch is not None:
         mt = model.multi_touch
         print(

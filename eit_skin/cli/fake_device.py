@@ -60,6 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--count", type=int, default=0, metavar="N", help="stop after N frames (0 = run forever)"
     )
+    _add_board_options(parser)
+    parser.add_argument(
+        "--linger",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="with --count, keep the pty open S seconds after the last frame so readers drain it",
+    )
+
+
+def _add_board_options(parser: argparse.ArgumentParser) -> None:
+    """The options of one emulated board each (:data:`DEVICE_OPTIONS`)."""
     parser.add_argument(
         "--encoding",
         choices=("volts", "counts"),
@@ -107,13 +119,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="sciospec: the channel (1-based) the layer's board electrode 0 is wired to "
         "(default 1)",
-    )
-    parser.add_argument(
-        "--linger",
-        type=float,
-        default=1.0,
-        metavar="S",
-        help="with --count, keep the pty open S seconds after the last frame so readers drain it",
     )
 
 
@@ -190,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _wire_device(args: argparse.Namespace):
     """eit_skin's own wire protocol: the FakeDevice of today."""
-    from eit_skin.hardware.fake_device import FakeDevice, npz_frame_source
+    from eit_skin.hardware.fake_device import FakeDevice, WireHeader, npz_frame_source
     from eit_skin.hardware.wire import ValueEncoding
 
     pattern = {}
@@ -207,9 +212,7 @@ def _wire_device(args: argparse.Namespace):
             return protocol.device_frame(measurements(index))
 
     encoding = args.encoding or "volts"
-    device = FakeDevice(
-        source,
-        args.rate,
+    header = WireHeader(
         n_electrodes=electrodes,
         current_a=current,
         value_encoding=(
@@ -217,6 +220,7 @@ def _wire_device(args: argparse.Namespace):
         ),
         **pattern,
     )
+    device = FakeDevice(source, args.rate, header=header)
     return device, f"{label}; wire protocol, {encoding}"
 
 
@@ -242,10 +246,7 @@ def _board(args: argparse.Namespace):
         what = f"OpenEIT, {protocol.frame_size} magnitudes x {scale:g}"
     elif args.device == "lines":
         separator = SEPARATORS[args.separator or "comma-space"]
-        device = board_emulators.LinesEmulator(
-            measurements,
-            protocol,
-            args.rate,
+        line_format = board_emulators.LineFormat(
             separator=separator,
             label=args.label or "",
             line_ending="\r\n" if args.line_ending == "crlf" else "\n",
@@ -255,6 +256,7 @@ def _board(args: argparse.Namespace):
             ),
             scale=scale,
         )
+        device = board_emulators.LinesEmulator(measurements, protocol, args.rate, line_format)
         what = f"lines, {protocol.frame_size} values x {scale:g}, separator {separator!r}"
     else:
         first = args.first_channel or (
@@ -264,9 +266,9 @@ def _board(args: argparse.Namespace):
             measurements,
             protocol,
             args.rate,
-            channels=args.channels,
-            channel_electrodes=protocol.board_to_config.tolist(),
-            first_channel=first,
+            wiring=sciospec_emulator.SciospecWiring(
+                args.channels, tuple(protocol.board_to_config.tolist()), first
+            ),
         )
         what = f"Sciospec, {device.channels} channels, waiting for start"
     return device, f"{label}; {what}"

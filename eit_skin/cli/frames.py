@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+    from eit_skin.io.conversion import FrameStream, mcap_to_npz, npz_to_mcap
     from eit_skin.io.mcap import McapDamage
 
     try:
@@ -52,9 +52,7 @@ def run(args: argparse.Namespace) -> int:
         patch = load_patch(config_path(args.patch))
         layer = patch.layer(args.layer) if args.layer else patch.layers[0]
         topic = patch_topics(patch, patch.name).layers[layer.name].frames
-        n = npz_to_mcap(
-            args.npz,
-            args.mcap,
+        stream = FrameStream(
             topic,
             patch=patch.name,
             layer=layer.name,
@@ -62,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
             drive_pattern=pattern_name(layer),
             current_a=layer.current_a,
             frame_id=patch.frame_id,
-            rate_hz=args.rate,
         )
+        n = npz_to_mcap(args.npz, args.mcap, stream, rate_hz=args.rate)
         print(f"wrote {args.mcap}: {n} frames on {topic}")
         return 0
     except (ValueError, KeyError, OSError) as error:

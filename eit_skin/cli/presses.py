@@ -26,6 +26,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import numpy as np
+
+    from eit_skin.calibration.guide import DetectedPress, GuidedSession, GuideRules
+    from eit_skin.patch.model import Layer
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -67,11 +76,10 @@ def run(args: argparse.Namespace) -> int:
                 reference, frames, t, args.probe, args.baseline_offset, str(args.frames)
             )
         else:
-            from eit_skin.sim.press_session import simulate_press_session
+            from eit_skin.sim.press_session import PressDraw, simulate_press_session
 
-            session = simulate_press_session(
-                patch, args.count, layer.name, args.seed, drift=not args.no_drift
-            )
+            draw = PressDraw(drift=not args.no_drift)
+            session = simulate_press_session(patch, args.count, layer.name, args.seed, draw)
         session.check_layer(layer)
         session.save(args.out)
     except (PatchError, OSError, KeyError, ValueError) as error:
@@ -157,16 +165,9 @@ def read_answers(path: Path) -> list[str]:
 
 def run_guide(args: argparse.Namespace) -> int:
     """``presses guide``: template, prompts, presses judged and paired, session written."""
-    import numpy as np
-
-    from eit_skin.calibration.guide import GuidedSession, GuideRules, PressDetector
+    from eit_skin.calibration.guide import GuidedSession, PressDetector
     from eit_skin.calibration.session import MIN_PRESSES
-    from eit_skin.calibration.template import (
-        FINGER_WIDTH_M,
-        spread_targets,
-        template_drawing,
-        write_template,
-    )
+    from eit_skin.calibration.template import FINGER_WIDTH_M, spread_targets
     from eit_skin.cli.classify import classified_frames
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
@@ -186,15 +187,7 @@ def run_guide(args: argparse.Namespace) -> int:
         layer = classifier_layers(patch)[0]
         margin = FINGER_WIDTH_M if args.margin is None else args.margin * 1e-3
         targets = spread_targets(layer, args.targets, margin)
-        gaps = np.linalg.norm(targets[:, None] - targets[None], axis=2)
-        np.fill_diagonal(gaps, np.inf)
-        spacing = float(np.median(gaps.min(axis=1)))
-        rules = GuideRules(
-            min_hold_s=args.min_hold,
-            min_snr=args.min_snr,
-            min_relative=args.min_relative,
-            max_offset_m=spacing if args.max_offset is None else args.max_offset * 1e-3,
-        )
+        rules = _guide_rules(args, targets)
         answers = read_answers(args.answers) if args.answers is not None else []
         answers.reverse()  # popped from the end
 
@@ -203,30 +196,11 @@ def run_guide(args: argparse.Namespace) -> int:
                 return answers.pop()
             return ask_person() if args.port is not None else "ok"
 
-        drawing = template_drawing(
-            layer, targets, f"{patch.name} / {layer.name}: {len(targets)} calibration targets"
-        )
-        templates = (
-            [args.template]
-            if args.template
-            else [args.out.with_suffix(".svg"), args.out.with_suffix(".pdf")]
-        )
-        for path in templates:
-            write_template(path, drawing)
-        print(f"wrote {', '.join(map(str, templates))}: print at 100 %, check the 10 mm bar")
+        _write_templates(args, f"{patch.name} / {layer.name}", layer, targets)
         guide = GuidedSession(targets, rules, str(args.frames or args.port))
         detector = PressDetector(rules)
         args.stretch_frames = None
-
-        def prompt() -> None:
-            if not guide.done:
-                x, y = targets[guide.current] * 1e3
-                print(
-                    f"target {guide.current + 1}/{len(targets)} at ({x:+.1f}, {y:+.1f}) mm: "
-                    "press it, hold, release"
-                )
-
-        prompt()
+        _prompt(guide)
         if args.frames is not None:
             stream = classified_frames(args, patch)
         else:
@@ -236,25 +210,7 @@ def run_guide(args: argparse.Namespace) -> int:
             for press in detector.step(t, frame, events):
                 if guide.done:
                     break
-                verdict = guide.judge(press)
-                off = np.linalg.norm(press.image_xy - targets[verdict.target]) * 1e3
-                span = f"{press.t_start_s:.2f}-{press.t_end_s:.2f} s"
-                if not verdict.accepted:
-                    print(
-                        f"  press {span}: refused, {verdict.reason}; press target "
-                        f"{verdict.target + 1} again"
-                    )
-                    continue
-                print(
-                    f"  press {span}: accepted ({press.snr:.0f} x noise, image {off:.1f} mm "
-                    f"from the mark)",
-                    end="",
-                    flush=True,
-                )
-                reply = ask()
-                print(f"; answer: {reply}")
-                guide.answer(verdict, reply)
-                prompt()
+                _take_press(guide, press, ask)
             if guide.done:
                 break
         session = guide.session()
@@ -268,6 +224,74 @@ def run_guide(args: argparse.Namespace) -> int:
         f"{len(guide.log) - refused - session.n_presses} redone), M = {session.n_measurements}"
     )
     return 0
+
+
+def _guide_rules(args: argparse.Namespace, targets: np.ndarray) -> GuideRules:
+    """The press rules from the options; ``--max-offset`` defaults to the targets' spacing.
+
+    ``targets`` ``[N, 2]`` m; the spacing is the median distance to the nearest other target.
+    """
+    import numpy as np
+
+    from eit_skin.calibration.guide import GuideRules
+
+    gaps = np.linalg.norm(targets[:, None] - targets[None], axis=2)
+    np.fill_diagonal(gaps, np.inf)
+    spacing = float(np.median(gaps.min(axis=1)))
+    return GuideRules(
+        min_hold_s=args.min_hold,
+        min_snr=args.min_snr,
+        min_relative=args.min_relative,
+        max_offset_m=spacing if args.max_offset is None else args.max_offset * 1e-3,
+    )
+
+
+def _write_templates(
+    args: argparse.Namespace, title: str, layer: Layer, targets: np.ndarray
+) -> None:
+    """Write the printable targets to ``--template``, else next to ``--out`` as SVG and PDF."""
+    from eit_skin.calibration.template import template_drawing, write_template
+
+    drawing = template_drawing(layer, targets, f"{title}: {len(targets)} calibration targets")
+    templates = (
+        [args.template]
+        if args.template
+        else [args.out.with_suffix(".svg"), args.out.with_suffix(".pdf")]
+    )
+    for path in templates:
+        write_template(path, drawing)
+    print(f"wrote {', '.join(map(str, templates))}: print at 100 %, check the 10 mm bar")
+
+
+def _prompt(guide: GuidedSession) -> None:
+    """Tell the person which target to press next (nothing once every target is done)."""
+    if not guide.done:
+        x, y = guide.targets[guide.current] * 1e3
+        print(
+            f"target {guide.current + 1}/{len(guide.targets)} at ({x:+.1f}, {y:+.1f}) mm: "
+            "press it, hold, release"
+        )
+
+
+def _take_press(guide: GuidedSession, press: DetectedPress, ask: Callable[[], str]) -> None:
+    """Judge one detected press, ask about an accepted one, then prompt for the next target."""
+    import numpy as np
+
+    verdict = guide.judge(press)
+    off = np.linalg.norm(press.image_xy - guide.targets[verdict.target]) * 1e3
+    span = f"{press.t_start_s:.2f}-{press.t_end_s:.2f} s"
+    if not verdict.accepted:
+        print(f"  press {span}: refused, {verdict.reason}; press target {verdict.target + 1} again")
+        return
+    print(
+        f"  press {span}: accepted ({press.snr:.0f} x noise, image {off:.1f} mm from the mark)",
+        end="",
+        flush=True,
+    )
+    reply = ask()
+    print(f"; answer: {reply}")
+    guide.answer(verdict, reply)
+    _prompt(guide)
 
 
 def ask_person() -> str:

@@ -18,6 +18,13 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from eit_skin.pipeline.reference import JointAngleHistory
+    from eit_skin.ros.topics import PatchTopics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,18 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import rclpy
-    from eit_skin_msgs.msg import EitFrame
-    from rclpy.qos import qos_profile_sensor_data
-    from rclpy.signals import SignalHandlerOptions
-    from sensor_msgs.msg import JointState
-
     from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
-    from eit_skin.pipeline.reference import JointAngleHistory, bin_posture_frames
     from eit_skin.resources import config_path
-    from eit_skin.ros.node_runner import StopSignals
     from eit_skin.ros.topics import patch_topics
 
     try:
@@ -63,15 +61,34 @@ def run(args: argparse.Namespace) -> int:
         return 2
     namespace = "/" + (args.namespace or Path(str(config_path(args.patch))).stem).strip("/")
     topics = patch_topics(patch, namespace)
+    history, samples = _record(args, patch.layer_names, topics)
+    return _save_tables(args, topics, history, samples)
+
+
+def _record(
+    args: argparse.Namespace, layers: tuple[str, ...], topics: PatchTopics
+) -> tuple[JointAngleHistory, dict[str, list[tuple[int, np.ndarray]]]]:
+    """Record the joint's angles and every layer's frames ``(stamp ns, [M] V)``.
+
+    Until ``--duration`` s after the first frame, ``--wait`` s without one, or a signal.
+    """
+    import numpy as np
+    import rclpy
+    from eit_skin_msgs.msg import EitFrame
+    from rclpy.qos import qos_profile_sensor_data
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import JointState
+
+    from eit_skin.pipeline.reference import JointAngleHistory
+    from eit_skin.ros.node_runner import StopSignals
+
     stop = StopSignals()  # a signal ends the recording; what was recorded is still written
     stop.spinning = True
     with stop.installed():
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         node = rclpy.create_node("eit_posture_calibration")
         history = JointAngleHistory(span_ns=10**12)  # keep the whole sweep
-        samples: dict[str, list[tuple[int, np.ndarray]]] = {
-            layer: [] for layer in patch.layer_names
-        }
+        samples: dict[str, list[tuple[int, np.ndarray]]] = {layer: [] for layer in layers}
 
         def stamp_ns(msg) -> int:
             return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
@@ -85,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
             samples[layer].append((stamp_ns(msg), frame))
 
         node.create_subscription(JointState, topics.joint_states, on_joint, 50)
-        for layer in patch.layer_names:
+        for layer in layers:
             node.create_subscription(
                 EitFrame,
                 topics.layers[layer].frames,
@@ -115,6 +132,20 @@ def run(args: argparse.Namespace) -> int:
             rclpy.shutdown()
     if stop.requested.is_set():
         print("stopped by a signal: writing what was recorded", flush=True)
+    return history, samples
+
+
+def _save_tables(
+    args: argparse.Namespace,
+    topics: PatchTopics,
+    history: JointAngleHistory,
+    samples: dict[str, list[tuple[int, np.ndarray]]],
+) -> int:
+    """Bin each layer's frames by angle and save its references; the exit code."""
+    import numpy as np
+
+    from eit_skin.pipeline.reference import bin_posture_frames
+
     code = 0
     for layer, items in samples.items():
         if not items:

@@ -161,104 +161,31 @@ def fit_device(
     """
     v = np.asarray(reference, dtype=np.float64)
     n_el = mesh.n_electrodes
-    if v.shape != (protocol.n_measurements,):
-        raise ValueError(f"reference: expected [{protocol.n_measurements}] values, got {v.shape}")
-    if not (np.isfinite(gain) and gain > 0):
-        raise ValueError(f"gain: must be finite and > 0, got {gain}")
-    used = np.isfinite(v) & (v != 0)
     if per_electrode is None:
         per_electrode = measures_driven(protocol)
     n_par = 1 + (n_el if per_electrode else 1)
-    if used.sum() < 2 * n_par:
-        raise ValueError(
-            f"reference: {int(used.sum())} usable channels for {n_par} parameters; "
-            "need twice as many"
-        )
+    used = _usable_channels(v, protocol.n_measurements, gain, n_par)
     z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,)).copy()
     if not per_electrode:
         z[:] = np.exp(np.mean(np.log(z)))
-    sigma = float(sheet_conductance_s)
     rms = float(np.sqrt(np.mean(v[used] ** 2)))
-
-    def evaluate(sigma: float, z: np.ndarray, jacobian: bool):
-        model = ForwardModel(mesh, protocol, z, current_a)
-        V = model.voltages(sigma)
-        sign = np.sign(V) if magnitude else np.ones_like(V)
-        r = (gain * sign * V - v)[used] / rms
-        if not jacobian:
-            return r, None
-        dz = model.contact_jacobian(sigma) * z[None, :]  # dV / dlog z_l
-        dsigma = -V + dz.sum(axis=1)  # dV / dlog sigma (the scaling law)
-        cols = [dsigma[:, None], dz if per_electrode else dz.sum(axis=1, keepdims=True)]
-        return r, (gain * sign[:, None] * np.hstack(cols))[used] / rms
-
-    # best common scale first (sigma -> sigma / c, z -> z c keeps the shape): a wrong unit or
-    # conductance does not have to be walked off by the iteration
-    model = ForwardModel(mesh, protocol, z, current_a)
-    V = model.voltages(sigma)
-    shape = gain * (np.abs(V) if magnitude else V)
-    c = float(shape[used] @ v[used] / (shape[used] @ shape[used]))
-    if not c > 0:
-        raise ValueError(
-            "reference: its sign is opposite to the model's homogeneous voltages on most "
-            "channels (check protocol.sign, electrode numbering, or values: magnitude)"
-        )
-    sigma, z = sigma / c, z * c
-    r, J = evaluate(sigma, z, True)
+    frame = _FrameResidual(mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode)
+    sigma, z = frame.common_scale(float(sheet_conductance_s), z)
+    r, J = frame.evaluate(sigma, z, True)
     initial = float(np.sqrt(np.mean(r**2)))
-
-    def levenberg_marquardt(sigma, z, r, J, free):
-        """Minimise over the ``free`` log-parameters; ``(sigma, z, r, J, iterations)``."""
-        cost = float(r @ r)
-        damping = 1e-3
-        done = 0
-        for done in range(1, max_iterations + 1):  # noqa: B007 (returned)
-            Jf = J[:, free]
-            JtJ = Jf.T @ Jf
-            g = Jf.T @ r
-            improved = False
-            while damping < 1e12:
-                step_f = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
-                step_f *= min(1.0, MAX_LOG_STEP / max(np.abs(step_f).max(), 1e-300))
-                step = np.zeros(n_par)
-                step[free] = step_f
-                new_sigma = sigma * float(np.exp(step[0]))
-                new_z = z * np.exp(step[1:] if per_electrode else step[1])
-                r_new, _ = evaluate(new_sigma, new_z, False)
-                new_cost = float(r_new @ r_new)
-                if new_cost < cost:
-                    improved = True
-                    damping = max(damping / 3, 1e-9)
-                    break
-                damping *= 4
-            if not improved:
-                break
-            fraction = (cost - new_cost) / max(cost, 1e-300)
-            sigma, z, cost = new_sigma, new_z, new_cost
-            r, J = evaluate(sigma, z, True)
-            if fraction < RELATIVE_TOLERANCE:
-                break
-        return sigma, z, r, J, done
-
     start = (sigma, z.copy(), r, J)
     free = np.ones(n_par, dtype=bool)
-    sigma, z, r, J, iterations = levenberg_marquardt(sigma, z, r, J, free)
+    sigma, z, r, J, iterations = _levenberg_marquardt(frame, start, free, max_iterations)
     # where the data allow: a contact impedance the frame barely depends on (its log
     # standard error above UNDETERMINED_LOG_STD at the fit's own residual) wanders off to
     # where it no longer matters; such values are kept at their start and the rest refitted
     determined = _log_std(J, r)[1:] <= UNDETERMINED_LOG_STD
     if not determined.all():
         free[1:] = determined
-        sigma, z0, r, J = start
-        z = z0.copy()
-        sigma, z, r, J, more = levenberg_marquardt(sigma, z, r, J, free)
+        sigma, z, r, J, more = _levenberg_marquardt(frame, start, free, max_iterations)
         iterations += more
     cost = float(r @ r)
-    full = np.zeros(v.shape)
-    full[used] = r
-    touching = np.stack([protocol.touching([e]) & used for e in range(n_el)])  # [n_el, M]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        electrode_residual = np.sqrt((touching * full**2).sum(axis=1) / touching.sum(axis=1))
+    electrode_residual = _electrode_residual(protocol, used, r)
     bad = electrode_residual > BAD_CONTACT_RATIO * np.nanmedian(electrode_residual)
     if per_electrode:
         bad |= z > BAD_CONTACT_RATIO * np.median(z)
@@ -276,6 +203,134 @@ def fit_device(
         contact_determined=np.broadcast_to(determined, (n_el,)).copy(),
         contact_ratio=z * sigma / _electrode_lengths(mesh),
     )
+
+
+@dataclass(frozen=True, eq=False)
+class _FrameResidual:
+    """The misfit of the model to a no-load frame, scaled by the frame's rms.
+
+    ``v`` ``[M]`` is the frame (frame units), ``used`` ``[M]`` its usable channels, ``rms``
+    their rms; the other fields are the arguments of :func:`fit_device`.
+    """
+
+    mesh: Mesh
+    protocol: Protocol
+    current_a: float
+    v: np.ndarray
+    used: np.ndarray
+    rms: float
+    gain: float
+    magnitude: bool
+    per_electrode: bool
+
+    def evaluate(
+        self, sigma: float, z: np.ndarray, jacobian: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residual ``[m]`` on the used channels and, when ``jacobian``, its derivative.
+
+        The derivative ``[m, n_par]`` is by ``log sigma`` and ``log z`` (one column, or one
+        per electrode).
+        """
+        model = ForwardModel(self.mesh, self.protocol, z, self.current_a)
+        V = model.voltages(sigma)
+        sign = np.sign(V) if self.magnitude else np.ones_like(V)
+        r = (self.gain * sign * V - self.v)[self.used] / self.rms
+        if not jacobian:
+            return r, None
+        dz = model.contact_jacobian(sigma) * z[None, :]  # dV / dlog z_l
+        dsigma = -V + dz.sum(axis=1)  # dV / dlog sigma (the scaling law)
+        cols = [dsigma[:, None], dz if self.per_electrode else dz.sum(axis=1, keepdims=True)]
+        return r, (self.gain * sign[:, None] * np.hstack(cols))[self.used] / self.rms
+
+    def common_scale(self, sigma: float, z: np.ndarray) -> tuple[float, np.ndarray]:
+        """``(sigma / c, z c)`` for the best common scale ``c`` (it keeps the shape).
+
+        Fitted first, so a wrong unit or conductance does not have to be walked off by the
+        iteration.
+        """
+        model = ForwardModel(self.mesh, self.protocol, z, self.current_a)
+        V = model.voltages(sigma)
+        shape = self.gain * (np.abs(V) if self.magnitude else V)
+        used, v = self.used, self.v
+        c = float(shape[used] @ v[used] / (shape[used] @ shape[used]))
+        if not c > 0:
+            raise ValueError(
+                "reference: its sign is opposite to the model's homogeneous voltages on most "
+                "channels (check protocol.sign, electrode numbering, or values: magnitude)"
+            )
+        return sigma / c, z * c
+
+
+def _levenberg_marquardt(
+    frame: _FrameResidual,
+    start: tuple[float, np.ndarray, np.ndarray, np.ndarray],
+    free: np.ndarray,
+    max_iterations: int,
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Minimise over the ``free`` log-parameters; ``(sigma, z, r, J, iterations)``.
+
+    ``start`` is ``(sigma, z, r, J)`` (left unchanged).
+    """
+    sigma, z, r, J = start
+    z = z.copy()
+    n_par = free.size
+    cost = float(r @ r)
+    damping = 1e-3
+    done = 0
+    for done in range(1, max_iterations + 1):  # noqa: B007 (returned)
+        Jf = J[:, free]
+        JtJ = Jf.T @ Jf
+        g = Jf.T @ r
+        improved = False
+        while damping < 1e12:
+            step_f = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
+            step_f *= min(1.0, MAX_LOG_STEP / max(np.abs(step_f).max(), 1e-300))
+            step = np.zeros(n_par)
+            step[free] = step_f
+            new_sigma = sigma * float(np.exp(step[0]))
+            new_z = z * np.exp(step[1:] if frame.per_electrode else step[1])
+            r_new, _ = frame.evaluate(new_sigma, new_z, False)
+            new_cost = float(r_new @ r_new)
+            if new_cost < cost:
+                improved = True
+                damping = max(damping / 3, 1e-9)
+                break
+            damping *= 4
+        if not improved:
+            break
+        fraction = (cost - new_cost) / max(cost, 1e-300)
+        sigma, z, cost = new_sigma, new_z, new_cost
+        r, J = frame.evaluate(sigma, z, True)
+        if fraction < RELATIVE_TOLERANCE:
+            break
+    return sigma, z, r, J, done
+
+
+def _usable_channels(v: np.ndarray, n_measurements: int, gain: float, n_par: int) -> np.ndarray:
+    """``[M]`` bool: the finite, non-zero channels of ``v``, at least twice ``n_par`` of them."""
+    if v.shape != (n_measurements,):
+        raise ValueError(f"reference: expected [{n_measurements}] values, got {v.shape}")
+    if not (np.isfinite(gain) and gain > 0):
+        raise ValueError(f"gain: must be finite and > 0, got {gain}")
+    used = np.isfinite(v) & (v != 0)
+    if used.sum() < 2 * n_par:
+        raise ValueError(
+            f"reference: {int(used.sum())} usable channels for {n_par} parameters; "
+            "need twice as many"
+        )
+    return used
+
+
+def _electrode_residual(protocol: Protocol, used: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``[n_el]`` rms of the scaled residual ``r`` over the used channels at each electrode.
+
+    NaN for an electrode no used channel touches.
+    """
+    full = np.zeros(used.shape)
+    full[used] = r
+    touching = np.stack([protocol.touching([e]) & used for e in range(protocol.n_electrodes)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt((touching * full**2).sum(axis=1) / touching.sum(axis=1))
 
 
 def _electrode_lengths(mesh: Mesh) -> np.ndarray:

@@ -141,68 +141,12 @@ class ForwardModel:
         self._n_nodes = n_nodes
         self._n_el = n_el
 
-        # --- element geometry: gradients of the hat functions, areas --------------------
-        p = nodes[tri]  # [t, 3, 2]
-        e1 = p[:, 2] - p[:, 1]  # edge opposite node 0
-        e2 = p[:, 0] - p[:, 2]
-        e3 = p[:, 1] - p[:, 0]
-        area = 0.5 * (e3[:, 0] * (-e2[:, 1]) - e3[:, 1] * (-e2[:, 0]))
-        if np.any(area <= 0):
-            bad = int(np.flatnonzero(area <= 0)[0])
-            raise ValueError(
-                f"mesh.triangles: triangle {bad} is degenerate or clockwise (area {area[bad]:g})"
-            )
-        edges = np.stack([e1, e2, e3], axis=1)  # [t, 3, 2]
-        # grad phi_j = perp(edge opposite j) / (2 area), perp(x, y) = (-y, x)
-        grads = np.stack([-edges[..., 1], edges[..., 0]], axis=1) / (2 * area)[:, None, None]
+        area, grads = _hat_gradients(nodes, tri)
         self._tri = tri
-        # sqrt(area) * gradient as one sparse operator [2 t, n_nodes]: rows (d, t), so a field
-        # block [n_nodes, k] maps to area-weighted element gradients in one sparse product
-        n_t = tri.shape[0]
-        grad_rows = np.broadcast_to(
-            (np.arange(2)[None, :, None] * n_t) + np.arange(n_t)[:, None, None], (n_t, 2, 3)
-        )
-        self._grad_op = sp.csr_matrix(
-            (
-                (grads * np.sqrt(area)[:, None, None]).ravel(),
-                (grad_rows.ravel(), np.broadcast_to(tri[:, None, :], (n_t, 2, 3)).ravel()),
-            ),
-            shape=(2 * n_t, n_nodes),
-        )
+        self._grad_op = _gradient_operator(area, grads, tri, n_nodes)
         local = area[:, None, None] * np.einsum("tdi,tdj->tij", grads, grads)  # [t, 3, 3]
 
-        # --- electrode (contact) terms: constant --------------------------------------
-        erows, ecols, evals = [], [], []
-        n_unknown = n_nodes + n_el
-        el_len = np.zeros(n_el)
-        for el_i, edge_arr in enumerate(mesh.electrode_edges):
-            ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
-            if ed.shape[0] == 0:
-                raise ValueError(f"mesh.electrode_edges[{el_i}]: electrode has no boundary edge")
-            if ed.min() < 0 or ed.max() >= n_nodes:
-                raise ValueError(f"mesh.electrode_edges[{el_i}]: node index out of range")
-            length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)
-            if np.any(length <= 0):
-                raise ValueError(f"mesh.electrode_edges[{el_i}]: zero-length edge")
-            el_len[el_i] = length.sum()
-            a, b = ed[:, 0], ed[:, 1]
-            w = 1.0 / z[el_i]
-            # edge mass matrix (1/z) * L/6 [[2, 1], [1, 2]]
-            erows += [a, b, a, b]
-            ecols += [a, b, b, a]
-            evals += [w * length / 3, w * length / 3, w * length / 6, w * length / 6]
-            # coupling -(1/z) int phi_i ds = -(1/z) L/2 at both nodes, symmetric
-            el = np.full(len(a), n_nodes + el_i)
-            erows += [a, b, el, el]
-            ecols += [el, el, a, b]
-            evals += [-w * length / 2] * 4
-            erows.append(np.array([n_nodes + el_i]))
-            ecols.append(np.array([n_nodes + el_i]))
-            evals.append(np.array([el_len[el_i] * w]))
-        self._el_len = el_len
-        erows = np.concatenate(erows)
-        ecols = np.concatenate(ecols)
-        evals = np.concatenate(evals)
+        erows, ecols, evals, self._el_len = _contact_terms(mesh, nodes, z)
         # C^T rows [n_el, n_nodes]: electrode current I_l = D_l U_l - (C^T u)_l
         coupling = (erows >= n_nodes) & (ecols < n_nodes)
         self._ct = sp.csr_matrix(
@@ -210,27 +154,31 @@ class ForwardModel:
             shape=(n_el, n_nodes),
         )
 
-        # --- nodes no triangle uses: identity row keeps the matrix regular ---------------
+        # nodes no triangle uses: an identity row keeps the matrix regular
         used = np.zeros(n_nodes, dtype=bool)
         used[tri.ravel()] = True
         unused = np.flatnonzero(~used)
         self._unused = unused
+        _check_every_part_touches_an_electrode(mesh, tri, used)
+        self._assemble_pattern(local, (erows, ecols, evals), unused)
+        self._cache: _Factorised | None = None
+        self._order: np.ndarray | None = None  # fill-reducing order, found once
+        self._permuted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-        # --- connectivity: every piece of the sheet must touch an electrode ---------------
-        adj = sp.coo_matrix(
-            (np.ones(3 * len(tri)), (tri.ravel(), np.roll(tri, 1, axis=1).ravel())),
-            shape=(n_nodes, n_nodes),
-        )
-        n_comp, label = csgraph.connected_components(adj, directed=False)
-        el_nodes = np.unique(np.concatenate([np.ravel(e) for e in mesh.electrode_edges]))
-        touched = np.zeros(n_comp, dtype=bool)
-        touched[label[el_nodes]] = True
-        if not np.all(touched[np.unique(label[used])]):
-            raise ValueError(
-                "mesh: a connected part of the sheet has no electrode; its potential is undefined"
-            )
+    def _assemble_pattern(
+        self,
+        local: np.ndarray,
+        contact: tuple[np.ndarray, np.ndarray, np.ndarray],
+        unused: np.ndarray,
+    ) -> None:
+        """Assemble the grounded system's CSR pattern once.
 
-        # --- sparsity pattern of the grounded system, assembled once ----------------------
+        Data slots of the stiffness entries (``local`` ``[t, 3, 3]`` per unit sigma), the
+        constant contact data (``contact``: rows, columns, values) and the identity rows of
+        the ``unused`` nodes.
+        """
+        tri, n_nodes, n_el = self._tri, self._n_nodes, self._n_el
+        erows, ecols, evals = contact
         ground = n_nodes + n_el - 1
         srows = np.repeat(tri, 3, axis=1).ravel()
         scols = np.tile(tri, (1, 3)).ravel()
@@ -239,7 +187,7 @@ class ForwardModel:
         keep = (rows != ground) & (cols != ground)
         n_stiff = srows.size
         keep_stiff = keep[:n_stiff]
-        n_sys = n_unknown - 1
+        n_sys = n_nodes + n_el - 1
         key = rows[keep] * n_sys + cols[keep]
         uniq, inverse = np.unique(key, return_inverse=True)
         self._n_sys = n_sys
@@ -259,9 +207,6 @@ class ForwardModel:
         self._diag_slot = np.flatnonzero(row_of == self._indices)
         if self._diag_slot.size != n_sys:
             raise ValueError("mesh: some unknown has no diagonal entry (isolated node?)")
-        self._cache: _Factorised | None = None
-        self._order: np.ndarray | None = None  # fill-reducing order, found once
-        self._permuted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -523,3 +468,100 @@ class ForwardModel:
         n = self._n_sys
         inv = spla.LinearOperator((n, n), matvec=fac.solve, rmatvec=fac.solve)  # symmetric
         return float(spla.norm(Ks, 1) * spla.onenormest(inv))
+
+
+def _hat_gradients(nodes: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle areas ``[t]`` m^2 and hat-function gradients ``[t, 2, 3]`` 1/m.
+
+    ``grads[:, d, j]`` is component ``d`` of node ``j``'s gradient; a degenerate or clockwise
+    triangle is refused.
+    """
+    p = nodes[tri]  # [t, 3, 2]
+    e1 = p[:, 2] - p[:, 1]  # edge opposite node 0
+    e2 = p[:, 0] - p[:, 2]
+    e3 = p[:, 1] - p[:, 0]
+    area = 0.5 * (e3[:, 0] * (-e2[:, 1]) - e3[:, 1] * (-e2[:, 0]))
+    if np.any(area <= 0):
+        bad = int(np.flatnonzero(area <= 0)[0])
+        raise ValueError(
+            f"mesh.triangles: triangle {bad} is degenerate or clockwise (area {area[bad]:g})"
+        )
+    edges = np.stack([e1, e2, e3], axis=1)  # [t, 3, 2]
+    # grad phi_j = perp(edge opposite j) / (2 area), perp(x, y) = (-y, x)
+    grads = np.stack([-edges[..., 1], edges[..., 0]], axis=1) / (2 * area)[:, None, None]
+    return area, grads
+
+
+def _gradient_operator(
+    area: np.ndarray, grads: np.ndarray, tri: np.ndarray, n_nodes: int
+) -> sp.csr_matrix:
+    """``sqrt(area)`` times the gradient as one sparse operator ``[2 t, n_nodes]``.
+
+    Rows ``(d, t)``, so a field block ``[n_nodes, k]`` maps to area-weighted element
+    gradients in one sparse product.
+    """
+    n_t = tri.shape[0]
+    grad_rows = np.broadcast_to(
+        (np.arange(2)[None, :, None] * n_t) + np.arange(n_t)[:, None, None], (n_t, 2, 3)
+    )
+    return sp.csr_matrix(
+        (
+            (grads * np.sqrt(area)[:, None, None]).ravel(),
+            (grad_rows.ravel(), np.broadcast_to(tri[:, None, :], (n_t, 2, 3)).ravel()),
+        ),
+        shape=(2 * n_t, n_nodes),
+    )
+
+
+def _contact_terms(
+    mesh: Mesh, nodes: np.ndarray, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The constant contact terms ``B``, ``C``, ``D`` and the electrode lengths ``[n_el]`` m.
+
+    The terms are COO rows, columns and values over the unknowns ``[u (n_nodes), U (n_el)]``.
+    """
+    n_nodes, n_el = nodes.shape[0], mesh.n_electrodes
+    erows, ecols, evals = [], [], []
+    el_len = np.zeros(n_el)
+    for el_i, edge_arr in enumerate(mesh.electrode_edges):
+        ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
+        if ed.shape[0] == 0:
+            raise ValueError(f"mesh.electrode_edges[{el_i}]: electrode has no boundary edge")
+        if ed.min() < 0 or ed.max() >= n_nodes:
+            raise ValueError(f"mesh.electrode_edges[{el_i}]: node index out of range")
+        length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)
+        if np.any(length <= 0):
+            raise ValueError(f"mesh.electrode_edges[{el_i}]: zero-length edge")
+        el_len[el_i] = length.sum()
+        a, b = ed[:, 0], ed[:, 1]
+        w = 1.0 / z[el_i]
+        # edge mass matrix (1/z) * L/6 [[2, 1], [1, 2]]
+        erows += [a, b, a, b]
+        ecols += [a, b, b, a]
+        evals += [w * length / 3, w * length / 3, w * length / 6, w * length / 6]
+        # coupling -(1/z) int phi_i ds = -(1/z) L/2 at both nodes, symmetric
+        el = np.full(len(a), n_nodes + el_i)
+        erows += [a, b, el, el]
+        ecols += [el, el, a, b]
+        evals += [-w * length / 2] * 4
+        erows.append(np.array([n_nodes + el_i]))
+        ecols.append(np.array([n_nodes + el_i]))
+        evals.append(np.array([el_len[el_i] * w]))
+    return np.concatenate(erows), np.concatenate(ecols), np.concatenate(evals), el_len
+
+
+def _check_every_part_touches_an_electrode(mesh: Mesh, tri: np.ndarray, used: np.ndarray) -> None:
+    """Refuse a mesh with a connected piece no electrode touches (its potential is undefined)."""
+    n_nodes = used.size
+    adj = sp.coo_matrix(
+        (np.ones(3 * len(tri)), (tri.ravel(), np.roll(tri, 1, axis=1).ravel())),
+        shape=(n_nodes, n_nodes),
+    )
+    n_comp, label = csgraph.connected_components(adj, directed=False)
+    el_nodes = np.unique(np.concatenate([np.ravel(e) for e in mesh.electrode_edges]))
+    touched = np.zeros(n_comp, dtype=bool)
+    touched[label[el_nodes]] = True
+    if not np.all(touched[np.unique(label[used])]):
+        raise ValueError(
+            "mesh: a connected part of the sheet has no electrode; its potential is undefined"
+        )

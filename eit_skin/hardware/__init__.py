@@ -34,6 +34,7 @@ _EXPORTS: dict[str, str] = {
     "SerialLink": "serial_link",
     "SerialSource": "sources",
     "SimulatedSource": "sources",
+    "WireHeader": "fake_device",
     "encode_frame": "wire",
 }
 
@@ -50,6 +51,7 @@ __all__ = [
     "SerialLink",
     "SerialSource",
     "SimulatedSource",
+    "WireHeader",
     "board_reader",
     "encode_frame",
 ]
@@ -57,7 +59,7 @@ __all__ = [
 if TYPE_CHECKING:
     from eit_skin.hardware.boards import BoardFrame, BoardReader
     from eit_skin.hardware.device_clock import DeviceClock
-    from eit_skin.hardware.fake_device import FakeDevice
+    from eit_skin.hardware.fake_device import FakeDevice, WireHeader
     from eit_skin.hardware.sciospec import SciospecReader
     from eit_skin.hardware.serial_link import SerialLink
     from eit_skin.hardware.sources import (

@@ -22,6 +22,8 @@ docs/boards.md (*Emulated boards*).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from eit_skin.hardware.fake_device import FrameSource, PtyBoard
@@ -219,24 +221,54 @@ def arduino_print_float(values: np.ndarray, digits: int = 4) -> np.ndarray:
     return np.where(np.isnan(v), "nan", out)
 
 
+@dataclass(frozen=True)
+class LineFormat:
+    """How a line-printing board writes a frame.
+
+    The line is ``label: `` (when given), then every number as ``Serial.print(v, digits)``
+    times ``scale`` followed by ``separator``, then ``line_ending``.
+
+    Attributes:
+        separator: one of :data:`LINE_SEPARATORS`.
+        label: prefix word ('' for none).
+        line_ending: LF or CR LF.
+        drop_zeros: print only the protocol's entries of a full layout (boards that skip
+            the pairs on drive electrodes).
+        scale: board units per frame-source unit.
+        digits: decimals of every number.
+    """
+
+    separator: str = ", "
+    label: str = ""
+    line_ending: str = "\n"
+    drop_zeros: bool = False
+    scale: float = 1.0
+    digits: int = 4
+
+    def __post_init__(self) -> None:
+        if self.separator not in LINE_SEPARATORS:
+            raise ValueError(f"separator: {self.separator!r} is not one of {LINE_SEPARATORS}")
+        if self.line_ending not in LINE_ENDINGS:
+            raise ValueError(f"line_ending: {self.line_ending!r} is not one of {LINE_ENDINGS}")
+        if self.label and not self.label.replace("_", "").isalnum():
+            raise ValueError(f"label: {self.label!r} must be letters, digits or '_'")
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale must be a positive number, got {self.scale}")
+        if not 0 <= self.digits <= 15:
+            raise ValueError(f"digits must be in 0..15, got {self.digits}")
+
+
 class LinesEmulator(PtyBoard):
     """A line-printing board: one text line of numbers per frame, no host commands.
-
-    The line is ``label: `` (when given), then every number as ``Serial.print(v, 4)``
-    followed by ``separator``, then ``line_ending``.
 
     Args:
         frame_source: frame index -> the layer's measurements ``[M]`` in protocol order.
         protocol: the layer's protocol: the full layout gives the N x N numbers of
             ``read_frame`` (zeros on pairs touching a drive electrode).
         rate_hz: frames per second.
-        separator: one of :data:`LINE_SEPARATORS`.
-        label: prefix word ('' for none).
-        line_ending: LF or CR LF.
-        drop_zeros: print only the protocol's entries of a full layout (boards that skip
-            the pairs on drive electrodes); refused for a compact layout.
-        scale: board units per frame-source unit.
-        digits: decimals of every number.
+        line_format: how the line is written (``drop_zeros`` is refused for a compact
+            layout).
+        max_pending_bytes: bytes queued while nobody reads before frames are dropped.
     """
 
     def __init__(
@@ -244,38 +276,23 @@ class LinesEmulator(PtyBoard):
         frame_source: FrameSource,
         protocol: Protocol,
         rate_hz: float = 10.0,
-        *,
-        separator: str = ", ",
-        label: str = "",
-        line_ending: str = "\n",
-        drop_zeros: bool = False,
-        scale: float = 1.0,
-        digits: int = 4,
+        line_format: LineFormat = LineFormat(),
         max_pending_bytes: int = 1 << 20,
     ) -> None:
         super().__init__(rate_hz, max_pending_bytes=max_pending_bytes)
-        if separator not in LINE_SEPARATORS:
-            raise ValueError(f"separator: {separator!r} is not one of {LINE_SEPARATORS}")
-        if line_ending not in LINE_ENDINGS:
-            raise ValueError(f"line_ending: {line_ending!r} is not one of {LINE_ENDINGS}")
-        if label and not label.replace("_", "").isalnum():
-            raise ValueError(f"label: {label!r} must be letters, digits or '_'")
-        if drop_zeros and protocol.frame_index is None:
+        if line_format.drop_zeros and protocol.frame_index is None:
             raise ValueError(
                 "drop_zeros: the protocol's layout is compact (no zeros to drop); use layout: full"
             )
-        if not (np.isfinite(scale) and scale > 0):
-            raise ValueError(f"scale must be a positive number, got {scale}")
-        if not 0 <= digits <= 15:
-            raise ValueError(f"digits must be in 0..15, got {digits}")
         self.frame_source = frame_source
         self.protocol = protocol
-        self.separator = separator
-        self.label = label
-        self.line_ending = line_ending
-        self.drop_zeros = drop_zeros
-        self.scale = float(scale)
-        self.digits = int(digits)
+        self.line_format = line_format
+        self.separator = line_format.separator
+        self.label = line_format.label
+        self.line_ending = line_format.line_ending
+        self.drop_zeros = line_format.drop_zeros
+        self.scale = float(line_format.scale)
+        self.digits = int(line_format.digits)
         self._kept = None if protocol.frame_index is None else np.sort(protocol.frame_index)
 
     def printed_numbers(self, index: int) -> np.ndarray:

@@ -222,6 +222,25 @@ LINE_LABEL = re.compile(r"^\s*[A-Za-z_][\w .-]*:")
 """A ``label:`` before a line's numbers (a word, then a colon)."""
 
 
+@dataclass(frozen=True)
+class TextLines:
+    """What a good frame line of a text board holds.
+
+    Attributes:
+        expected: numbers per line.
+        separators: characters between numbers (besides whitespace).
+        prefix: the word before the numbers ('' for none).
+        volts_per_unit: volts per printed unit.
+        start_command: the line the host sends on connect ('' for none).
+    """
+
+    expected: int
+    separators: str
+    prefix: str
+    volts_per_unit: float
+    start_command: str = ""
+
+
 class TextLineReader(BoardReader):
     """One frame per text line: ``[label:] v1 <sep> v2 <sep> ... vN [<sep>]`` + CR, LF or CRLF.
 
@@ -230,6 +249,7 @@ class TextLineReader(BoardReader):
     is not a good frame it is counted as ``partial_line``, not as an error of the board.
     A value that is not finite (``nan``, ``inf``) keeps its frame, flagged FLAG_INVALID on
     that channel (as the wire protocol does); words that are not numbers refuse the frame.
+    ``lines`` says what a good line holds.
     """
 
     profile = "lines"
@@ -240,20 +260,15 @@ class TextLineReader(BoardReader):
         protocol: Protocol,
         device: DeviceSpec,
         layer: str,
-        *,
-        expected: int,
-        separators: str,
-        prefix: str,
-        volts_per_unit: float,
-        start_command: str = "",
+        lines: TextLines,
     ) -> None:
         super().__init__(protocol, device, layer)
-        self.start_command = start_command
-        self.expected = int(expected)
-        self.prefix = prefix
-        self.volts_per_unit = float(volts_per_unit)
-        self.separators = separators
-        self._to_spaces = str.maketrans(dict.fromkeys(separators, " "))
+        self.start_command = lines.start_command
+        self.expected = int(lines.expected)
+        self.prefix = lines.prefix
+        self.volts_per_unit = float(lines.volts_per_unit)
+        self.separators = lines.separators
+        self._to_spaces = str.maketrans(dict.fromkeys(lines.separators, " "))
         self.max_line = 64 * self.expected + 256
         self._buf = bytearray()
         self._offset = 0  # stream offset of self._buf[0]
@@ -389,10 +404,7 @@ class OpenEITReader(TextLineReader):
             protocol,
             device,
             layer,
-            expected=n * (n - 4),
-            separators=",",
-            prefix="magnitudes:",
-            volts_per_unit=float(device.get("volts_per_unit")),
+            TextLines(n * (n - 4), ",", "magnitudes:", float(device.get("volts_per_unit"))),
         )
         self.mode = OPENEIT_ELECTRODES[n]
         self.EXPECTING = f"'magnitudes:' lines of {self.expected} values (mode {self.mode})"
@@ -424,13 +436,11 @@ def lines_reader(protocol: Protocol, device: DeviceSpec, layer: str) -> TextLine
     count = int(device.get("values"))
     if count == 0:
         count = protocol.n_measurements if device.get("drop_zeros") else protocol.frame_size
-    return TextLineReader(
-        protocol,
-        device,
-        layer,
+    lines = TextLines(
         expected=count,
         separators=str(device.get("separators")),
         prefix=str(device.get("prefix")),
         volts_per_unit=float(device.get("volts_per_unit")),
         start_command=str(device.get("start_command")),
     )
+    return TextLineReader(protocol, device, layer, lines)

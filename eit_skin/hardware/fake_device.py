@@ -20,6 +20,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -303,14 +304,39 @@ class PtyBoard:
         self.close()
 
 
+@dataclass(frozen=True)
+class WireHeader:
+    """The header fields and value encoding of every frame a :class:`FakeDevice` sends.
+
+    Attributes:
+        n_electrodes: electrodes on the driven layer.
+        pattern_id: drive pattern the board runs.
+        pattern_param: k of the SKIP pattern, else 0.
+        current_a: injected current amplitude, amperes.
+        value_encoding: FLOAT32_VOLTS, or INT32_COUNTS with ``volts_per_count``.
+        volts_per_count: volts per ADC count (stored as float32, as on the wire).
+    """
+
+    n_electrodes: int = 16
+    pattern_id: PatternId = PatternId.ADJACENT
+    pattern_param: int = 0
+    current_a: float = 1e-3
+    value_encoding: ValueEncoding = ValueEncoding.FLOAT32_VOLTS
+    volts_per_count: float = DEFAULT_VOLTS_PER_COUNT
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pattern_id", PatternId(self.pattern_id))
+        object.__setattr__(self, "value_encoding", ValueEncoding(self.value_encoding))
+        object.__setattr__(self, "volts_per_count", float(np.float32(self.volts_per_count)))
+
+
 class FakeDevice(PtyBoard):
     """A pty that emits wire frames at ``rate_hz``.
 
     Args:
         frame_source: frame index -> voltages, volts [M] (M fixed).
         rate_hz: frames per second.
-        n_electrodes, pattern_id, pattern_param, current_a: header fields of every frame.
-        value_encoding: FLOAT32_VOLTS, or INT32_COUNTS with ``volts_per_count``.
+        header: header fields and value encoding of every frame.
         max_pending_bytes: bytes queued while nobody reads before frames are dropped.
     """
 
@@ -319,22 +345,18 @@ class FakeDevice(PtyBoard):
         frame_source: FrameSource,
         rate_hz: float = 50.0,
         *,
-        n_electrodes: int = 16,
-        pattern_id: PatternId = PatternId.ADJACENT,
-        pattern_param: int = 0,
-        current_a: float = 1e-3,
-        value_encoding: ValueEncoding = ValueEncoding.FLOAT32_VOLTS,
-        volts_per_count: float = DEFAULT_VOLTS_PER_COUNT,
+        header: WireHeader = WireHeader(),
         max_pending_bytes: int = 1 << 20,
     ) -> None:
         super().__init__(rate_hz, max_pending_bytes=max_pending_bytes)
         self.frame_source = frame_source
-        self.n_electrodes = n_electrodes
-        self.pattern_id = PatternId(pattern_id)
-        self.pattern_param = pattern_param
-        self.current_a = current_a
-        self.value_encoding = ValueEncoding(value_encoding)
-        self.volts_per_count = float(np.float32(volts_per_count))
+        self.header = header
+        self.n_electrodes = header.n_electrodes
+        self.pattern_id = header.pattern_id
+        self.pattern_param = header.pattern_param
+        self.current_a = header.current_a
+        self.value_encoding = header.value_encoding
+        self.volts_per_count = header.volts_per_count
 
     def frame(self, index: int, device_time_us: int | None = None) -> DeviceFrame:
         """Frame ``index`` exactly as a parser will decode it (values rounded to the wire)."""

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import struct
 import time
-from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -107,6 +107,23 @@ def potentials_from_differences(protocol: Protocol, differences: np.ndarray) -> 
     return u.reshape(*d.shape[:-1], protocol.n_injections, protocol.n_electrodes)
 
 
+@dataclass(frozen=True)
+class SciospecWiring:
+    """How a layer's electrodes sit on a Sciospec device's channels.
+
+    Attributes:
+        channels: the device's channel count (16, 32, 48 or 64; None: 32, or 64 above 32
+            electrodes); channels without an electrode read 0 V.
+        channel_electrodes: config electrode of board electrode 0, 1, ... (None: 0, 1, ...).
+        first_channel: the channel (1-based) board electrode 0 is wired to; board electrode
+            ``b`` is on channel ``first_channel + b``.
+    """
+
+    channels: int | None = None
+    channel_electrodes: tuple[int, ...] | None = None
+    first_channel: int = 1
+
+
 class SciospecEmulator(PtyBoard):
     """A Sciospec EIT device on its USB serial port: commands in, acknowledgements and data out.
 
@@ -128,13 +145,12 @@ class SciospecEmulator(PtyBoard):
             volts; turned into single-ended potentials by :func:`potentials_from_differences`.
         protocol: the layer's protocol (a pair drive).
         rate_hz: frames per second until the host sets a frame rate (``B0 05 03``).
-        channels: the device's channel count (16, 32, 48 or 64; default 32, or 64 above 32
-            electrodes); channels without an electrode read 0 V.
-        channel_electrodes: config electrode of board electrode 0, 1, ... (default 0, 1, ...).
-        first_channel: the channel (1-based) board electrode 0 is wired to; board electrode
-            ``b`` is on channel ``first_channel + b``.
+        wiring: the device's channel count and which electrode is on which channel.
         command_timeout_s: how long an incomplete command may wait for its bytes.
     """
+
+    #: Bytes queued while nobody reads before frames are dropped.
+    MAX_PENDING_BYTES = 1 << 22
 
     def __init__(
         self,
@@ -142,14 +158,12 @@ class SciospecEmulator(PtyBoard):
         protocol: Protocol,
         rate_hz: float = 10.0,
         *,
-        channels: int | None = None,
-        channel_electrodes: Sequence[int] | None = None,
-        first_channel: int = 1,
+        wiring: SciospecWiring = SciospecWiring(),
         command_timeout_s: float = 0.5,
-        max_pending_bytes: int = 1 << 22,
     ) -> None:
-        super().__init__(rate_hz, max_pending_bytes=max_pending_bytes)
+        super().__init__(rate_hz, max_pending_bytes=self.MAX_PENDING_BYTES)
         n = protocol.n_electrodes
+        channels, first_channel = wiring.channels, wiring.first_channel
         if not protocol.pair_drive:
             raise ValueError(
                 f"protocol {protocol.name}: a Sciospec device drives one pair at a time"
@@ -160,16 +174,20 @@ class SciospecEmulator(PtyBoard):
                 f"channels: {channels} is not 16, 32, 48 or 64 with room for {n} electrodes "
                 f"from channel {first_channel}"
             )
-        wiring = np.arange(n) if channel_electrodes is None else np.asarray(channel_electrodes)
-        if sorted(wiring.tolist()) != list(range(n)):
+        order = (
+            np.arange(n)
+            if wiring.channel_electrodes is None
+            else np.asarray(wiring.channel_electrodes)
+        )
+        if sorted(order.tolist()) != list(range(n)):
             raise ValueError(
                 f"channel_electrodes: must list every electrode 0..{n - 1} once, "
-                f"got {wiring.tolist()}"
+                f"got {order.tolist()}"
             )
         self.frame_source = frame_source
         self.protocol = protocol
         self.channels = channels
-        self.channel_electrodes = wiring.astype(np.int64)
+        self.channel_electrodes = order.astype(np.int64)
         self.first_channel = int(first_channel)
         self.command_timeout_s = float(command_timeout_s)
         self.default_rate_hz = self.rate_hz

@@ -196,7 +196,11 @@ class SerialSource:
 
     Args:
         baud: serial rate, bit/s; 0: the profile's (``device.baud``).
+        clock: maps the board's clock to host time (default: a new :class:`DeviceClock`).
     """
+
+    #: Reconnect backoff of the link, s: the first wait and the longest.
+    BACKOFF_S = (0.05, 2.0)
 
     def __init__(
         self,
@@ -205,7 +209,6 @@ class SerialSource:
         baud: int,
         sink: FrameSink,
         clock: DeviceClock | None = None,
-        backoff_max_s: float = 2.0,
     ) -> None:
         layer = factory.layer
         self.factory = factory
@@ -219,8 +222,8 @@ class SerialSource:
             port,
             baud or layer.device.baud,
             parser=self.reader,
-            backoff_initial_s=0.05,
-            backoff_max_s=backoff_max_s,
+            backoff_initial_s=self.BACKOFF_S[0],
+            backoff_max_s=self.BACKOFF_S[1],
         )
         self.rate = RateMeter()
         self.published = 0

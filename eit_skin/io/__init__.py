@@ -15,6 +15,7 @@ from eit_skin import lazy_exports
 #: so importing one module never imports the whole subpackage).
 _EXPORTS: dict[str, str] = {
     "EIT_FRAME_SCHEMA": "cdr",
+    "FrameStream": "conversion",
     "McapDamage": "mcap",
     "McapFrameWriter": "mcap",
     "decode_eit_frame_cdr": "cdr",
@@ -30,6 +31,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "EIT_FRAME_SCHEMA",
+    "FrameStream",
     "McapDamage",
     "McapFrameWriter",
     "decode_eit_frame_cdr",
@@ -50,7 +52,7 @@ if TYPE_CHECKING:
         eit_frame_msgdef,
         encode_eit_frame_cdr,
     )
-    from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+    from eit_skin.io.conversion import FrameStream, mcap_to_npz, npz_to_mcap
     from eit_skin.io.mcap import McapDamage, McapFrameWriter, read_mcap_frames
     from eit_skin.io.npz import load_frames_npz, save_frames_npz, write_npz_atomic
 

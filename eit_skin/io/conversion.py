@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -84,36 +85,60 @@ def mcap_to_npz(
             )
         if rows:
             writer.append(frames=np.stack(rows), t=np.asarray(stamps, dtype=np.int64) / 1e9)
-        head = np.stack(head)
-        reference = np.full(m, np.nan)
-        for values in (head, np.stack(raw_head)):  # flagged values only where nothing else
-            missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
-            reference[missing] = np.nanmean(values[:, missing], axis=0)
-        if not np.isfinite(reference).all():
-            raise ValueError(
-                f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is "
-                f"invalid in all of the first {len(head)} frames, so there is no reference; "
-                "raise reference_frames"
-            )
+        reference = _reference(mcap_path, np.stack(head), np.stack(raw_head))
         writer.append(reference=reference)
     return n_frames
+
+
+def _reference(mcap_path: str | Path, head: np.ndarray, raw_head: np.ndarray) -> np.ndarray:
+    """``[M]`` NaN-ignoring mean of the first frames ``head`` ``[n, M]`` (flagged as NaN).
+
+    A channel flagged in all of them takes the mean of its flagged values ``raw_head``.
+    """
+    reference = np.full(head.shape[1], np.nan)
+    for values in (head, raw_head):  # flagged values only where nothing else
+        missing = ~np.isfinite(reference) & ~np.isnan(values).all(axis=0)
+        reference[missing] = np.nanmean(values[:, missing], axis=0)
+    if not np.isfinite(reference).all():
+        raise ValueError(
+            f"{mcap_path}: channel {int(np.flatnonzero(~np.isfinite(reference))[0])} is "
+            f"invalid in all of the first {len(head)} frames, so there is no reference; "
+            "raise reference_frames"
+        )
+    return reference
+
+
+@dataclass(frozen=True)
+class FrameStream:
+    """What a layer's frames are published as: the topic and the EitFrame header fields.
+
+    Attributes:
+        topic: the frames topic.
+        patch, layer: names from the patch config.
+        n_electrodes: electrodes on the layer.
+        drive_pattern: protocol name (adjacent, opposite, skip-k, explicit).
+        current_a: injected current, amperes.
+        frame_id: header.frame_id.
+    """
+
+    topic: str
+    patch: str
+    layer: str
+    n_electrodes: int
+    drive_pattern: str = "adjacent"
+    current_a: float = 1e-3
+    frame_id: str = ""
 
 
 def npz_to_mcap(
     npz_path: str | Path,
     mcap_path: str | Path,
-    topic: str,
+    stream: FrameStream,
     *,
-    patch: str,
-    layer: str,
-    n_electrodes: int,
-    drive_pattern: str = "adjacent",
-    current_a: float = 1e-3,
-    frame_id: str = "",
     rate_hz: float = 50.0,
     start_ns: int = 0,
 ) -> int:
-    """Write an npz file's frames as EitFrame messages; returns T.
+    """Write an npz file's frames as EitFrame messages of ``stream``; returns T.
 
     Stamps come from ``t`` (seconds since the epoch) or, without it, ``start_ns`` + i /
     ``rate_hz``. NaN values are written as NaN with FLAG_INVALID. The reference is not stored
@@ -128,15 +153,15 @@ def npz_to_mcap(
     with McapFrameWriter(mcap_path) as writer:
         for i in range(frames.shape[0]):
             writer.write(
-                topic,
+                stream.topic,
                 FrameRecord(
                     stamp_ns=int(stamps[i]),
-                    frame_id=frame_id,
-                    patch=patch,
-                    layer=layer,
-                    n_electrodes=n_electrodes,
-                    drive_pattern=drive_pattern,
-                    current_a=current_a,
+                    frame_id=stream.frame_id,
+                    patch=stream.patch,
+                    layer=stream.layer,
+                    n_electrodes=stream.n_electrodes,
+                    drive_pattern=stream.drive_pattern,
+                    current_a=stream.current_a,
                     sequence=i % 2**32,
                     voltages=frames[i],
                     channel_flags=flags[i],

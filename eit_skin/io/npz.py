@@ -198,51 +198,13 @@ class FramesNpzReader:
         self.path = Path(path)
         self.block_frames = int(block_frames)
         where = str(self.path)
-        try:
-            with zipfile.ZipFile(self.path) as archive:
-                members = {
-                    name.removesuffix(".npy"): name
-                    for name in archive.namelist()
-                    if name.endswith(".npy")
-                }
-                for key in ("reference", "frames"):
-                    if key not in members:
-                        raise ValueError(f"{where}: missing key '{key}' (found {sorted(members)})")
-                with archive.open(members["reference"]) as stream:
-                    reference = np.lib.format.read_array(stream, allow_pickle=False)
-                headers = {}
-                for key in ("frames", "t", "references"):
-                    if key in members:
-                        with archive.open(members[key]) as stream:
-                            headers[key] = _member_header(
-                                where, key, stream, convert is not None and key != "t"
-                            )
-        except FileNotFoundError:
-            raise
-        except (zipfile.BadZipFile, OSError, EOFError) as error:
-            raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
+        members, reference, headers = _read_headers(self.path, convert is not None)
         self._members = members
         self._convert = convert
         shape, self._fortran, self._dtype = headers["frames"]
         t_shape = headers["t"][0] if "t" in headers else None
         if convert is not None:
-            if np.ndim(reference) != 1 or np.size(reference) == 0:
-                raise ValueError(
-                    f"{where}: 'reference' must have shape [W] (one device frame), got "
-                    f"{np.shape(reference)}"
-                )
-            if np.asarray(reference).dtype.kind not in "fiuc":
-                raise ValueError(
-                    f"{where}: 'reference' must be real or complex numbers, got dtype "
-                    f"{np.asarray(reference).dtype}"
-                )
-            width = np.size(reference)
-            if len(shape) != 2 or shape[0] == 0 or shape[1] != width:
-                raise ValueError(
-                    f"{where}: 'frames' must have shape [T>=1, W={width}] like 'reference', "
-                    f"got {shape}"
-                )
-            reference = convert(reference, f"{where}: 'reference'")
+            reference = _converted_reference(where, reference, shape, convert)
             n_measurements = None  # convert checked the device frame's width
         # the in-memory checks (same messages as load_frames_npz), frames' shape checked apart
         stand_in = np.zeros((1, max(np.size(reference), 1)))
@@ -467,3 +429,60 @@ class NpzStreamWriter:
             self.close()
         else:
             self.discard()
+
+
+def _read_headers(
+    path: Path, converted: bool
+) -> tuple[dict[str, str], np.ndarray, dict[str, tuple[tuple[int, ...], bool, np.dtype]]]:
+    """``(members by key, reference, header of frames/t/references)`` of an npz frames file.
+
+    ``converted``: frames and references hold device frames to be converted.
+    """
+    where = str(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = {
+                name.removesuffix(".npy"): name
+                for name in archive.namelist()
+                if name.endswith(".npy")
+            }
+            for key in ("reference", "frames"):
+                if key not in members:
+                    raise ValueError(f"{where}: missing key '{key}' (found {sorted(members)})")
+            with archive.open(members["reference"]) as stream:
+                reference = np.lib.format.read_array(stream, allow_pickle=False)
+            headers = {}
+            for key in ("frames", "t", "references"):
+                if key in members:
+                    with archive.open(members[key]) as stream:
+                        headers[key] = _member_header(where, key, stream, converted and key != "t")
+    except FileNotFoundError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError) as error:
+        raise ValueError(f"{where}: not a readable .npz frames file ({error})") from error
+    return members, reference, headers
+
+
+def _converted_reference(
+    where: str,
+    reference: np.ndarray,
+    shape: tuple[int, ...],
+    convert: Callable[[np.ndarray, str], np.ndarray],
+) -> np.ndarray:
+    """The device-frame ``reference`` ``[W]`` checked against the frames' ``shape``, converted."""
+    if np.ndim(reference) != 1 or np.size(reference) == 0:
+        raise ValueError(
+            f"{where}: 'reference' must have shape [W] (one device frame), got "
+            f"{np.shape(reference)}"
+        )
+    if np.asarray(reference).dtype.kind not in "fiuc":
+        raise ValueError(
+            f"{where}: 'reference' must be real or complex numbers, got dtype "
+            f"{np.asarray(reference).dtype}"
+        )
+    width = np.size(reference)
+    if len(shape) != 2 or shape[0] == 0 or shape[1] != width:
+        raise ValueError(
+            f"{where}: 'frames' must have shape [T>=1, W={width}] like 'reference', got {shape}"
+        )
+    return convert(reference, f"{where}: 'reference'")

@@ -126,21 +126,40 @@ class ClassifierNode(Node):
         self.started = time.monotonic()
         self._busy_s = 0.0
 
+        self._connect(layer.name, stretch.name if stretch else None)
+        self.diagnostics_timer = self.create_timer(
+            float(p["diagnostics_period_s"]), self._publish_diagnostics
+        )
+        self.live = LiveParameters(
+            self, WRITABLE["eit_classifier"], self._apply_parameters, self._settings_with
+        )
+        self.get_logger().info(
+            f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
+            f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
+            f"{stretch.name if stretch else None!r}; single-finger spread from "
+            f"{geometry.source} in {geometry_s:.2f} s"
+        )
+
+    def _connect(self, pressure: str, stretch: str | None) -> None:
+        """Subscribe to the layers' images and frames, calibrated contacts and diagnostics.
+
+        Also creates the event, contact and diagnostics publishers.
+        """
         topics = patch_topics(self.patch)
         #: subscribed image topic -> time.monotonic() of its last image (None: none yet)
-        self.last_image: dict[str, float | None] = {topics.layers[layer.name].image: None}
+        self.last_image: dict[str, float | None] = {topics.layers[pressure].image: None}
         self.create_subscription(
             Image,
-            topics.layers[layer.name].image,
+            topics.layers[pressure].image,
             self._on_pressure,
             SENSOR_READER,
             qos_overriding_options=OVERRIDABLE,
         )
         if self.has_stretch:
-            self.last_image[topics.layers[stretch.name].image] = None
+            self.last_image[topics.layers[stretch].image] = None
             self.create_subscription(
                 Image,
-                topics.layers[stretch.name].image,
+                topics.layers[stretch].image,
                 self._on_stretch,
                 SENSOR_READER,
                 qos_overriding_options=OVERRIDABLE,
@@ -151,7 +170,7 @@ class ClassifierNode(Node):
 
         self.create_subscription(
             EitFrame,
-            topics.layers[layer.name].frames,
+            topics.layers[pressure].frames,
             self._on_frame,
             SENSOR_READER,
             qos_overriding_options=OVERRIDABLE,
@@ -185,18 +204,6 @@ class ClassifierNode(Node):
             self._on_diagnostics,
             10,
             qos_overriding_options=OVERRIDABLE,
-        )
-        self.diagnostics_timer = self.create_timer(
-            float(p["diagnostics_period_s"]), self._publish_diagnostics
-        )
-        self.live = LiveParameters(
-            self, WRITABLE["eit_classifier"], self._apply_parameters, self._settings_with
-        )
-        self.get_logger().info(
-            f"patch {self.patch.name!r} ({path}): pressure layer {layer.name!r}, image "
-            f"{self.grid.shape[0]}x{self.grid.shape[1]}, stretch layer "
-            f"{stretch.name if stretch else None!r}; single-finger spread from "
-            f"{geometry.source} in {geometry_s:.2f} s"
         )
 
     # ------------------------------------------------------------------ live tuning

@@ -74,12 +74,7 @@ def patch_nodes(
     from eit_skin.resources import config_path
 
     ports = dict(ports or {})
-    if port and ports:
-        raise ValueError(f"port {port!r} given together with ports {ports}; choose one")
-    if (port or ports) and sim:
-        raise ValueError(f"port(s) {port or ports} given together with sim:=true; choose one")
-    if not (port or ports) and not sim:
-        raise ValueError("sim:=false needs a serial port (port:=/dev/... or ports:=LAYER=/dev/...)")
+    _check_source(port, ports, sim)
     config = config_path(patch)
     if not config.is_file():
         raise ValueError(
@@ -87,22 +82,7 @@ def patch_nodes(
             f"(valid: {', '.join(ROBOT_PATCHES)}, or a path to a patch YAML)"
         )
     layers = load_patch(config).layer_names
-    if port:
-        if len(layers) > 1:
-            raise ValueError(
-                f"patch {patch!r} has layers {', '.join(layers)}, one board each: give "
-                f"ports:={','.join(f'{name}=/dev/...' for name in layers)} instead of port:="
-            )
-        ports = {layers[0]: port}
-    unknown = sorted(set(ports) - set(layers))
-    if unknown:
-        raise ValueError(f"ports: patch {patch!r} has no layer {unknown} (layers: {layers})")
-    missing = [name for name in layers if ports and name not in ports]
-    if missing:
-        raise ValueError(
-            f"ports: no port for layer(s) {', '.join(missing)} of patch {patch!r}: "
-            "every layer needs its board"
-        )
+    ports = _layer_ports(patch, layers, port, ports)
     ns = "/" + (namespace or config.stem).strip("/")
     patch_param: dict[str, ParameterValue] = {"patch_config": str(config)}
     overrides = overrides or {}
@@ -131,6 +111,44 @@ def patch_nodes(
         spec("eit_reconstruction", "eit_reconstruction", dict(patch_param)),
         spec("eit_classifier", "eit_classifier", dict(patch_param)),
     ]
+
+
+def _check_source(port: str, ports: dict[str, str], sim: bool) -> None:
+    """Refuse a graph with both ``port`` and ``ports``, with a port and ``sim``, or neither."""
+    if port and ports:
+        raise ValueError(f"port {port!r} given together with ports {ports}; choose one")
+    if (port or ports) and sim:
+        raise ValueError(f"port(s) {port or ports} given together with sim:=true; choose one")
+    if not (port or ports) and not sim:
+        raise ValueError("sim:=false needs a serial port (port:=/dev/... or ports:=LAYER=/dev/...)")
+
+
+def _layer_ports(
+    patch: str, layers: tuple[str, ...], port: str, ports: dict[str, str]
+) -> dict[str, str]:
+    """Layer name -> serial device, from one ``port`` or the ``ports`` map (empty: simulator).
+
+    Raises:
+        ValueError: ``port`` for a patch of several layers, a port for no layer or a layer
+            without a port.
+    """
+    if port:
+        if len(layers) > 1:
+            raise ValueError(
+                f"patch {patch!r} has layers {', '.join(layers)}, one board each: give "
+                f"ports:={','.join(f'{name}=/dev/...' for name in layers)} instead of port:="
+            )
+        ports = {layers[0]: port}
+    unknown = sorted(set(ports) - set(layers))
+    if unknown:
+        raise ValueError(f"ports: patch {patch!r} has no layer {unknown} (layers: {layers})")
+    missing = [name for name in layers if ports and name not in ports]
+    if missing:
+        raise ValueError(
+            f"ports: no port for layer(s) {', '.join(missing)} of patch {patch!r}: "
+            "every layer needs its board"
+        )
+    return ports
 
 
 def robot_nodes(

@@ -35,6 +35,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, Header
@@ -68,7 +69,7 @@ from eit_skin.ros.node_runner import (
 from eit_skin.ros.parameters import RECONSTRUCTION, WRITABLE
 from eit_skin.ros.qos import OVERRIDABLE, SENSOR_READER
 from eit_skin.ros.surface_fields import place_on_surface
-from eit_skin.ros.topics import patch_topics
+from eit_skin.ros.topics import LayerTopics, patch_topics
 
 #: Seconds between looks at whether a viewer subscribes to a layer's colour image (a look
 #: is an rmw call; once per frame it cost 1.5 % of a frame's CPU at 50 patches).
@@ -130,49 +131,12 @@ class ReconstructionNode(Node):
         self._log_reject = ThrottledLog(self.get_logger().error, REJECT_LOG_PERIOD_S)
         topics = patch_topics(self.patch)
         for layer in self.patch.layers:
-            started = time.perf_counter()
-            imager = LayerImager.build(layer, cache_dir=cache)
-            self.get_logger().info(
-                f"layer {layer.name}: {imager.mesh.n_triangles} elements, "
-                f"{imager.n_measurements} measurements, grid {imager.grid.shape}, "
-                f"matrix {'from cache' if imager.from_cache else 'built'} in "
-                f"{time.perf_counter() - started:.2f} s"
-            )
             posture = None
             if p["posture_references"]:
                 posture = PostureReferences.load(str(p["posture_references"]), layer.name)
                 joint = joint or posture.joint
-            quantity = layer.material.quantity
             topic = topics.layers[layer.name]
-            top = p[_range_parameter(quantity)]
-            self.layers[layer.name] = LayerState(
-                layer=layer,
-                imager=imager,
-                processor=LayerProcessor(
-                    imager,
-                    int(p["reference_frames"]) or None,
-                    float(p["drift_time_constant_s"]),
-                    float(p["contact_k"]),
-                    posture,
-                    float(p["fault_check_period_s"]),
-                    fault_check_phase(self.patch.name, layer.name),
-                    jump_k=float(p["jump_k"]),
-                ),
-                quantity=quantity,
-                image_pub=self.create_publisher(
-                    Image, topic.image, qos_profile_sensor_data, qos_overriding_options=OVERRIDABLE
-                ),
-                colour_pub=self.create_publisher(
-                    Image,
-                    topic.image_color,
-                    qos_profile_sensor_data,
-                    qos_overriding_options=OVERRIDABLE,
-                ),
-                scale=ColourScale.named(0.0, float(top)),
-                pattern=pattern_name(layer),
-                frames_topic=topic.frames,
-                marker_topic=topic.marker,
-            )
+            self.layers[layer.name] = self._layer_state(layer, p, cache, topic, posture)
             self.create_subscription(  # CDR bytes: read_eit_frame beats rclpy's message
                 _frame_type(),
                 topic.frames,
@@ -182,20 +146,7 @@ class ReconstructionNode(Node):
                 qos_overriding_options=OVERRIDABLE,
             )
         self.joint = joint
-        self.calibrated_pub = None
-        if self.calibration is not None:
-            name = self.calibration.layer_name
-            self.calibration.check_measurements(self.layers[name].imager.n_measurements)
-            self.calibrated_pub = self.create_publisher(
-                _contact_types()[1],
-                topics.calibrated_contacts,
-                10,
-                qos_overriding_options=OVERRIDABLE,
-            )
-            self.get_logger().info(
-                f"layer {name}: calibrated contacts on {topics.calibrated_contacts} "
-                f"from {self.calibration.source}"
-            )
+        self.calibrated_pub = self._calibrated_publisher(topics.calibrated_contacts)
         self.frame_timeout_s = float(p["frame_timeout_s"])
         self.started = time.monotonic()
         self.joint_history = JointAngleHistory()
@@ -233,6 +184,71 @@ class ReconstructionNode(Node):
             f"patch {self.patch.name!r} ({path}): layers {list(self.layers)}; "
             f"posture compensation {'on joint ' + repr(joint) if joint else 'off'}; "
             f"per-frame step {compiled_step_status()}"
+        )
+
+    def _calibrated_publisher(self, topic: str) -> Publisher | None:
+        """The publisher of the calibrated contacts on ``topic`` (None: no calibration)."""
+        if self.calibration is None:
+            return None
+        name = self.calibration.layer_name
+        self.calibration.check_measurements(self.layers[name].imager.n_measurements)
+        publisher = self.create_publisher(
+            _contact_types()[1], topic, 10, qos_overriding_options=OVERRIDABLE
+        )
+        self.get_logger().info(
+            f"layer {name}: calibrated contacts on {topic} from {self.calibration.source}"
+        )
+        return publisher
+
+    def _layer_state(
+        self,
+        layer: Layer,
+        p: dict,
+        cache: str,
+        topic: LayerTopics,
+        posture: PostureReferences | None,
+    ) -> LayerState:
+        """Build one layer's imager and processor (logging the time) and its publishers.
+
+        ``p`` holds the node's parameters, ``cache`` the matrix cache directory.
+        """
+        started = time.perf_counter()
+        imager = LayerImager.build(layer, cache_dir=cache)
+        self.get_logger().info(
+            f"layer {layer.name}: {imager.mesh.n_triangles} elements, "
+            f"{imager.n_measurements} measurements, grid {imager.grid.shape}, "
+            f"matrix {'from cache' if imager.from_cache else 'built'} in "
+            f"{time.perf_counter() - started:.2f} s"
+        )
+        quantity = layer.material.quantity
+        top = p[_range_parameter(quantity)]
+        return LayerState(
+            layer=layer,
+            imager=imager,
+            processor=LayerProcessor(
+                imager,
+                int(p["reference_frames"]) or None,
+                float(p["drift_time_constant_s"]),
+                float(p["contact_k"]),
+                posture,
+                float(p["fault_check_period_s"]),
+                fault_check_phase(self.patch.name, layer.name),
+                jump_k=float(p["jump_k"]),
+            ),
+            quantity=quantity,
+            image_pub=self.create_publisher(
+                Image, topic.image, qos_profile_sensor_data, qos_overriding_options=OVERRIDABLE
+            ),
+            colour_pub=self.create_publisher(
+                Image,
+                topic.image_color,
+                qos_profile_sensor_data,
+                qos_overriding_options=OVERRIDABLE,
+            ),
+            scale=ColourScale.named(0.0, float(top)),
+            pattern=pattern_name(layer),
+            frames_topic=topic.frames,
+            marker_topic=topic.marker,
         )
 
     # ------------------------------------------------------------------ live tuning

@@ -303,21 +303,21 @@ def run_skin(
     signals.spinning = True  # a signal only sets the flag the loops below check
     with signals.installed():
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-        return _run(specs, out, signals, duration_s, script_frames, first_frame_timeout_s)
+        monitor = SkinMonitor(patch_views(specs), out, script_frames or {})
+        return _run(specs, monitor, signals, duration_s, first_frame_timeout_s)
 
 
 def _run(
     specs: list[NodeSpec],
-    out: Path,
+    monitor: SkinMonitor,
     signals: StopSignals,
     duration_s: float | None,
-    script_frames: dict[str, int] | None,
     first_frame_timeout_s: float | None,
 ) -> int:
-    """:func:`run_skin` once rclpy is up and the signals are handled."""
+    """:func:`run_skin` once rclpy is up, the signals are handled and ``monitor`` is made."""
+    out = monitor.out
     logs = out / "logs"
     stop_requested = signals.requested
-    monitor = SkinMonitor(patch_views(specs), out, script_frames or {})
     nodes: list[RunningNode] = []
     executor: SingleThreadedExecutor | None = None
     code = 0
@@ -363,15 +363,7 @@ def _run(
                 return 1
             now = monitor.elapsed()
             if now >= next_line:
-                total = "" if duration_s is None else f"/{duration_s:.0f}"
-                if monitor.script_frames:
-                    done = min(
-                        v.frames / max(1, monitor.script_frames[v.namespace]) for v in monitor.views
-                    )
-                    total = f" s, script {100 * min(done, 1.0):3.0f} %"
-                images = ", ".join(f"{v.name} {v.images}" for v in monitor.views)
-                events = sum(len(v.events) for v in monitor.views)
-                _status(f"  {now:5.1f}{total}  images: {images}  touches: {events}")
+                _status(_status_line(monitor, now, duration_s))
                 next_line = now + 0.5
     finally:
         signals.ignore()  # a second Ctrl-C must not interrupt the clean-up
@@ -392,6 +384,17 @@ def _run(
 
 #: Frames published after the script's end before a one-pass run stops (events end).
 TAIL_FRAMES = 25
+
+
+def _status_line(monitor: SkinMonitor, now: float, duration_s: float | None) -> str:
+    """The progress line at ``now`` s: time, script progress, images and touches so far."""
+    total = "" if duration_s is None else f"/{duration_s:.0f}"
+    if monitor.script_frames:
+        done = min(v.frames / max(1, monitor.script_frames[v.namespace]) for v in monitor.views)
+        total = f" s, script {100 * min(done, 1.0):3.0f} %"
+    images = ", ".join(f"{v.name} {v.images}" for v in monitor.views)
+    events = sum(len(v.events) for v in monitor.views)
+    return f"  {now:5.1f}{total}  images: {images}  touches: {events}"
 
 
 def _finished(monitor: SkinMonitor, duration_s: float | None) -> bool:

@@ -56,16 +56,31 @@ class HandSession:
     press_force_n: np.ndarray
 
 
+@dataclass(frozen=True)
+class HandHabits:
+    """How the simulated person presses, and the board's frame rate.
+
+    Attributes:
+        placement_rms_m: root-mean-square distance of the finger from the mark, m.
+        rate_hz: frame rate, Hz.
+        lead_in_s: quiet time before the first press, s.
+        weak_target: target (0-based) whose first press is too weak, or None.
+        redo_target: target (0-based) pressed twice (the first answered ``redo``), or None.
+    """
+
+    placement_rms_m: float = 0.002
+    rate_hz: float = 20.0
+    lead_in_s: float = 2.0
+    weak_target: int | None = 3
+    redo_target: int | None = 7
+
+
 def simulate_hand_session(
     patch: Patch,
     targets: np.ndarray,
     layer: str | None = None,
     seed: int = 0,
-    placement_rms_m: float = 0.002,
-    rate_hz: float = 20.0,
-    lead_in_s: float = 2.0,
-    weak_target: int | None = 3,
-    redo_target: int | None = 7,
+    person: HandHabits = HandHabits(),
 ) -> HandSession:
     """Simulate a person pressing every target of ``targets`` [N, 2] m once, in order.
 
@@ -74,11 +89,7 @@ def simulate_hand_session(
         targets: the printed targets, m.
         layer: layer recorded (default: the first).
         seed: seed of placement, timing, force, noise and drift.
-        placement_rms_m: root-mean-square distance of the finger from the mark, m.
-        rate_hz: frame rate, Hz.
-        lead_in_s: quiet time before the first press, s.
-        weak_target: target (0-based) whose first press is too weak, or None.
-        redo_target: target (0-based) pressed twice (the first answered ``redo``), or None.
+        person: how the person presses and how fast the board records.
     """
     name = layer or patch.layers[0].name
     one_layer = dataclasses.replace(patch, layers=(patch.layer(name),))
@@ -86,17 +97,17 @@ def simulate_hand_session(
     frame = SheetFrame.of(one_layer)
     plan: list[tuple[int, float]] = []  # (target, force)
     for k in range(len(targets)):
-        if k == weak_target:
+        if k == person.weak_target:
             plan.append((k, WEAK_FORCE_N))
         plan.append((k, float(rng.uniform(2.0, 6.0))))
-        if k == redo_target:
+        if k == person.redo_target:
             plan.append((k, float(rng.uniform(2.0, 6.0))))
     touches, xy = [], []
-    t = lead_in_s
+    t = person.lead_in_s
     for k, force in plan:
         radius = float(rng.uniform(0.005, 0.007))
         for _ in range(100):
-            offset = rng.normal(0.0, placement_rms_m / np.sqrt(2.0), size=2)
+            offset = rng.normal(0.0, person.placement_rms_m / np.sqrt(2.0), size=2)
             at = np.asarray(targets[k], float) + offset
             if frame.clearance(at[None])[0] >= radius + EDGE_MARGIN_M:
                 break
@@ -108,13 +119,13 @@ def simulate_hand_session(
         xy.append(at)
         t += duration + float(rng.uniform(1.0, 1.8))
     scenario = Scenario(f"hand-guided-{seed}", tuple(touches), t)
-    recording = SkinSimulator(one_layer, scenario, rate_hz=rate_hz, seed=seed).run()
+    recording = SkinSimulator(one_layer, scenario, rate_hz=person.rate_hz, seed=seed).run()
     layer_recording = recording.layers[name]
     answers = []
     for i, (k, force) in enumerate(plan):
         if force == WEAK_FORCE_N:
             continue  # rejected by the guide: no question asked
-        redo_first = k == redo_target and (i + 1 < len(plan) and plan[i + 1][0] == k)
+        redo_first = k == person.redo_target and (i + 1 < len(plan) and plan[i + 1][0] == k)
         answers.append("redo" if redo_first else "ok")
     return HandSession(
         recording.t,

@@ -18,25 +18,26 @@ from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Grab
 
+PROBE_FORCE_N = 5.0
+"""Force of every probe, N."""
+PROBE_RADIUS_M = 0.006
+"""Contact radius of every probe, m."""
+
 
 def simulate_simultaneous_presses(
     patch: Patch,
     points_xy: np.ndarray,
     layer: str | None = None,
     seed: int = 0,
-    force_n: float = 5.0,
-    radius_m: float = 0.006,
     drift: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Frames of presses with several probes each.
+    """Frames of presses with several probes each (:data:`PROBE_FORCE_N`, :data:`PROBE_RADIUS_M`).
 
     Args:
         patch: the skin patch.
         points_xy: ``[P, K, 2]`` the K probe centres of each of P presses, m.
         layer: layer whose frames are recorded (default: the first).
         seed: seed of noise and drift.
-        force_n: force of every probe, N.
-        radius_m: contact radius of every probe, m.
         drift: slow random sigma0 drift.
 
     Returns:
@@ -52,8 +53,8 @@ def simulate_simultaneous_presses(
             k * PRESS_PERIOD_S + 0.2,
             0.6,
             (float(centres[k, 0]), float(centres[k, 1])),
-            force_n,
-            radius_m,
+            PROBE_FORCE_N,
+            PROBE_RADIUS_M,
             0.1,
             tuple((float(dx), float(dy)) for dx, dy in points[k] - centres[k]),
         )

@@ -12,7 +12,7 @@ force follows Hertz's law ``F ~ depth^1.5``, scaled so the depth range spans ``f
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,15 +51,29 @@ def random_press_positions(
     raise ValueError(f"patch {patch.name!r} layer {layer!r}: no room for a press of the probe")
 
 
+@dataclass(frozen=True)
+class PressDraw:
+    """What the presses of a simulated session are drawn from.
+
+    Attributes:
+        depth_range_m: press depths, m (uniform).
+        force_range_n: probe force at the shallowest and deepest press, N.
+        radius_range_m: probe contact radius, m (uniform per press).
+        drift: slow random sigma0 drift (temperature); per-press baselines follow it.
+    """
+
+    depth_range_m: tuple[float, float] = (0.002, 0.006)
+    force_range_n: tuple[float, float] = (2.0, 8.0)
+    radius_range_m: tuple[float, float] = (0.005, 0.0075)
+    drift: bool = True
+
+
 def simulate_press_session(
     patch: Patch,
     n_presses: int,
     layer: str | None = None,
     seed: int = 0,
-    depth_range_m: tuple[float, float] = (0.002, 0.006),
-    force_range_n: tuple[float, float] = (2.0, 8.0),
-    radius_range_m: tuple[float, float] = (0.005, 0.0075),
-    drift: bool = True,
+    draw: PressDraw = PressDraw(),
 ) -> PressSession:
     """A press session of ``n_presses`` random presses on ``layer`` (default: the first).
 
@@ -68,10 +82,7 @@ def simulate_press_session(
         n_presses: presses.
         layer: layer whose frames are recorded.
         seed: seed of positions, depths, probe radii, noise and drift.
-        depth_range_m: press depths, m (uniform).
-        force_range_n: probe force at the shallowest and deepest press, N.
-        radius_range_m: probe contact radius, m (uniform per press).
-        drift: slow random sigma0 drift (temperature); per-press baselines follow it.
+        draw: the ranges the presses are drawn from, and whether sigma0 drifts.
 
     Returns:
         The session with ``reference`` (unloaded, t = 0), ``frames``, ``press_xy``, ``depth``
@@ -79,12 +90,12 @@ def simulate_press_session(
     """
     name = layer or patch.layers[0].name
     rng = np.random.default_rng([int(seed), 0x9E55])
-    depth = rng.uniform(*depth_range_m, size=n_presses)
-    d0, d1 = depth_range_m
-    f0, f1 = force_range_n
+    depth = rng.uniform(*draw.depth_range_m, size=n_presses)
+    d0, d1 = draw.depth_range_m
+    f0, f1 = draw.force_range_n
     share = (depth**1.5 - d0**1.5) / max(d1**1.5 - d0**1.5, np.finfo(float).tiny)
     force = f0 + (f1 - f0) * share
-    radius = rng.uniform(*radius_range_m, size=n_presses)
+    radius = rng.uniform(*draw.radius_range_m, size=n_presses)
     xy = random_press_positions(patch, name, n_presses, radius, rng)
     touches = tuple(
         Push(
@@ -103,7 +114,7 @@ def simulate_press_session(
         scenario,
         rate_hz=2.0 / PRESS_PERIOD_S,
         seed=seed,
-        drift=None if drift else NO_DRIFT,
+        drift=None if draw.drift else NO_DRIFT,
     )
     frames = np.array([sim.frame(2 * k + 1)[name].voltages_v for k in range(n_presses)])
     baselines = np.array([sim.frame(2 * k)[name].voltages_v for k in range(n_presses)])

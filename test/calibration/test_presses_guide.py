@@ -33,7 +33,7 @@ from eit_skin.calibration.template import (
 from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.resources import config_path
-from eit_skin.sim.hand_session import simulate_hand_session
+from eit_skin.sim.hand_session import HandHabits, simulate_hand_session
 from eit_skin.sim.press_session import simulate_press_session
 
 PLACEMENT_RMS_M = 0.002
@@ -54,7 +54,9 @@ def targets(arm):
 @pytest.fixture(scope="module")
 def guided(arm, targets, tmp_path_factory):
     """The simulated hand session run through ``presses guide --frames``: (hand, out, dir)."""
-    hand = simulate_hand_session(arm, targets, seed=0, placement_rms_m=PLACEMENT_RMS_M)
+    hand = simulate_hand_session(
+        arm, targets, seed=0, person=HandHabits(placement_rms_m=PLACEMENT_RMS_M)
+    )
     folder = tmp_path_factory.mktemp("guide")
     frames = folder / "hand.npz"
     np.savez(frames, reference=hand.reference, frames=hand.frames, t=hand.t)

@@ -20,13 +20,19 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from eit_skin.hardware.board_emulators import LinesEmulator, OpenEITEmulator, arduino_print_float
+from eit_skin.hardware.board_emulators import (
+    LineFormat,
+    LinesEmulator,
+    OpenEITEmulator,
+    arduino_print_float,
+)
 from eit_skin.hardware.sciospec_emulator import (
     SCIOSPEC_ACK,
     SCIOSPEC_NACK_NOT_EXECUTED,
     SCIOSPEC_NACK_UNKNOWN,
     SCIOSPEC_TIMEOUT,
     SciospecEmulator,
+    SciospecWiring,
     potentials_from_differences,
 )
 from eit_skin.io.npz import load_frames_npz
@@ -221,15 +227,8 @@ def test_lines_board_prints_every_value_then_the_separator(separator, label, end
     protocol = build_protocol(ProtocolSpec(layout="full"), 16)  # 16 x 16 with zeros
     rng = np.random.default_rng(1)
     frames = rng.normal(0, 0.5, (4, protocol.n_measurements))
-    board = LinesEmulator(
-        lambda i: frames[i],
-        protocol,
-        rate_hz=400.0,
-        separator=separator,
-        label=label,
-        line_ending=ending,
-        drop_zeros=drop,
-    )
+    line_format = LineFormat(separator=separator, label=label, line_ending=ending, drop_zeros=drop)
+    board = LinesEmulator(lambda i: frames[i], protocol, rate_hz=400.0, line_format=line_format)
     with board:
         host = Host(board.slave_path)
         board.start(count=4)
@@ -261,9 +260,9 @@ def test_lines_board_prints_every_value_then_the_separator(separator, label, end
 def test_lines_board_refuses_what_it_cannot_honour():
     compact = build_protocol(ProtocolSpec(), 16)
     with pytest.raises(ValueError, match="drop_zeros: the protocol's layout is compact"):
-        LinesEmulator(lambda i: np.zeros(208), compact, drop_zeros=True)
+        LinesEmulator(lambda i: np.zeros(208), compact, line_format=LineFormat(drop_zeros=True))
     with pytest.raises(ValueError, match="separator"):
-        LinesEmulator(lambda i: np.zeros(208), compact, separator="|")
+        LineFormat(separator="|")
 
 
 def test_garbage_and_a_frame_cut_short_reach_the_host_as_written():
@@ -419,7 +418,7 @@ def test_sciospec_electrodes_on_the_second_channel_group(sciospec):
     """16 electrodes on channels 17-32 of an EIT32: group 1 reads 0 V, group 2 carries them;
     an injection the protocol only has reversed is sent negated, one it lacks as 0 V."""
     protocol, frames = sciospec
-    board = SciospecEmulator(lambda i: frames[i], protocol, first_channel=17)
+    board = SciospecEmulator(lambda i: frames[i], protocol, wiring=SciospecWiring(first_channel=17))
     assert board.injections[:2] == [(17, 18), (18, 19)]
     got = data_frames(board.data_frames(0, 0.0, 10.0))
     values = np.array([f[7:-1] for f in got]).reshape(16, 2, 16, 2)[..., 0]

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.hardware.fake_device import FakeDevice, WireHeader
 from eit_skin.hardware.serial_link import SerialLink
 from eit_skin.hardware.wire import ValueEncoding
 from eit_skin.io.npz import save_frames_npz
@@ -43,7 +43,7 @@ def wait_connected(link: SerialLink, timeout_s: float = EVENT_S) -> None:
 
 @pytest.mark.parametrize("encoding", list(ValueEncoding))
 def test_fake_device_to_serial_link_is_bit_exact(encoding):
-    with FakeDevice(source, rate_hz=400.0, value_encoding=encoding) as device:
+    with FakeDevice(source, rate_hz=400.0, header=WireHeader(value_encoding=encoding)) as device:
         link = SerialLink(device.slave_path)
         wait_connected(link)
         device.start(count=40)

@@ -26,7 +26,7 @@ from eit_skin_msgs.msg import EitFrame
 from sensor_msgs.msg import Image
 
 from eit_skin.cli.main import main
-from eit_skin.hardware.board_emulators import LinesEmulator, OpenEITEmulator
+from eit_skin.hardware.board_emulators import LineFormat, LinesEmulator, OpenEITEmulator
 from eit_skin.hardware.sciospec_emulator import SciospecEmulator
 from eit_skin.io.mcap import read_mcap_frames
 from eit_skin.io.npz import load_frames_npz
@@ -51,7 +51,7 @@ BOARDS = {
         {"profile": "lines", "separators": ";"},
         {"drive": "adjacent", "measure": "adjacent", "layout": "full", "sign": -1},
         LinesEmulator,
-        {"separator": ";", "label": "frame", "line_ending": "\r\n"},
+        {"line_format": LineFormat(separator=";", label="frame", line_ending="\r\n")},
     ),
     "sciospec": (
         "sciospec_adjacent",

@@ -223,7 +223,7 @@ def test_unknown_patch_fails_the_launch_listing_the_valid_ones(
 def test_arm_on_two_boards_through_the_launch_file(tmp_path: Path, env: dict[str, str]) -> None:
     """ports:= starts one driver per pseudo-terminal board: both layers image; a node
     parameter given as a launch argument (tf_parent_frame:=) reaches the driver."""
-    from eit_skin.hardware.fake_device import FakeDevice
+    from eit_skin.hardware.fake_device import FakeDevice, WireHeader
     from eit_skin.hardware.sources import pattern_id
     from eit_skin.sim.simulator import SkinSimulator
 
@@ -234,10 +234,12 @@ def test_arm_on_two_boards_through_the_launch_file(tmp_path: Path, env: dict[str
         device = FakeDevice(
             lambda i, name=layer.name: simulator.frame(i % simulator.n_frames)[name].voltages_v,
             50.0,
-            n_electrodes=layer.n_electrodes,
-            current_a=layer.current_a,
-            pattern_id=pattern_id(layer),
-            pattern_param=layer.protocol.drive_skip,
+            header=WireHeader(
+                n_electrodes=layer.n_electrodes,
+                current_a=layer.current_a,
+                pattern_id=pattern_id(layer),
+                pattern_param=layer.protocol.drive_skip,
+            ),
         )
         device.open()
         device.link(tmp_path / f"board_{layer.name}")

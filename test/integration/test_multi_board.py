@@ -19,7 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from eit_skin_msgs.msg import EitFrame
 from sensor_msgs.msg import Image
 
-from eit_skin.hardware.fake_device import FakeDevice
+from eit_skin.hardware.fake_device import FakeDevice, WireHeader
 from eit_skin.hardware.sources import pattern_id
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
@@ -55,10 +55,12 @@ def boards(tmp_path: Path) -> tuple[list[FakeDevice], dict[str, str]]:
         device = FakeDevice(
             lambda i, name=layer.name: simulator.frame(i % n)[name].voltages_v,
             RATE_HZ,
-            n_electrodes=layer.n_electrodes,
-            current_a=layer.current_a,
-            pattern_id=pattern_id(layer),
-            pattern_param=layer.protocol.drive_skip,
+            header=WireHeader(
+                n_electrodes=layer.n_electrodes,
+                current_a=layer.current_a,
+                pattern_id=pattern_id(layer),
+                pattern_param=layer.protocol.drive_skip,
+            ),
         )
         device.open()
         link = tmp_path / f"eit_skin_arm_{layer.name}"

@@ -26,7 +26,7 @@ from eit_skin.io.cdr import (
     encode_eit_frame_cdr,
     read_eit_frame,
 )
-from eit_skin.io.conversion import mcap_to_npz, npz_to_mcap
+from eit_skin.io.conversion import FrameStream, mcap_to_npz, npz_to_mcap
 from eit_skin.io.mcap import McapFrameWriter, read_mcap_frames
 from eit_skin.io.npz import load_frames_npz, save_frames_npz
 
@@ -290,10 +290,8 @@ def test_npz_mcap_npz_conversion(tmp_path):
     frames[4, 10] = np.nan
     t = 1_700_000_000.0 + np.arange(6) * 0.02
     save_frames_npz(tmp_path / "a.npz", frames[0], frames, t)
-    n = npz_to_mcap(
-        tmp_path / "a.npz", tmp_path / "a.mcap", TOPIC, patch="arm", layer="pressure",
-        n_electrodes=16,
-    )  # fmt: skip
+    stream = FrameStream(TOPIC, patch="arm", layer="pressure", n_electrodes=16)
+    n = npz_to_mcap(tmp_path / "a.npz", tmp_path / "a.mcap", stream)
     assert n == 6
     ((_, _, rec4),) = [x for x in read_mcap_frames(tmp_path / "a.mcap") if x[2].sequence == 4]
     assert rec4.channel_flags[10] == 2 and rec4.patch == "arm"

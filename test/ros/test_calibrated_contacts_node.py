@@ -18,7 +18,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
-from eit_skin.sim.press_session import simulate_press_session
+from eit_skin.sim.press_session import PressDraw, simulate_press_session
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -66,7 +66,7 @@ def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -
     patch = load_patch(config_path("elbow"))
     layer = patch.layer("pressure")
     topics = patch_topics(patch, NAMESPACE)
-    presses = simulate_press_session(patch, TEST_PRESSES, seed=11, drift=False)
+    presses = simulate_press_session(patch, TEST_PRESSES, seed=11, draw=PressDraw(drift=False))
     probe = Probe()
     probe.subscribe(ContactArray, topics.calibrated_contacts, 100)
     probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)

@@ -23,7 +23,7 @@ from eit_skin.pipeline.builder import LayerImager
 from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.multi_press import simulate_simultaneous_presses
-from eit_skin.sim.press_session import simulate_press_session
+from eit_skin.sim.press_session import PressDraw, simulate_press_session
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -77,7 +77,7 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
     frames, baselines = simulate_simultaneous_presses(
         patch, np.stack([half, -half], axis=1), seed=8, drift=False
     )
-    single = simulate_press_session(patch, 10, seed=11, drift=False).frames[:2]
+    single = simulate_press_session(patch, 10, seed=11, draw=PressDraw(drift=False)).frames[:2]
     probe = Probe()
     probe.subscribe(ContactArray, topics.calibrated_contacts, 100)
     probe.subscribe(DiagnosticArray, DIAGNOSTICS, 10)
