@@ -193,12 +193,19 @@ def test_a_short_rub_is_a_rub(seed) -> None:
     assert _labels(t, images, ClassifierConfig(rub_travel=1.5)) == ["push"]
 
 
-def _degrading_electrode_images(tmp_path, seconds: float = 4.0, onset_s: float = 1.5):
+#: The solver these classifier tests were written with (the package default before issue 35's
+#: leave-one-set-out choice); the default's own case is the known failure below.
+WRITTEN_FOR = "{method: one_step, prior: laplace, noise_figure: 0.3}"
+
+
+def _degrading_electrode_images(
+    tmp_path, seconds: float = 4.0, onset_s: float = 1.5, solver: str = WRITTEN_FOR
+):
     """Idle small disc, 10x noise on every channel of one electrode from ``onset_s``: the
     pipeline's images, faulty-electrode sets per frame, grid, spread map, electrodes, raw
     frames ``[T, M]`` V and the channel-electrode table."""
     path = tmp_path / "small.yaml"
-    path.write_text(small_disc_patch())
+    path.write_text(small_disc_patch(solver))
     patch = load_patch(path)
     layer = patch.layers[0]
     sim = SkinSimulator(patch, Scenario("idle", (), seconds), 50.0, seed=7, drift=NO_DRIFT)
@@ -264,6 +271,22 @@ def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
     assert ends(events(ClassifierConfig(start_roughness=0.0), raw=True))
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="known, issue 37 item 5 open: with the package default (one-step NOSER, noise "
+    "figure 0.13) the idle small disc gives one false push right after the 0.5 s calibration",
+)
+def test_the_package_default_solver_keeps_the_idle_small_disc_quiet(tmp_path) -> None:
+    t, images, _, grid, spread, electrodes, _, _, _ = _degrading_electrode_images(
+        tmp_path, onset_s=10.0, solver=""
+    )
+    clf = TouchClassifier(grid.x, grid.y, contact_spread_m=spread, electrodes_m=electrodes)
+    out = []
+    for k in range(len(t)):
+        out += clf.step(float(t[k]), images[k], None, None)
+    assert out + clf.finish() == []
+
+
 def _palm_press_start_s(raw: str, config=None) -> float:
     """START time after the onset (1 s) of a palm-wide press that ramps up in 50 ms.
 
@@ -300,7 +323,7 @@ def test_a_light_push_starts_sooner_from_its_raw_frames(tmp_path) -> None:
     STARTs it past 100 ms; the raw frames' filter (docs/classifier.md 4b) at least a frame
     sooner and within 100 ms, with the same label and END."""
     path = tmp_path / "small.yaml"
-    path.write_text(small_disc_patch())
+    path.write_text(small_disc_patch(WRITTEN_FOR))
     patch = load_patch(path)
     layer = patch.layers[0]
     push = Push(1.0, 1.0, (0.0, 0.0), 0.05, 0.006, 0.25)
