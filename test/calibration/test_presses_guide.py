@@ -218,8 +218,13 @@ def test_guide_finds_refuses_and_redoes_the_hand_presses(guided, guide_output, t
     code, text = guide_output
     assert code == 0, text
     assert (folder / "session.svg").is_file() and (folder / "session.pdf").is_file()
-    weak = re.findall(r"refused, too weak: .*press target (\d+) again", text)
-    assert weak == ["4"]  # the brush of the finger on target 4, and nothing else
+    weak = re.findall(r"refused, too weak: (.*); press target (\d+) again", text)
+    # the brush of the finger on target 4 is refused by its image's peak ...
+    assert [k for why, k in weak if "image peak" in why] == ["4"]
+    # ... and the only other weak ones are the classifier's false touches on idle frames
+    # (a raw change below the frames' own noise: issue 37 item 5), never a real press
+    noise = [float(m) for why, _ in weak for m in re.findall(r"change ([\d.]+) x noise", why)]
+    assert len(noise) == len(weak) - 1 and all(x < 1.0 for x in noise)
     assert text.count("answer: redo") == 1
     assert "target 8/25" in text.split("answer: redo")[1].splitlines()[1]
     assert len(re.findall(r"accepted \(", text)) == N_TARGETS + 1  # 25 + the redone one
