@@ -227,7 +227,7 @@ def main() -> None:
             return simulate(patch, kind, seed, seconds, args.data_dir, args.cache_dir)
 
         imager = LayerImager.build(patch.layers[0], args.cache_dir)
-        spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+        spread = single_contact_spread(imager)
         channels = channel_electrodes(imager.protocol)
         patterns = raw_patterns(patch.layers[0], imager)  # the node's START filter
         runs = [sim("touch", s, args.seconds) for s in seeds]

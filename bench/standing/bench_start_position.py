@@ -60,7 +60,7 @@ def main() -> None:
         t0 = time.time()
         patch = load_patch(config_path(name))
         imager = LayerImager.build(patch.layers[0], args.cache_dir)
-        spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+        spread = single_contact_spread(imager)
         channels = channel_electrodes(imager.protocol)
         patterns = raw_patterns(patch.layers[0], imager)
         err, early, area, peak, updates, single = [], [], [], [], [], []

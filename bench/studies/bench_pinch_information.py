@@ -126,7 +126,7 @@ def patch_rows(name: str, data: Path, cache: Path) -> list[str]:
     patch = load_patch(config_path(name))
     layer, _ = classifier_layers(patch)
     imager = LayerImager.build(layer, cache_dir=cache)
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     electrodes = np.array([e.center for e in layer.electrodes])
     pinch_trend = ClassifierConfig().pinch_trend
     rows = []

@@ -116,7 +116,7 @@ def pooled_detector(imager: LayerImager, radius_m: float) -> PooledDetector:
     """The classifier's START detector for ``imager``'s grid: a Gaussian kernel of
     ``detect_kernel`` times the median spread of a disc of ``radius_m`` (m)."""
     inside = np.asarray(imager.grid.inside, dtype=bool)
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix, radius_m=radius_m)
+    spread = single_contact_spread(imager, radius_m=radius_m)
     pixel = float(abs(imager.grid.x[1] - imager.grid.x[0]))
     kernel = ClassifierConfig().detect_kernel * float(np.median(spread[inside])) / pixel
     return PooledDetector(inside, kernel, ClassifierConfig().k_detect)

@@ -221,7 +221,7 @@ def build_classifier(layer, imager):
     from eit_skin.touch.frame_evidence import channel_electrodes
     from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     disc, contact = raw_patterns(layer, imager)
     electrodes = np.array([e.center for e in layer.electrodes], dtype=np.float64)
     return TouchClassifier(

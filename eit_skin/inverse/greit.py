@@ -101,13 +101,16 @@ def target_centres(mesh: Mesh, n_targets: int = N_TARGETS) -> np.ndarray:
 
 
 def _blobs(
-    tree: cKDTree, centres: np.ndarray, width: float, tail: float, n: int, reach: float
+    tree: cKDTree, centres: np.ndarray, width: float, tail: float, reach: float
 ) -> sp.csc_matrix:
-    """``[N, K]`` ``exp(-r^2 / 2 w^2) + tail exp(-r^2 / 2 (TAIL_WIDTH w)^2)`` within ``reach``."""
+    """``[N, K]`` ``exp(-r^2 / 2 w^2) + tail exp(-r^2 / 2 (TAIL_WIDTH w)^2)`` within ``reach``.
+
+    ``N = tree.n``: the points of ``tree`` (element centroids); ``K``: the ``centres``.
+    """
     near = cKDTree(centres).sparse_distance_matrix(tree, reach, output_type="coo_matrix")
     return sp.csc_matrix(
         (_blob_profile(near.data, width, tail), (near.col, near.row)),
-        shape=(n, centres.shape[0]),
+        shape=(tree.n, centres.shape[0]),
     )
 
 
@@ -213,7 +216,7 @@ def training_set(
     # The quarter-max set lies well within 3 w, so the shift is found on that neighbourhood.
     shifted = centres.copy()
     for _ in range(_CENTRE_ITERATIONS):
-        blob = _blobs(tree_c, shifted, w, tail, n, 3.0 * w)
+        blob = _blobs(tree_c, shifted, w, tail, 3.0 * w)
         step = centres - _quarter_max_centres(blob, areas, cent)
         shifted = centres + _clip_norm(shifted - centres + step, w)
     d2 = (cent**2).sum(axis=1)[:, None] + (shifted**2).sum(axis=1)[None, :] - 2 * cent @ shifted.T

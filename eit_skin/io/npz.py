@@ -276,7 +276,7 @@ class FramesNpzReader:
                     whole = None
                     if self._fortran:
                         shape = (self.n_frames, self._width)
-                        whole = self._rows(frames_stream, "frames", 0, shape, self._dtype, True)
+                        whole = self._rows(frames_stream, "frames", 0, shape, self._dtype)
                     for start in range(0, self.n_frames, self.block_frames):
                         n = min(self.block_frames, self.n_frames - start)
                         if whole is not None:
@@ -314,9 +314,12 @@ class FramesNpzReader:
         start: int,
         shape: tuple[int, ...],
         dtype: np.dtype,
-        fortran: bool = False,
     ) -> np.ndarray:
-        """The next ``shape[0]`` rows of a member as float64; ValueError if it ends early."""
+        """The next ``shape[0]`` rows of a member as float64; ValueError if it ends early.
+
+        A Fortran-ordered ``frames`` member is read whole (``shape`` all its rows).
+        """
+        fortran = key == "frames" and self._fortran
         count = int(np.prod(shape))
         data = stream.read(count * dtype.itemsize)
         if len(data) < count * dtype.itemsize:

@@ -15,11 +15,8 @@ import numpy as np
 from eit_skin.patch import geometry
 from eit_skin.patch.electrodes import electrode_points
 from eit_skin.patch.model import Electrode
-from eit_skin.patch.outline import SHAPE_KEYS, read_shape
+from eit_skin.patch.outline import CIRCLE_SEGMENTS, SHAPE_KEYS, read_shape
 from eit_skin.patch.yaml_reader import Reader
-
-HOLE_CIRCLE_SEGMENTS = 16
-"""Default ``segments`` of a circular hole."""
 
 HOLE_KEYS = {
     "circle": SHAPE_KEYS["circle"],
@@ -50,7 +47,7 @@ def read_holes(
         if kind == "grid":
             grids.append((d, where))
             continue
-        hole = read_shape(r, d, where, kind, HOLE_CIRCLE_SEGMENTS, "hole")
+        hole = read_shape(r, d, where, kind, "hole")
         inside = geometry.points_in_polygon(hole, outline)
         if not np.all(inside) or geometry.polygons_intersect(hole, outline):
             raise r.error(where, "hole is not strictly inside the sheet outline")
@@ -91,7 +88,7 @@ def _grid_holes(
     electrode_margin = r.number(
         d, "electrode_margin", path, default=2.0 * (pitch - diameter), minimum=0.0
     )
-    segments = r.integer(d, "segments", path, default=HOLE_CIRCLE_SEGMENTS, minimum=6)
+    segments = r.integer(d, "segments", path, default=CIRCLE_SEGMENTS["hole"], minimum=6)
     radius = 0.5 * diameter
     centres = geometry.grid_hole_centres(lo, hi, pitch, offset, pattern)
     keep = geometry.points_in_polygon(centres, outline)

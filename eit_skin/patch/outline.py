@@ -15,8 +15,8 @@ import numpy as np
 from eit_skin.patch import geometry
 from eit_skin.patch.yaml_reader import Reader
 
-OUTLINE_CIRCLE_SEGMENTS = 128
-"""Default ``segments`` of a circle outline (within 3e-4 radius of the circle)."""
+CIRCLE_SEGMENTS = {"outline": 128, "hole": 16}
+"""Default ``segments`` of a circle outline (within 3e-4 radius of the circle) and hole."""
 
 SHAPE_KEYS = {
     "circle": ("radius", "center", "segments"),
@@ -29,18 +29,19 @@ SHAPE_KEYS = {
 def read_outline(r: Reader, data: Any, path: str) -> tuple[str, np.ndarray]:
     """``(type, [n, 2] CCW polygon, m)`` of a layer's ``outline`` mapping."""
     kind, d = r.variant(data, path, SHAPE_KEYS, "outline")
-    return kind, read_shape(r, d, path, kind, OUTLINE_CIRCLE_SEGMENTS, "outline")
+    return kind, read_shape(r, d, path, kind, "outline")
 
 
-def read_shape(r: Reader, d: Mapping, path: str, kind: str, segments: int, what: str) -> np.ndarray:
+def read_shape(r: Reader, d: Mapping, path: str, kind: str, what: str) -> np.ndarray:
     """``[n, 2]`` CCW polygon (m) of a checked circle / rectangle / polygon mapping ``d``.
 
-    ``segments`` is the default polygon size of a circle; ``what`` names the shape in errors.
+    ``what`` (a key of :data:`CIRCLE_SEGMENTS`) names the shape in errors and sets a
+    circle's default polygon size.
     """
     center = r.vector(d.get("center", [0.0, 0.0]), r.join(path, "center"), 2)
     if kind == "circle":
         radius = r.number(d, "radius", path, positive=True)
-        n = r.integer(d, "segments", path, default=segments, minimum=8)
+        n = r.integer(d, "segments", path, default=CIRCLE_SEGMENTS[what], minimum=8)
         return geometry.circle_polygon(center, radius, n)
     if kind == "rectangle":
         width = r.number(d, "width", path, positive=True)

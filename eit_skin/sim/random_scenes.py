@@ -27,11 +27,10 @@ def random_scenario(seed: int, duration_s: float, patch: Patch) -> Scenario:
     """
     rng = np.random.default_rng([int(seed), 0x5EED])
     frame = SheetFrame.of(patch)
-    ext = float(min(frame.half_extent))
 
     def next_touch(t: float) -> Stimulus:
         label = LABELS[int(rng.integers(len(LABELS)))]
-        stimulus = _fitting(frame, lambda: _random_touch(rng, label, t, frame, ext), 200)
+        stimulus = _fitting(frame, lambda: _random_touch(rng, label, t, frame), 200)
         if stimulus is None:
             raise ValueError(f"random scenario: no {label} fits on patch {patch.name}")
         return stimulus
@@ -74,7 +73,8 @@ def touches_in_turn(
         t_s = stimulus.t_end_s + stimulus.settle_s + pause()
 
 
-def _random_touch(rng, label: str, t: float, frame: SheetFrame, ext: float) -> Stimulus | None:
+def _random_touch(rng, label: str, t: float, frame: SheetFrame) -> Stimulus | None:
+    ext = frame.min_half_extent_m
     radius = float(rng.uniform(0.005, 0.0075))
     force = float(rng.uniform(2.0, 8.0))
     ramp = float(rng.uniform(0.15, 0.3))
@@ -157,11 +157,10 @@ def hard_scenario(category: str, seed: int, duration_s: float, patch: Patch) -> 
         raise KeyError(f"unknown hard scene {category!r}; one of {', '.join(HARD_SCENES)}")
     rng = np.random.default_rng([int(seed), HARD_SCENES.index(category), 0x4A2D])
     frame = SheetFrame.of(patch)
-    ext = float(min(frame.half_extent))
     electrodes = np.array([e.center for e in patch.layers[0].electrodes])
 
     def next_touch(t: float) -> Stimulus:
-        draw = lambda: _hard_touch(rng, category, t, frame, ext, electrodes)  # noqa: E731
+        draw = lambda: _hard_touch(rng, category, t, frame, electrodes)  # noqa: E731
         stimulus = _fitting(frame, draw, 300)
         if stimulus is None:
             raise ValueError(f"hard scene: no {category} fits on patch {patch.name}")
@@ -176,14 +175,15 @@ def hard_scenario(category: str, seed: int, duration_s: float, patch: Patch) -> 
 
 
 def _hard_touch(
-    rng, category: str, t: float, frame: SheetFrame, ext: float, electrodes: np.ndarray
+    rng, category: str, t: float, frame: SheetFrame, electrodes: np.ndarray
 ) -> Stimulus | None:
+    ext = frame.min_half_extent_m
     radius = float(rng.uniform(0.005, 0.0075))
     force = float(rng.uniform(2.0, 6.0))
     ramp = float(rng.uniform(0.1, 0.25))
     if category == "back_to_back":
         label = LABELS[int(rng.integers(len(LABELS)))]
-        return _random_touch(rng, label, t, frame, ext)
+        return _random_touch(rng, label, t, frame)
     if category == "light_push":
         pos = frame.point(*rng.uniform(-0.33, 0.33, size=2))
         return Push(

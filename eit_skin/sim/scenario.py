@@ -153,6 +153,11 @@ class SheetFrame:
         lo, hi = outline.min(axis=0), outline.max(axis=0)
         return cls(0.5 * (lo + hi), 0.5 * (hi - lo), tuple(layer.outline for layer in patch.layers))
 
+    @property
+    def min_half_extent_m(self) -> float:
+        """The smaller of the half width and half height, m (the scale of random touches)."""
+        return float(min(self.half_extent))
+
     def point(self, u: float, v: float) -> tuple[float, float]:
         """Patch point at fractions ``(u, v)`` of the half extents from the centre, m."""
         p = self.center + np.array([u, v]) * self.half_extent

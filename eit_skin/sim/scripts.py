@@ -25,7 +25,7 @@ BUILTIN_SCENARIOS = ("demo", "push", "rub", "pinch", "grab", "idle", "elbow_bend
 def _script(name: str, frame: SheetFrame, start_s: float = 1.0) -> tuple[list[Stimulus], float]:
     """The built-in scripts (no posture). Returns (touches, duration_s)."""
     p = frame.point
-    ext = float(min(frame.half_extent))
+    ext = frame.min_half_extent_m
     push = Push(start_s, 1.2, p(0.25, 0.2), force_n=5.0)
     rub = Rub(
         start_s, 1.6, p(-0.35, -0.25), force_n=3.0, direction_rad=0.0, speed_mps=0.55 * ext / 1.1

@@ -139,8 +139,6 @@ def shape_change_z(
     t_s: np.ndarray,
     xy_m: np.ndarray,
     drift: np.ndarray,
-    plateau_fraction: float = PLATEAU_FRACTION,
-    min_frames: int = MIN_FRAMES,
 ) -> float:
     """Still-touch shape-change z-score of a touch's whitened frames.
 
@@ -150,11 +148,9 @@ def shape_change_z(
         t_s: ``[T]`` frame times, s.
         xy_m: ``[T, 2]`` blob centroid per frame, m (NaN rows: frame left out).
         drift: ``[M]`` whitened sheet-wide drift pattern (:meth:`FrameEvidence.drift_pattern`).
-        plateau_fraction: frames below this fraction of the largest amplitude stay out.
-        min_frames: fewest plateau frames (and frames with a raw frame) to compute it from.
 
     Method: the amplitude ``a`` of each frame is its projection on the touch's mean pattern;
-    the plateau frames (``a >= plateau_fraction * max a``) are fitted, every channel at
+    the plateau frames (``a >= PLATEAU_FRACTION * max a``) are fitted, every channel at
     once, by least squares on ``[1, a, a^2, x - mean x, y - mean y, t - mean t]``, after
     the ``drift`` pattern is projected out of every frame. The time coefficients ``c_t``
     ``[M']`` give ``chi2 = |c_t|^2 /
@@ -164,7 +160,7 @@ def shape_change_z(
     for a still touch of any shape, large when the shape changes steadily (a closing pinch).
 
     Returns:
-        the z-score, or NaN with fewer than ``min_frames`` plateau frames or 8 channels.
+        the z-score, or NaN with fewer than ``MIN_FRAMES`` plateau frames or 8 channels.
     """
     x = np.asarray(x, dtype=np.float64)
     rows = np.isfinite(np.asarray(t_s)) & np.isfinite(xy_m).all(axis=1)
@@ -172,7 +168,7 @@ def shape_change_z(
     x, t, xy = x[rows], np.asarray(t_s, float)[rows], np.asarray(xy_m, float)[rows]
     cols = np.isfinite(x).all(axis=0) & np.isfinite(drift)
     x, d = x[:, cols], np.asarray(drift, float)[cols]
-    if x.shape[1] < 8 or x.shape[0] < min_frames:
+    if x.shape[1] < 8 or x.shape[0] < MIN_FRAMES:
         return math.nan
     # the sheet-wide drift is no shape change: leave its pattern out of every frame first
     # (then it cannot leak into the amplitude either)
@@ -183,8 +179,8 @@ def shape_change_z(
     if norm == 0.0:
         return math.nan
     a = x @ (mean / norm)
-    plateau = a >= plateau_fraction * a.max()
-    if np.count_nonzero(plateau) < min_frames:
+    plateau = a >= PLATEAU_FRACTION * a.max()
+    if np.count_nonzero(plateau) < MIN_FRAMES:
         return math.nan
     x, a, t, xy = x[plateau], a[plateau], t[plateau], xy[plateau]
     design = np.column_stack([np.ones(a.size), a, a * a, xy - xy.mean(axis=0), t - t.mean()])

@@ -26,7 +26,6 @@ from scipy import ndimage
 
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
-from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import (
@@ -112,9 +111,7 @@ def fingertip_discs(points_m: np.ndarray, mesh: Mesh, radius_m: float) -> np.nda
 
 
 def single_contact_spread(
-    grid: ImageGrid,
-    mesh: Mesh,
-    matrix: ReconstructionMatrix,
+    imager: LayerImager,
     radius_m: float = FINGER_RADIUS_M,
     stride: int = 2,
     fraction: float = BLOB_FRACTION,
@@ -127,13 +124,13 @@ def single_contact_spread(
     (and outside the sheet) take the nearest sample's value.
 
     Args:
-        grid: the layer's pixel grid ``[H, W]`` (over ``mesh``).
-        mesh: the inverse mesh the matrix reconstructs on (N elements).
-        matrix: the layer's reconstruction matrix (Jacobian ``[M, N]`` and its solve).
+        imager: the layer's imager: its pixel grid ``[H, W]``, inverse mesh (N elements) and
+            reconstruction matrix (Jacobian ``[M, N]`` and its solve).
         radius_m: disc radius, m.
         stride: pixel step between discs.
         fraction: moment weighting, see :func:`blob_moments`.
     """
+    grid, mesh, matrix = imager.grid, imager.mesh, imager.matrix
     xx, yy = np.meshgrid(grid.x, grid.y)
     inside = np.asarray(grid.inside, dtype=bool)
     sample = np.zeros_like(inside)
@@ -272,9 +269,7 @@ def contact_geometry(
         except (OSError, KeyError, ValueError):
             pass  # unreadable or stale (or from before the patterns): recompute below
     imager = LayerImager.build(layer, cache_dir=directory)
-    spread = single_contact_spread(
-        imager.grid, imager.mesh, imager.matrix, radius_m, stride, fraction
-    )
+    spread = single_contact_spread(imager, radius_m, stride, fraction)
     disc, contact = raw_patterns(layer, imager, radius_m)
     if path is not None:
         try:

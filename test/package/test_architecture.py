@@ -297,7 +297,7 @@ MODULE_LINES, FUNCTION_LINES, PARAMETERS = 600, 80, 5
 #: Modules over the limit being split (none since the one-frame-path work, issue 36 item 1).
 MODULES_BEING_SPLIT: set[str] = set()
 #: Today's counts: the tests fail when a change adds to them (lower them as they fall).
-MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 0, 30
+MOST_LONG_FUNCTIONS, MOST_WIDE_FUNCTIONS = 0, 24
 
 
 def code_sizes() -> dict[str, list[str]]:

@@ -262,7 +262,7 @@ def simulated_ends(patch_name: str, scenario: str, cache, seed: int = 3):
     rec = SkinSimulator(patch, scenario, 50.0, seed=seed).run()
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     events = classify_stream(
         TouchClassifier(imager.grid.x, imager.grid.y, contact_spread_m=spread), rec.t, images
     )
@@ -289,7 +289,7 @@ def test_a_fingertip_disc_holds_the_elements_within_its_radius_and_the_nearest()
 def test_one_fingertip_blurs_least_next_to_the_electrodes(imager_cache) -> None:
     patch = load_patch(config_path("elbow"))  # electrodes on the long edges x = +-45 mm
     imager = LayerImager.build(patch.layers[0], cache_dir=imager_cache)
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     x, y = imager.grid.x, imager.grid.y
     row = np.argmin(np.abs(y - 0.0))
     edge = spread[row, np.argmin(np.abs(x - 0.035))]
@@ -304,7 +304,7 @@ def test_classifier_geometry_comes_from_the_cache_without_the_matrix(tmp_path, m
     np.testing.assert_array_equal(grid.x, imager.grid.x)
     np.testing.assert_array_equal(grid.y, imager.grid.y)
     np.testing.assert_array_equal(grid.inside, imager.grid.inside)
-    expected = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    expected = single_contact_spread(imager)
     # an empty cache: the matrix is built (and cached for the reconstruction), then the map
     first = contact_geometry(layer, tmp_path / "empty")
     assert first.source == "built"

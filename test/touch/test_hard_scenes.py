@@ -226,7 +226,7 @@ def _degrading_electrode_images(
     for k in range(len(rec.t)):
         images.append(proc.step(frames[k], float(rec.t[k])).image)
         faulty.append(tuple(proc.faulty_electrodes))
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     electrodes = np.array([e.center for e in layer.electrodes])
     table = channel_electrodes(protocol)
     patterns = raw_patterns(layer, imager)
@@ -335,7 +335,7 @@ def test_a_light_push_starts_sooner_from_its_raw_frames(tmp_path) -> None:
     n_ref = proc.reference_frames
     proc.set_reference(frames[:n_ref].mean(axis=0), 0.0, frames[:n_ref])
     images = [proc.step(frames[k], float(rec.t[k])).image for k in range(len(rec.t))]
-    spread = single_contact_spread(imager.grid, imager.mesh, imager.matrix)
+    spread = single_contact_spread(imager)
     disc, contact = raw_patterns(layer, imager)
 
     def events(start_filter: bool):

@@ -43,7 +43,7 @@ def events_of(name: str, frames: np.ndarray, rate_hz: float, config: ClassifierC
         imager.grid.x,
         imager.grid.y,
         config,
-        contact_spread_m=single_contact_spread(imager.grid, imager.mesh, imager.matrix),
+        contact_spread_m=single_contact_spread(imager),
         electrodes_m=np.array([e.center for e in layer.electrodes]),
         channel_electrodes=channel_electrodes(imager.protocol),
         disc_rel=disc,

@@ -50,7 +50,7 @@ def face_push(tmp_path_factory):
     clf = TouchClassifier(
         imager.grid.x,
         imager.grid.y,
-        contact_spread_m=single_contact_spread(imager.grid, imager.mesh, imager.matrix),
+        contact_spread_m=single_contact_spread(imager),
         channel_electrodes=channel_electrodes(imager.protocol),
         disc_rel=disc,
         contact_rel=contact,
