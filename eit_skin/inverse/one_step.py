@@ -165,6 +165,23 @@ class LinearModel(Protocol):
         ...
 
 
+def checked_frames(
+    frames: np.ndarray, reference: np.ndarray, n_channels: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames [M] or [T, M], reference [M])`` as float64 volts, their shapes checked.
+
+    Raises:
+        ValueError: ``reference`` is not ``[n_channels]`` or ``frames`` not ``[M]``/``[T, M]``.
+    """
+    v = np.asarray(frames, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    if ref.shape != (n_channels,):
+        raise ValueError(f"reference must be [{n_channels}] volts, got {ref.shape}")
+    if v.shape[-1] != n_channels or v.ndim not in (1, 2):
+        raise ValueError(f"frames must be [M] or [T, M] with M={n_channels}, got {v.shape}")
+    return v, ref
+
+
 _Subset = TypeVar("_Subset")
 
 
@@ -482,14 +499,7 @@ class ReconstructionMatrix:
             float32 ``[N]`` or ``[T, N]``; channels that are NaN/Inf in the reference or in
             a frame are dropped for that frame (cached reduced matrices), never imaged.
         """
-        v = np.asarray(frames, dtype=np.float64)
-        ref = np.asarray(reference, dtype=np.float64)
-        if ref.shape != (self.n_channels,):
-            raise ValueError(f"reference must be [{self.n_channels}] volts, got {ref.shape}")
-        if v.shape[-1] != self.n_channels or v.ndim not in (1, 2):
-            raise ValueError(
-                f"frames must be [M] or [T, M] with M={self.n_channels}, got {v.shape}"
-            )
+        v, ref = checked_frames(frames, reference, self.n_channels)
         single = v.ndim == 1
         if single and excluded is None and self.channels.size == self.n_channels:
             out = self.merged.solve_frame(v, ref)
