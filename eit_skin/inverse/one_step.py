@@ -168,11 +168,7 @@ class LinearModel(Protocol):
 def checked_frames(
     frames: np.ndarray, reference: np.ndarray, n_channels: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(frames [M] or [T, M], reference [M])`` as float64 volts, their shapes checked.
-
-    Raises:
-        ValueError: ``reference`` is not ``[n_channels]`` or ``frames`` not ``[M]``/``[T, M]``.
-    """
+    """``(frames, reference)`` as float64 volts; ValueError unless ``[M]``/``[T, M]``, ``[M]``."""
     v = np.asarray(frames, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
     if ref.shape != (n_channels,):
