@@ -98,6 +98,10 @@ def flagged_as_nan(voltages: np.ndarray, flags: np.ndarray | None) -> np.ndarray
     return volts
 
 
+#: The :class:`FrameRecord` fields every frame of one stream shares.
+STREAM_FIELDS = ("frame_id", "patch", "layer", "n_electrodes", "drive_pattern", "current_a")
+
+
 @dataclass(frozen=True, eq=False)
 class FrameRecord:
     """The fields of one EitFrame message, ROS-free.
@@ -153,6 +157,33 @@ class FrameRecord:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+    @classmethod
+    def of_stream(
+        cls,
+        stream: Any,
+        stamp_ns: int,
+        sequence: int,
+        voltages: np.ndarray,
+        channel_flags: np.ndarray,
+    ) -> FrameRecord:
+        """One frame of ``stream``: any object with the attributes named in :data:`STREAM_FIELDS`.
+
+        Args:
+            stream: where ``frame_id``, ``patch``, ``layer``, ``n_electrodes``,
+                ``drive_pattern`` and ``current_a`` are read.
+            stamp_ns: time stamp, ns since the epoch.
+            sequence: device frame counter (uint32).
+            voltages: ``[M]`` volts.
+            channel_flags: uint8 ``[M]`` (or ``[0]``: all OK).
+        """
+        return cls(
+            stamp_ns=stamp_ns,
+            sequence=sequence,
+            voltages=voltages,
+            channel_flags=channel_flags,
+            **{name: getattr(stream, name) for name in STREAM_FIELDS},
+        )
 
     @classmethod
     def from_msg(cls, msg: Any) -> FrameRecord:

@@ -33,6 +33,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from eit_skin.cli.errors import USER_ERRORS, report_error
+
 if TYPE_CHECKING:
     from eit_skin.cli.reconstruct import FileRun
     from eit_skin.patch.placement import Placement
@@ -81,10 +83,8 @@ def run(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
             print(json.dumps(line), flush=True)
-    except (ValueError, KeyError, OSError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin classify: error: {message}", file=sys.stderr)
-        return 1
+    except USER_ERRORS as exc:
+        return report_error("classify", exc)
     for path, file_run in runs.items():
         report_run("eit-skin classify", path, file_run)
     return 0

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 from pathlib import Path
+
+from eit_skin.cli.errors import USER_ERRORS, report_error
 
 #: Significant digits of the stored values.
 DIGITS = 4
@@ -69,10 +70,8 @@ def run(args: argparse.Namespace) -> int:
             )
         else:
             print("not written (add --write to store it in the patch file)")
-    except (ValueError, KeyError, OSError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin fit-device: error: {message}", file=sys.stderr)
-        return 1
+    except USER_ERRORS as exc:
+        return report_error("fit-device", exc)
     return 0
 
 

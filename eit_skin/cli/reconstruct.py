@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from eit_skin.cli.errors import USER_ERRORS, report_error
 from eit_skin.inverse.methods import METHODS
 
 if TYPE_CHECKING:
@@ -161,10 +162,8 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         result = _reconstruct(args)
-    except (ValueError, KeyError, OSError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin reconstruct: error: {message}", file=sys.stderr)
-        return 1
+    except USER_ERRORS as exc:
+        return report_error("reconstruct", exc)
     h, w = result.image_shape
     print(
         f"wrote {args.out}: {result.n_frames} images {h}x{w}, {result.n_imaged} imaged; "

@@ -8,9 +8,10 @@ input format of ``eit-skin reconstruct`` and ``eit-skin classify``) and ``OUT/tr
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
+
+from eit_skin.cli.errors import USER_ERRORS, report_error
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,10 +69,8 @@ def run(args: argparse.Namespace) -> int:
         recording = sim.run(duration_s=args.duration)
         paths = recording.save(args.out)
         elapsed = time.perf_counter() - start
-    except (ValueError, KeyError, OSError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin simulate: error: {message}", file=sys.stderr)
-        return 1
+    except USER_ERRORS as exc:
+        return report_error("simulate", exc)
     n = len(recording.t)
     print(
         f"{patch.name}: scenario {sim.scenario.name!r}, {n} frames at {args.rate:g} Hz "

@@ -31,11 +31,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from eit_skin.cli.errors import USER_ERRORS, report_error
 
 #: Significant digits of the stored hyperparameter.
 DIGITS = 4
@@ -92,10 +93,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote hyperparameter: {result.text} to {path} (layer {result.layer}, solver)")
         else:
             print("not written (add --write to store it as solver.hyperparameter)")
-    except (ValueError, KeyError, OSError) as exc:
-        message = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"eit-skin tune: error: {message}", file=sys.stderr)
-        return 1
+    except USER_ERRORS as exc:
+        return report_error("tune", exc)
     return 0
 
 

@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from eit_skin.fem.mesh import Mesh
 from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.one_step import (
+    channel_subset,
     coarse_to_fine,
     reference_scale,
     relative_difference,
@@ -223,7 +224,8 @@ class GaussNewtonSolver:
         self._first = (gt, z, k)  # the linearisation at sigma0, K not yet regularised
         self._all = self._channel_set(None)
         self.lam2 = self._all.lam2
-        self._subsets: dict[bytes, _ChannelSet] = {}
+        # no channel excluded: the full set
+        self._subsets = {np.zeros(self.v0.size, dtype=bool).tobytes(): self._all}
 
     # ------------------------------------------------------------------ pieces
     def _normal_matrix(self, gt: np.ndarray, cw: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -246,19 +248,7 @@ class GaussNewtonSolver:
         """The channel set without ``excluded`` (bool ``[M]``); cached per pattern."""
         if excluded is None:
             return self._all
-        excluded = np.asarray(excluded, dtype=bool)
-        if excluded.shape != self.v0.shape:
-            raise ValueError(f"excluded mask must be [{self.v0.size}], got {excluded.shape}")
-        if not excluded.any():
-            return self._all
-        key = excluded.tobytes()
-        hit = self._subsets.get(key)
-        if hit is None:
-            keep = np.flatnonzero(~excluded)
-            if keep.size == 0:
-                raise ValueError("all channels excluded: nothing to reconstruct from")
-            hit = self._subsets[key] = self._channel_set(keep)
-        return hit
+        return channel_subset(excluded, self.v0.size, self._subsets, self._channel_set)
 
     def _fine_sigma(self, d: np.ndarray) -> np.ndarray:
         return self.sigma0 * np.exp(d if self._owner is None else d[self._owner])

@@ -21,7 +21,7 @@ from eit_skin.inverse.gauss_newton import (
     WarmStart,
 )
 from eit_skin.inverse.methods import DEFAULT_MAX_ITERATIONS, DEFAULT_NOISE_FIGURE
-from eit_skin.inverse.one_step import ReconstructionMatrix, imaging_jacobian
+from eit_skin.inverse.one_step import ReconstructionMatrix, checked_frames, imaging_jacobian
 from eit_skin.inverse.priors import Prior, make_prior
 
 
@@ -153,13 +153,7 @@ class GaussNewtonReconstructor:
             float32 ``[N]`` or ``[T, N]``; channels that are NaN/Inf in the reference or in a
             frame are left out of that frame's fit, never imaged.
         """
-        v = np.asarray(frames, dtype=np.float64)
-        ref = np.asarray(reference, dtype=np.float64)
-        m = self.n_channels
-        if ref.shape != (m,):
-            raise ValueError(f"reference must be [{m}] volts, got {ref.shape}")
-        if v.shape[-1] != m or v.ndim not in (1, 2):
-            raise ValueError(f"frames must be [M] or [T, M] with M={m}, got {v.shape}")
+        v, ref = checked_frames(frames, reference, self.n_channels)
         mask = None if excluded is None else np.asarray(excluded, dtype=bool)
         v2 = v[None] if v.ndim == 1 else v
         out = np.empty((v2.shape[0], self.n_elements), dtype=np.float32)

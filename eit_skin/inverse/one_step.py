@@ -38,9 +38,10 @@ Three steps, apart: building a method's dual-form pieces (:class:`PriorModel` he
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 import scipy.linalg as sla
@@ -162,6 +163,46 @@ class LinearModel(Protocol):
     def gram(self, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(K [Mu, Mu], Y [N, Mu])`` of the dual form on the used channels ``[Mu]``."""
         ...
+
+
+def checked_frames(
+    frames: np.ndarray, reference: np.ndarray, n_channels: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames, reference)`` as float64 volts; ValueError unless ``[M]``/``[T, M]``, ``[M]``."""
+    v = np.asarray(frames, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    if ref.shape != (n_channels,):
+        raise ValueError(f"reference must be [{n_channels}] volts, got {ref.shape}")
+    if v.shape[-1] != n_channels or v.ndim not in (1, 2):
+        raise ValueError(f"frames must be [M] or [T, M] with M={n_channels}, got {v.shape}")
+    return v, ref
+
+
+_Subset = TypeVar("_Subset")
+
+
+def channel_subset(
+    excluded: np.ndarray,
+    n_channels: int,
+    cache: dict[bytes, _Subset],
+    build: Callable[[np.ndarray], _Subset],
+) -> _Subset:
+    """``build(keep)`` for the channels ``keep`` not ``excluded`` (bool ``[M]``), cached per mask.
+
+    Raises:
+        ValueError: the mask is not ``[n_channels]``, or excludes every channel.
+    """
+    excluded = np.asarray(excluded, dtype=bool)
+    if excluded.shape != (n_channels,):
+        raise ValueError(f"excluded mask must be [{n_channels}], got {excluded.shape}")
+    key = excluded.tobytes()
+    hit = cache.get(key)
+    if hit is None:
+        keep = np.flatnonzero(~excluded)
+        if keep.size == 0:
+            raise ValueError("all channels excluded: nothing to reconstruct from")
+        hit = cache[key] = build(keep)
+    return hit
 
 
 @dataclass(frozen=True, eq=False)
@@ -398,18 +439,12 @@ class ReconstructionMatrix:
 
     def without_channels(self, excluded: np.ndarray) -> ReconstructionMatrix:
         """The matrix that ignores channels where ``excluded`` (bool ``[M]``) is True; cached."""
-        excluded = np.asarray(excluded, dtype=bool)
-        if excluded.shape != (self.n_channels,):
-            raise ValueError(f"excluded mask must be [{self.n_channels}], got {excluded.shape}")
-        key = excluded.tobytes()
-        hit = self._reduced.get(key)
-        if hit is None:
-            keep = np.flatnonzero(~excluded)
-            if keep.size == 0:
-                raise ValueError("all channels excluded: nothing to reconstruct from")
-            hit = self.with_hyperparameter(self.hyperparameter, channels=keep)
-            self._reduced[key] = hit
-        return hit
+        return channel_subset(
+            excluded,
+            self.n_channels,
+            self._reduced,
+            lambda keep: self.with_hyperparameter(self.hyperparameter, channels=keep),
+        )
 
     # ----------------------------------------------------------- imaging
     @property
@@ -460,14 +495,7 @@ class ReconstructionMatrix:
             float32 ``[N]`` or ``[T, N]``; channels that are NaN/Inf in the reference or in
             a frame are dropped for that frame (cached reduced matrices), never imaged.
         """
-        v = np.asarray(frames, dtype=np.float64)
-        ref = np.asarray(reference, dtype=np.float64)
-        if ref.shape != (self.n_channels,):
-            raise ValueError(f"reference must be [{self.n_channels}] volts, got {ref.shape}")
-        if v.shape[-1] != self.n_channels or v.ndim not in (1, 2):
-            raise ValueError(
-                f"frames must be [M] or [T, M] with M={self.n_channels}, got {v.shape}"
-            )
+        v, ref = checked_frames(frames, reference, self.n_channels)
         single = v.ndim == 1
         if single and excluded is None and self.channels.size == self.n_channels:
             out = self.merged.solve_frame(v, ref)

@@ -119,18 +119,8 @@ def decode_eit_frame_cdr(data: bytes) -> FrameRecord:
         ValueError: not plain CDR, or truncated (the message names the byte offset).
     """
     f = read_eit_frame(data)
-    return FrameRecord(
-        stamp_ns=f.stamp_ns,
-        frame_id=f.frame_id,
-        patch=f.patch,
-        layer=f.layer,
-        n_electrodes=f.n_electrodes,
-        drive_pattern=f.drive_pattern,
-        current_a=f.current_a,
-        sequence=f.sequence,
-        voltages=f.voltages,  # FrameRecord copies both (native float32, read-only)
-        channel_flags=f.channel_flags,
-    )
+    # FrameRecord copies both arrays (native float32, read-only)
+    return FrameRecord.of_stream(f, f.stamp_ns, f.sequence, f.voltages, f.channel_flags)
 
 
 class EitFrameFields(NamedTuple):

@@ -154,17 +154,6 @@ def npz_to_mcap(
         for i in range(frames.shape[0]):
             writer.write(
                 stream.topic,
-                FrameRecord(
-                    stamp_ns=int(stamps[i]),
-                    frame_id=stream.frame_id,
-                    patch=stream.patch,
-                    layer=stream.layer,
-                    n_electrodes=stream.n_electrodes,
-                    drive_pattern=stream.drive_pattern,
-                    current_a=stream.current_a,
-                    sequence=i % 2**32,
-                    voltages=frames[i],
-                    channel_flags=flags[i],
-                ),
+                FrameRecord.of_stream(stream, int(stamps[i]), i % 2**32, frames[i], flags[i]),
             )
     return int(frames.shape[0])

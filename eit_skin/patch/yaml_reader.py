@@ -268,6 +268,15 @@ class Reader:
             raise self.error(path, f"expected at least {min_len} entries, got {len(value)}")
         return list(value)
 
+    def entry(self, data: Mapping, key: str, path: str, default: Any) -> tuple[str, Any, bool]:
+        """``(where, value, present)``: ``data[key]``, else ``default`` (an error without one)."""
+        where = self.join(path, key)
+        if key not in data:
+            if default is _MISSING:
+                raise self.error(where, "missing required key")
+            return where, default, False
+        return where, data[key], True
+
     def number(
         self,
         data: Mapping,
@@ -279,12 +288,9 @@ class Reader:
         allow_none: bool = False,
     ) -> Any:
         """``data[key]`` as a finite float (``default`` if absent; required without one)."""
-        where = self.join(path, key)
-        if key not in data:
-            if default is _MISSING:
-                raise self.error(where, "missing required key")
-            return default
-        value = data[key]
+        where, value, present = self.entry(data, key, path, default)
+        if not present:
+            return value
         if value is None and allow_none:
             return None
         number = self.as_float(value, where)
@@ -309,12 +315,9 @@ class Reader:
         default: Any = _MISSING,
         minimum: int | None = None,
     ) -> int:
-        where = self.join(path, key)
-        if key not in data:
-            if default is _MISSING:
-                raise self.error(where, "missing required key")
-            return default
-        value = data[key]
+        where, value, present = self.entry(data, key, path, default)
+        if not present:
+            return value
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(where, f"expected an integer, got {describe(value)}")
         if minimum is not None and value < minimum:
@@ -329,12 +332,9 @@ class Reader:
         default: Any = _MISSING,
         choices: tuple[str, ...] | None = None,
     ) -> str:
-        where = self.join(path, key)
-        if key not in data:
-            if default is _MISSING:
-                raise self.error(where, "missing required key")
-            return default
-        value = data[key]
+        where, value, present = self.entry(data, key, path, default)
+        if not present:
+            return value
         if not isinstance(value, str) or not value:
             raise self.error(where, f"expected a non-empty string, got {describe(value)}")
         if choices is not None and value not in choices:

@@ -107,26 +107,23 @@ def _merge(node: Any, new: Mapping[str, Any]) -> None:
     for key, value in new.items():
         if key in node and _same(node[key], value):
             continue
-        old = node.get(key)
-        if isinstance(old, Mapping) and isinstance(value, Mapping):
-            _merge(old, value)
-        elif _is_sequence(old) and _is_sequence(value) and len(old) == len(value):
-            _merge_list(old, value)
-        else:
-            node[key] = _styled_like(old, value)
+        _merge_entry(node, key, node.get(key), value)
 
 
 def _merge_list(node: Any, new: Sequence[Any]) -> None:
     for i, value in enumerate(new):
-        if _same(node[i], value):
-            continue
-        old = node[i]
-        if isinstance(old, Mapping) and isinstance(value, Mapping):
-            _merge(old, value)
-        elif _is_sequence(old) and _is_sequence(value) and len(old) == len(value):
-            _merge_list(old, value)
-        else:
-            node[i] = _styled_like(old, value)
+        if not _same(node[i], value):
+            _merge_entry(node, i, node[i], value)
+
+
+def _merge_entry(node: Any, slot: str | int, old: Any, value: Any) -> None:
+    """Make ``node[slot]`` (now ``old``) equal ``value``: merged into ``old`` where it can be."""
+    if isinstance(old, Mapping) and isinstance(value, Mapping):
+        _merge(old, value)
+    elif _is_sequence(old) and _is_sequence(value) and len(old) == len(value):
+        _merge_list(old, value)
+    else:
+        node[slot] = _styled_like(old, value)
 
 
 def _styled_like(old: Any, value: Any) -> Any:

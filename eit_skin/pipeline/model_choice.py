@@ -57,7 +57,7 @@ import numpy as np
 
 from eit_skin.fem.image_grid import locate_points
 from eit_skin.fem.mesh import build_mesh
-from eit_skin.fem.phantoms import simulate_discs
+from eit_skin.fem.phantoms import DiscPhantoms, simulate_discs
 from eit_skin.inverse.figures_of_merit import figures_of_merit
 from eit_skin.inverse.greit import target_centres
 from eit_skin.patch import geometry
@@ -244,22 +244,14 @@ class ModelChoice:
 
 
 @dataclass(frozen=True, eq=False)
-class PhantomSet:
-    """Simulated small targets of one layer.
+class PhantomSet(DiscPhantoms):
+    """Simulated small targets of one layer: its disc phantoms and where they were made.
 
     Attributes:
-        centres: ``[K, 2]`` target centres, m.
-        frames: ``[K, M]`` noisy voltages, V.
-        reference: ``[M]`` homogeneous voltages, V.
-        change_integral: ``[K]`` integral of the true relative change over the sheet, m^2.
         radius_m: the sheet's equivalent radius R, m.
         data_triangles: triangles of the data mesh.
     """
 
-    centres: np.ndarray
-    frames: np.ndarray
-    reference: np.ndarray
-    change_integral: np.ndarray
     radius_m: float
     data_triangles: int
 

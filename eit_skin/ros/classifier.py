@@ -147,23 +147,20 @@ class ClassifierNode(Node):
         """
         topics = patch_topics(self.patch)
         #: subscribed image topic -> time.monotonic() of its last image (None: none yet)
-        self.last_image: dict[str, float | None] = {topics.layers[pressure].image: None}
-        self.create_subscription(
-            Image,
-            topics.layers[pressure].image,
-            self._on_pressure,
-            SENSOR_READER,
-            qos_overriding_options=OVERRIDABLE,
-        )
+        self.last_image: dict[str, float | None] = {}
+        images = [(pressure, self._on_pressure)]
         if self.has_stretch:
-            self.last_image[topics.layers[stretch].image] = None
+            images.append((stretch, self._on_stretch))
+        for name, callback in images:
+            self.last_image[topics.layers[name].image] = None
             self.create_subscription(
                 Image,
-                topics.layers[stretch].image,
-                self._on_stretch,
+                topics.layers[name].image,
+                callback,
                 SENSOR_READER,
                 qos_overriding_options=OVERRIDABLE,
             )
+        if self.has_stretch:
             self.create_timer(0.02, self._flush_unpaired)
         self.image_topics = list(self.last_image)
         from eit_skin_msgs.msg import EitFrame

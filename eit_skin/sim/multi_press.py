@@ -12,10 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from eit_skin.patch.model import Patch
-from eit_skin.sim.drift import NO_DRIFT
-from eit_skin.sim.press_session import PRESS_PERIOD_S
+from eit_skin.sim.press_session import PRESS_PERIOD_S, simulate_press_frames
 from eit_skin.sim.scenario import Scenario
-from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Grab
 
 PROBE_FORCE_N = 5.0
@@ -61,13 +59,4 @@ def simulate_simultaneous_presses(
         for k in range(len(points))
     )
     scenario = Scenario(f"simultaneous-{seed}", touches, len(points) * PRESS_PERIOD_S)
-    sim = SkinSimulator(
-        patch,
-        scenario,
-        rate_hz=2.0 / PRESS_PERIOD_S,
-        seed=seed,
-        drift=None if drift else NO_DRIFT,
-    )
-    frames = np.array([sim.frame(2 * k + 1)[name].voltages_v for k in range(len(points))])
-    baselines = np.array([sim.frame(2 * k)[name].voltages_v for k in range(len(points))])
-    return frames, baselines
+    return simulate_press_frames(patch, scenario, name, seed, drift)

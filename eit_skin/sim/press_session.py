@@ -108,19 +108,47 @@ def simulate_press_session(
         )
         for k in range(n_presses)
     )
-    scenario = Scenario(f"presses-{seed}", touches, n_presses * PRESS_PERIOD_S)
+    frames, baselines = simulate_press_frames(
+        patch,
+        Scenario(f"presses-{seed}", touches, n_presses * PRESS_PERIOD_S),
+        name,
+        seed,
+        draw.drift,
+    )
+    return PressSession(
+        baselines[0], frames, xy, depth, baselines, f"simulated:{patch.name}/{name}/seed={seed}"
+    )
+
+
+def simulate_press_frames(
+    patch: Patch, scenario: Scenario, layer: str, seed: int, drift: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frames of ``layer`` for a scenario with one touch per :data:`PRESS_PERIOD_S`.
+
+    Touch ``k`` of ``scenario`` must be at full press at ``(k + 0.5) * PRESS_PERIOD_S`` and
+    released by ``(k + 1) * PRESS_PERIOD_S``.
+
+    Args:
+        patch: the skin patch.
+        scenario: the touches, one per press period.
+        layer: layer whose frames are recorded.
+        seed: seed of noise and drift.
+        drift: slow random sigma0 drift.
+
+    Returns:
+        (``[P, M]`` frames at full press, ``[P, M]`` the unloaded frame just before each), V.
+    """
     sim = SkinSimulator(
         patch,
         scenario,
         rate_hz=2.0 / PRESS_PERIOD_S,
         seed=seed,
-        drift=None if draw.drift else NO_DRIFT,
+        drift=None if drift else NO_DRIFT,
     )
-    frames = np.array([sim.frame(2 * k + 1)[name].voltages_v for k in range(n_presses)])
-    baselines = np.array([sim.frame(2 * k)[name].voltages_v for k in range(n_presses)])
-    return PressSession(
-        baselines[0], frames, xy, depth, baselines, f"simulated:{patch.name}/{name}/seed={seed}"
-    )
+    n = len(scenario.touches)
+    frames = np.array([sim.frame(2 * k + 1)[layer].voltages_v for k in range(n)])
+    baselines = np.array([sim.frame(2 * k)[layer].voltages_v for k in range(n)])
+    return frames, baselines
 
 
 def calibrated_to_device(
