@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.standing.real_sessions import load_real, multitouch_single_presses
 from eit_skin.calibration.localiser import PressLocaliser, cross_validate
 from eit_skin.calibration.online import MIN_CONFIDENCE, OnlineLocaliser
 from eit_skin.calibration.session import PressSession
@@ -40,11 +41,6 @@ REPO = Path(__file__).resolve().parents[2]
 REAL = REPO / "data" / "real"
 OUT = Path(__file__).resolve().parent
 SIZES = (100, 200, 400)
-
-
-def load(name: str) -> dict[str, np.ndarray]:
-    with np.load(REAL / f"{name}.npz", allow_pickle=False) as d:
-        return {k: d[k] for k in d.files}
 
 
 def mm(x: float) -> str:
@@ -121,15 +117,9 @@ def simulated_section(lines: list[str]) -> None:
 
 
 def real_multitouch_section(lines: list[str]) -> None:
-    d = load("hydrogel_multitouch")
+    d = load_real("hydrogel_multitouch")
     layer = load_patch(REAL / "hydrogel_ohmc16.yaml").layers[0]
-    singles = PressSession(
-        d["single_ups"].mean(axis=0).astype(float),
-        d["single_downs"].astype(float),
-        d["single_xy"],
-        d["single_depth"],
-        d["single_ups"].astype(float),
-    )
+    singles = multitouch_single_presses(d)
     lines += [
         "## Real hydrogel skin: two probes at once (HydrogelEIT MultiTouch)",
         "",
@@ -185,7 +175,7 @@ def real_multitouch_section(lines: list[str]) -> None:
 
 
 def floor_section(lines: list[str]) -> None:
-    rect = load("hydrogel_rect_repeats")
+    rect = load_real("hydrogel_rect_repeats")
     layer = load_patch(REAL / "hydrogel_rect16.yaml").layers[0]
     point, repeat = rect["point"], rect["repeat"]
     frames = rect["frames"].astype(float)
@@ -238,7 +228,7 @@ def floor_section(lines: list[str]) -> None:
         "",
     ]
     # circular skin: near-repeats among the 500 presses of hydrogel_ohmc16
-    h = load("hydrogel_ohmc16")
+    h = load_real("hydrogel_ohmc16")
     layer = load_patch(REAL / "hydrogel_ohmc16.yaml").layers[0]
     s = PressSession(
         h["reference"], h["downs"].astype(float), h["truth_xy"][:, 0], h["depth"], h["ups"]
@@ -264,19 +254,12 @@ def floor_section(lines: list[str]) -> None:
 
 
 def damage_section(lines: list[str]) -> None:
-    mt = load("hydrogel_multitouch")
     patch = load_patch(REAL / "hydrogel_ohmc16.yaml")
     layer = patch.layers[0]
-    singles = PressSession(
-        mt["single_ups"].mean(axis=0).astype(float),
-        mt["single_downs"].astype(float),
-        mt["single_xy"],
-        mt["single_depth"],
-        mt["single_ups"].astype(float),
-    )
+    singles = multitouch_single_presses()
     online = OnlineLocaliser(PressLocaliser.fit(singles, layer), patch, "singles")
     processor = LayerProcessor(LayerImager.build(layer))
-    d = load("hydrogel_damage")
+    d = load_real("hydrogel_damage")
     touched, contacts, changed, faulty = 0, [], None, set()
     for frame, t in zip(d["frames"].astype(float), d["t"], strict=True):
         images = processor.step(frame, float(t))

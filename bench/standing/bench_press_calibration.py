@@ -39,6 +39,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bench.standing.real_sessions import hydrogel_ohmc16_session
 from eit_skin.calibration.features import relative_change, split_features
 from eit_skin.calibration.kernel_ridge import KernelRidge, squared_distances
 from eit_skin.calibration.localiser import PressLocaliser, cross_validate
@@ -53,18 +54,6 @@ OUT = Path(__file__).resolve().parent
 SIZES = (25, 50, 100, 200, 400)
 PRIOR_PRESSES = 500
 FOLDS = 5
-
-
-def hydrogel() -> PressSession:
-    with np.load(REPO / "data/real/hydrogel_ohmc16.npz") as d:
-        return PressSession(
-            d["reference"],
-            d["downs"].astype(float),
-            d["truth_xy"][:, 0],
-            d["depth"],
-            d["ups"].astype(float),
-            "hydrogel_ohmc16",
-        )
 
 
 def fit_centre(s: PressSession, layer, prior):
@@ -248,7 +237,7 @@ def main() -> None:
     elbow = load_patch(REPO / "config/elbow.yaml")
     t0 = time.perf_counter()
     sets = {
-        "hydrogel_ohmc16 (real)": (hydrogel(), hydrogel_patch.layers[0]),
+        "hydrogel_ohmc16 (real)": (hydrogel_ohmc16_session(), hydrogel_patch.layers[0]),
         "hydrogel patch, simulated": (
             simulate_press_session(hydrogel_patch, 500, seed=1),
             hydrogel_patch.layers[0],

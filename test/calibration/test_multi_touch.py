@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.standing.real_sessions import load_real, multitouch_single_presses
 from eit_skin.calibration.localiser import CalibrationError, PressLocaliser
 from eit_skin.calibration.multi_touch import electrode_pitch
 from eit_skin.calibration.online import OnlineLocaliser
-from eit_skin.calibration.session import PressSession
 from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
@@ -21,7 +21,6 @@ from eit_skin.sim.press_session import simulate_press_session
 
 REPO = Path(__file__).resolve().parents[2]
 HYDROGEL_PATCH = REPO / "data" / "real" / "hydrogel_ohmc16.yaml"
-MULTITOUCH = REPO / "data" / "real" / "hydrogel_multitouch.npz"
 N_TRAIN = 110
 
 
@@ -92,16 +91,8 @@ def test_several_touches_survive_the_calibration_file_and_are_refused_without_it
 
 @pytest.fixture(scope="module")
 def real():
-    with np.load(MULTITOUCH) as d:
-        data = {k: d[k] for k in d.files}
-    session = PressSession(
-        data["single_ups"].mean(axis=0).astype(float),
-        data["single_downs"].astype(float),
-        data["single_xy"],
-        data["single_depth"],
-        data["single_ups"].astype(float),
-        "hydrogel_multitouch single presses",
-    )
+    data = load_real("hydrogel_multitouch")
+    session = multitouch_single_presses(data)
     model = PressLocaliser.fit(
         session.subset(np.arange(400)), load_patch(HYDROGEL_PATCH).layers[0], 2
     )

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.standing.real_sessions import hydrogel_ohmc16_session
 from eit_skin.calibration.localiser import (
     CalibrationError,
     PressLocaliser,
@@ -27,7 +28,6 @@ from eit_skin.sim.press_session import simulate_press_session
 from test.support.patch_copies import shipped_patch_data, write_patch
 
 REPO = Path(__file__).resolve().parents[2]
-HYDROGEL = REPO / "data" / "real" / "hydrogel_ohmc16.npz"
 HYDROGEL_PATCH = REPO / "data" / "real" / "hydrogel_ohmc16.yaml"
 
 
@@ -281,18 +281,6 @@ def test_probe_csv_pairs_each_press_with_its_frame(tmp_path, session):
         pair_probe_csv(session.reference, frames, t, probe)
 
 
-def hydrogel_session() -> PressSession:
-    with np.load(HYDROGEL) as d:
-        return PressSession(
-            d["reference"],
-            d["downs"].astype(float),
-            d["truth_xy"][:, 0],
-            d["depth"],
-            d["ups"].astype(float),
-            str(HYDROGEL),
-        )
-
-
 # k-fold localiser fits on the 500 real presses: ~30 s idle with 400 training presses
 # (136 s at load 15 on 2 cores)
 @pytest.mark.timeout(120)
@@ -300,7 +288,7 @@ def hydrogel_session() -> PressSession:
 def test_real_hydrogel_presses_meet_the_goals(n_train, goal_m):
     """Issue 14's goals on the real robot-pressed hydrogel skin (centre guess: ~51 mm)."""
     layer = load_patch(HYDROGEL_PATCH).layers[0]
-    cv = cross_validate(hydrogel_session(), layer, folds=5, n_train=n_train)
+    cv = cross_validate(hydrogel_ohmc16_session(), layer, folds=5, n_train=n_train)
     assert np.median(cv.xy_error) < goal_m
 
 

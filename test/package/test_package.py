@@ -219,7 +219,8 @@ def declared(repo: Path, kinds: tuple[str, ...]) -> set[str]:
 
 
 def imported_modules(folder: Path) -> set[str]:
-    """Top-level modules imported anywhere under ``folder`` (not the standard library)."""
+    """Top-level modules imported anywhere under ``folder`` (not the standard library, not
+    the repository's own packages: eit_skin, test, bench)."""
     modules = set()
     for path in folder.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
@@ -227,7 +228,7 @@ def imported_modules(folder: Path) -> set[str]:
                 modules |= {alias.name.split(".")[0] for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
                 modules.add(node.module.split(".")[0])
-    return modules - set(sys.stdlib_module_names) - {"eit_skin", "test", "__future__"}
+    return modules - set(sys.stdlib_module_names) - {"eit_skin", "test", "bench", "__future__"}
 
 
 DEPEND_TAGS = (

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.standing.real_sessions import load_real, multitouch_single_presses
 from eit_skin.calibration.localiser import PressLocaliser
 from eit_skin.calibration.online import MIN_CONFIDENCE, OnlineLocaliser
 from eit_skin.calibration.session import PressSession
@@ -19,11 +20,6 @@ REAL = Path(__file__).resolve().parents[2] / "data" / "real"
 M = 192
 
 
-def load(name: str) -> dict[str, np.ndarray]:
-    with np.load(REAL / f"{name}.npz", allow_pickle=False) as d:
-        return {k: d[k] for k in d.files}
-
-
 @pytest.fixture(scope="module")
 def hydrogel():
     return load_patch(REAL / "hydrogel_ohmc16.yaml")
@@ -32,16 +28,16 @@ def hydrogel():
 def test_converted_recordings_are_sane(hydrogel):
     """Shapes, units, the protocol of hydrogel_ohmc16, cited source, documented duplicates;
     every labelled press lies on its patch's sheet."""
-    protocol = load("hydrogel_ohmc16")
+    protocol = load_real("hydrogel_ohmc16")
     rect = load_patch(REAL / "hydrogel_rect16.yaml")
     for name, t in (("hydrogel_multitouch", 26), ("hydrogel_damage", 832)):
-        d = load(name)
+        d = load_real(name)
         assert d["frames"].shape == (t, M) and d["reference"].shape == (M,)
         assert np.isfinite(d["frames"]).all() and (d["frames"] > 0).all()
         np.testing.assert_array_equal(d["ex_mat"], protocol["ex_mat"])
         np.testing.assert_array_equal(d["meas_mat"], protocol["meas_mat"])
         assert str(d["source"]).startswith("DSHardman/HydrogelEIT@") and len(d["labels"]) == t
-    mt = load("hydrogel_multitouch")
+    mt = load_real("hydrogel_multitouch")
     assert [int((mt["set"] == s).sum()) for s in "ABC"] == [8, 8, 10]
     np.testing.assert_allclose(mt["frames"], mt["reference"] * mt["downs"] / mt["ups"])
     copies = np.flatnonzero(mt["duplicate_of"] >= 0)
@@ -53,9 +49,9 @@ def test_converted_recordings_are_sane(hydrogel):
     )
     assert singles.n_presses == 500
     singles.check_layer(hydrogel.layers[0])
-    damage = load("hydrogel_damage")
+    damage = load_real("hydrogel_damage")
     np.testing.assert_allclose(np.diff(damage["t"]), 8.0)
-    repeats = load("hydrogel_rect_repeats")
+    repeats = load_real("hydrogel_rect_repeats")
     assert repeats["frames"].shape == (250, M)
     assert np.bincount(repeats["point"]).tolist() == [5] * 50
     points = repeats["truth_xy"][:, 0]
@@ -72,18 +68,11 @@ def test_damage_is_reported_as_a_changed_sheet_not_a_stream_of_touches(hydrogel)
     has outlasted the drift time constant (60 s) the sheet is reported changed and no
     contact follows (before this rule: 789 of 832 frames gave a contact of confidence >= 0.05;
     now those of the first 60 s only)."""
-    mt = load("hydrogel_multitouch")
-    session = PressSession(
-        mt["single_ups"].mean(axis=0).astype(float),
-        mt["single_downs"].astype(float),
-        mt["single_xy"],
-        mt["single_depth"],
-        mt["single_ups"].astype(float),
-    )
+    session = multitouch_single_presses()
     layer = hydrogel.layers[0]
     online = OnlineLocaliser(PressLocaliser.fit(session, layer), hydrogel, "singles")
     processor = LayerProcessor(LayerImager.build(layer))
-    damage = load("hydrogel_damage")
+    damage = load_real("hydrogel_damage")
     with_contacts, touched, changed_at = [], [], None
     for frame, t in zip(damage["frames"].astype(float), damage["t"], strict=True):
         images = processor.step(frame, float(t))
