@@ -19,6 +19,7 @@ from eit_skin.resources import config_path
 from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import PressDraw, simulate_press_session
+from test.support.calibrated_node import reference_ready, wait_linked
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -42,16 +43,6 @@ def calibrated(tmp_path_factory):
     LayerImager.build(load_patch(config_path("elbow")).layer("pressure"), cache_dir=cache)
     with np.load(presses) as data:
         return model, cache, data["press_xy"]
-
-
-def reference_ready(probe: Probe) -> bool:
-    return any(
-        kv.key == "reference_ready" and kv.value == "true"
-        for _, msg in probe.messages[DIAGNOSTICS]
-        for status in msg.status
-        if status.name.endswith("eit_reconstruction: pressure")
-        for kv in status.values
-    )
 
 
 def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -> None:
@@ -82,17 +73,7 @@ def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -
     }
     node = start_node("eit_reconstruction", NAMESPACE, params, log)
     try:
-        linked = probe.spin_until(
-            lambda: (
-                node.poll() is not None
-                or (
-                    publisher.get_subscription_count() > 0
-                    and probe.node.count_publishers(topics.calibrated_contacts) > 0
-                )
-            ),
-            EVENT_S,
-        )
-        assert linked and node.poll() is None, log.read_text()
+        wait_linked(probe, node, publisher, topics.calibrated_contacts, log)
         # the no-load reference: the presses' own unloaded frames, again until it is taken
         k = 0
         while not reference_ready(probe):

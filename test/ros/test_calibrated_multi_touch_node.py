@@ -24,6 +24,7 @@ from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.multi_press import simulate_simultaneous_presses
 from eit_skin.sim.press_session import PressDraw, simulate_press_session
+from test.support.calibrated_node import reference_ready, wait_linked
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -47,16 +48,6 @@ def calibrated(tmp_path_factory):
     cache = folder / "cache"
     LayerImager.build(load_patch(PATCH).layers[0], cache_dir=cache)
     return two, one, cache
-
-
-def reference_ready(probe: Probe) -> bool:
-    return any(
-        kv.key == "reference_ready" and kv.value == "true"
-        for _, msg in probe.messages[DIAGNOSTICS]
-        for status in msg.status
-        if status.name.endswith("eit_reconstruction: pressure")
-        for kv in status.values
-    )
 
 
 def sheet_changed_warning(probe: Probe) -> bool:
@@ -95,17 +86,7 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
     }
     node = start_node("eit_reconstruction", NAMESPACE, params, log)
     try:
-        linked = probe.spin_until(
-            lambda: (
-                node.poll() is not None
-                or (
-                    publisher.get_subscription_count() > 0
-                    and probe.node.count_publishers(topics.calibrated_contacts) > 0
-                )
-            ),
-            EVENT_S,
-        )
-        assert linked and node.poll() is None, log.read_text()
+        wait_linked(probe, node, publisher, topics.calibrated_contacts, log)
         k = 0
         while not reference_ready(probe):
             assert k < 150, log.read_text()
