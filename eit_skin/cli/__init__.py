@@ -10,5 +10,6 @@ session), ``calibrate`` (fit a press localiser), ``locate`` (calibrated contact 
 ``fit_device`` (fit sheet conductance and contact impedance to a no-load frame),
 ``capture`` (a board's frames to an npz, without ROS), ``detect`` (which board is on a port),
 ``design`` (the skin designer in the browser; ``patch`` also imports drawings and predicts
-accuracy); ``errors`` (how a command reports a failure it can name).
+accuracy); ``errors`` (how a command reports a failure it can name); ``options`` (the
+options several commands share: patch, layer, ``--write``, a board's link).
 """

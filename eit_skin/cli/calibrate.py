@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from eit_skin.cli.options import add_max_touches_option, add_patch_options, chosen_layer
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -29,19 +31,15 @@ POOR_FIT = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch name or YAML path")
-    parser.add_argument("--layer", default="", help="layer (default: the first)")
+    add_patch_options(parser)
     parser.add_argument("--presses", type=Path, required=True, help="press session npz")
     parser.add_argument("--out", type=Path, required=True, help="calibration npz to write")
     parser.add_argument("--folds", type=int, default=5, help="folds of the cross-validation")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fold shuffle")
-    parser.add_argument(
-        "--max-touches",
-        type=int,
-        default=1,
-        metavar="K",
-        help="also fit the several-touches model (up to K touches at once, from the same "
-        "single presses); default 1: one touch at a time",
+    add_max_touches_option(
+        parser,
+        "also fit the several-touches model (up to K touches at once, from the same single "
+        "presses); default 1: one touch at a time",
     )
     parser.add_argument(
         "--physics-prior",
@@ -95,13 +93,10 @@ def run(args: argparse.Namespace) -> int:
     from eit_skin.calibration.localiser import PressLocaliser, cross_validate
     from eit_skin.calibration.physics_prior import PRIOR_MODES, PhysicsPrior, PriorPosition
     from eit_skin.calibration.session import load_press_session
-    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
-    from eit_skin.resources import config_path
 
     try:
-        patch = load_patch(config_path(args.patch))
-        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        patch, layer = chosen_layer(args)
         session = load_press_session(args.presses)
         session.check_layer(layer)
         if args.max_touches < 1:

@@ -17,12 +17,13 @@ import threading
 import time
 import warnings
 
+from eit_skin.cli.options import add_board_link_options, add_patch_options, chosen_layer
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch name or YAML path")
-    parser.add_argument("--layer", default="", help="the board's layer (default: the first)")
+    add_patch_options(parser)
     parser.add_argument("--port", required=True, help="serial device of the board")
-    parser.add_argument("--baud", type=int, default=0, help="bit/s (0: the board profile's)")
+    add_board_link_options(parser)
     parser.add_argument(
         "--seconds", type=float, default=10.0, help="how long to record, after the first frame"
     )
@@ -32,13 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1.0,
         help="the first S seconds of frames are averaged into the reference (default 1)",
     )
-    parser.add_argument(
-        "--wait",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="give up when no frame came within S seconds (default 10)",
-    )
     parser.add_argument("--out", required=True, metavar="FRAMES.npz", help="output file")
 
 
@@ -47,17 +41,14 @@ def run(args: argparse.Namespace) -> int:
 
     from eit_skin.hardware.sources import LayerFrameFactory, board_source
     from eit_skin.io.npz import write_npz_atomic
-    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
-    from eit_skin.resources import config_path
 
     for name in ("seconds", "reference_seconds", "wait"):
         if not getattr(args, name) > 0:
             print(f"eit-skin capture: --{name.replace('_', '-')} must be > 0", file=sys.stderr)
             return 2
     try:
-        patch = load_patch(config_path(args.patch))
-        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        patch, layer = chosen_layer(args)
     except (PatchError, KeyError, FileNotFoundError) as error:
         print(f"eit-skin capture: {error}", file=sys.stderr)
         return 2

@@ -39,11 +39,12 @@ if TYPE_CHECKING:
     from eit_skin.cli.reconstruct import FileRun
     from eit_skin.patch.placement import Placement
 
+from eit_skin.cli.options import add_patch_options
 from eit_skin.cli.reconstruct import add_pipeline_arguments
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    add_patch_options(parser, layer=False)
     parser.add_argument(
         "--frames",
         required=True,

@@ -7,6 +7,8 @@ import signal
 import sys
 import threading
 
+from eit_skin.cli.options import LAYER_HELP, chosen_layer
+
 DEVICES = ("wire", "openeit", "lines", "sciospec")
 
 #: ``--separator`` names -> what the board prints after every value
@@ -54,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="patch (name or YAML path): the simulated patch, and the protocol of an "
         "emulated board (with --frames too)",
     )
-    parser.add_argument("--layer", default="", help="layer (default: the first)")
+    parser.add_argument("--layer", default="", help=LAYER_HELP)
     parser.add_argument("--scenario", default="demo", help="simulator touch script, looped")
     parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
     parser.add_argument(
@@ -275,12 +277,9 @@ def _board(args: argparse.Namespace):
 
 
 def _layer_protocol(args: argparse.Namespace):
-    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.protocol import build_protocol
-    from eit_skin.resources import config_path
 
-    patch = load_patch(config_path(args.patch))
-    layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+    patch, layer = chosen_layer(args)
     return patch, layer, build_protocol(layer.protocol, layer.n_electrodes)
 
 

@@ -25,17 +25,17 @@ import tempfile
 from pathlib import Path
 
 from eit_skin.cli.errors import USER_ERRORS, report_error
+from eit_skin.cli.options import add_patch_options, add_write_option, patch_file
 
 #: Significant digits of the stored values.
 DIGITS = 4
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    add_patch_options(parser)
     parser.add_argument(
         "--frames", required=True, type=Path, metavar="IN.npz", help="its 'reference' is fitted"
     )
-    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
     parser.add_argument(
         "--gain", type=float, default=1.0, help="frame units per volt (default 1: volts)"
     )
@@ -46,18 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="one contact impedance per electrode (auto: when the protocol measures on "
         "current-carrying electrodes)",
     )
-    parser.add_argument(
-        "--write",
-        action="store_true",
-        help="store the fitted sheet_conductance and contact_impedance in the patch file",
-    )
+    add_write_option(parser, "the fitted sheet_conductance and contact_impedance")
 
 
 def run(args: argparse.Namespace) -> int:
-    from eit_skin.cli.tune import patch_path
-
     try:
-        path = patch_path(args.patch, args.write)
+        path = patch_file(args)
         layer_name, fit = fit_layer(path, args.layer, args.frames, args.gain, args.per_electrode)
         for line in fit.lines():
             print(line)
@@ -90,7 +84,7 @@ def fit_layer(path: Path, layer_name: str | None, frames: Path, gain: float, per
     from eit_skin.patch.protocol import build_protocol
 
     patch = load_patch(path)
-    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    layer = patch.layer(layer_name)
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     if not frames.is_file():
         raise ValueError(f"{frames}: no such file")

@@ -14,6 +14,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from eit_skin.cli.options import add_patch_options, chosen_layer
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="direction", required=True, metavar="export|import")
@@ -25,8 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     imp = sub.add_parser("import", help="npz -> MCAP")
     imp.add_argument("npz", type=Path, metavar="IN.npz")
     imp.add_argument("mcap", type=Path, metavar="OUT.mcap")
-    imp.add_argument("--patch", required=True, help="patch name or YAML path")
-    imp.add_argument("--layer", default="", help="layer (default: the first)")
+    add_patch_options(imp)
     imp.add_argument("--rate", type=float, default=50.0, help="frame rate if the file has no t")
 
 
@@ -45,12 +46,9 @@ def run(args: argparse.Namespace) -> int:
                 print(f"eit-skin frames export: skipped: {found}", file=sys.stderr)
             return 0
         from eit_skin.hardware.sources import pattern_name
-        from eit_skin.patch.loading import load_patch
-        from eit_skin.resources import config_path
         from eit_skin.ros.topics import patch_topics
 
-        patch = load_patch(config_path(args.patch))
-        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        patch, layer = chosen_layer(args)
         topic = patch_topics(patch, patch.name).layers[layer.name].frames
         stream = FrameStream(
             topic,

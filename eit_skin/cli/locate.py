@@ -16,19 +16,16 @@ import argparse
 import sys
 from pathlib import Path
 
+from eit_skin.cli.options import add_max_touches_option, add_patch_options, chosen_layer
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch name or YAML path")
-    parser.add_argument("--layer", default="", help="layer (default: the first)")
+    add_patch_options(parser)
     parser.add_argument("--calibration", type=Path, required=True, help="calibration npz")
     parser.add_argument("--frames", type=Path, required=True, help="frames npz")
     parser.add_argument("--out", type=Path, required=True, help="output npz")
-    parser.add_argument(
-        "--max-touches",
-        type=int,
-        default=1,
-        metavar="K",
-        help="up to K touches per frame (needs a calibration made with --max-touches)",
+    add_max_touches_option(
+        parser, "up to K touches per frame (needs a calibration made with --max-touches)"
     )
 
 
@@ -66,14 +63,11 @@ def run(args: argparse.Namespace) -> int:
 
     from eit_skin.calibration.localiser import PressLocaliser
     from eit_skin.io.npz import write_npz_atomic
-    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
     from eit_skin.patch.protocol import build_protocol
-    from eit_skin.resources import config_path
 
     try:
-        patch = load_patch(config_path(args.patch))
-        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        _, layer = chosen_layer(args)
         model = PressLocaliser.load(args.calibration, layer)
         protocol = build_protocol(layer.protocol, layer.n_electrodes)
         reference, frames, references, _ = load_located_frames(

@@ -28,6 +28,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from eit_skin.cli.options import add_board_link_options, add_patch_options, chosen_layer
+
 if TYPE_CHECKING:
     from collections.abc import Callable
 
@@ -48,8 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     simulate.add_argument("--seed", type=int, default=0, help="seed")
     simulate.add_argument("--no-drift", action="store_true", help="no sigma0 drift")
     for p in (record, simulate):
-        p.add_argument("--patch", required=True, help="patch name or YAML path")
-        p.add_argument("--layer", default="", help="layer (default: the first)")
+        add_patch_options(p)
         p.add_argument("--out", type=Path, required=True, help="press session npz to write")
     add_guide_arguments(sub.add_parser("guide", help="calibrate by hand on a printed template"))
 
@@ -59,14 +60,11 @@ def run(args: argparse.Namespace) -> int:
         return run_guide(args)
     from eit_skin.calibration.session import pair_probe_csv
     from eit_skin.cli.locate import load_located_frames
-    from eit_skin.patch.loading import load_patch
     from eit_skin.patch.model import PatchError
     from eit_skin.patch.protocol import build_protocol
-    from eit_skin.resources import config_path
 
     try:
-        patch = load_patch(config_path(args.patch))
-        layer = patch.layer(args.layer) if args.layer else patch.layers[0]
+        patch, layer = chosen_layer(args)
         if args.mode == "record":
             protocol = build_protocol(layer.protocol, layer.n_electrodes)
             reference, frames, _, t = load_located_frames(args.frames, protocol)
@@ -90,21 +88,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_guide_arguments(guide: argparse.ArgumentParser) -> None:
-    """The options of ``presses guide``."""
+    """The options of ``presses guide`` (the press rules' defaults are :class:`GuideRules`'s)."""
+    from eit_skin.calibration.guide import GuideRules
     from eit_skin.cli.reconstruct import add_pipeline_arguments
 
-    guide.add_argument("--patch", required=True, help="patch name or YAML path")
+    add_patch_options(guide, layer=False)
     source = guide.add_mutually_exclusive_group(required=True)
     source.add_argument("--frames", type=Path, help="recording of the session (frames npz)")
     source.add_argument("--port", help="serial device of the board (live session)")
-    guide.add_argument("--baud", type=int, default=0, help="bit/s with --port (0: the profile's)")
-    guide.add_argument(
-        "--wait",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="with --port: give up after S seconds without a frame (default 10)",
-    )
+    add_board_link_options(guide)
     guide.add_argument("--targets", type=int, default=25, help="targets to press (default 25)")
     guide.add_argument("--out", type=Path, required=True, help="press session npz to write")
     guide.add_argument(
@@ -127,15 +119,18 @@ def add_guide_arguments(guide: argparse.ArgumentParser) -> None:
     guide.add_argument(
         "--rate", type=float, default=None, metavar="HZ", help="frame rate (default: the file's t)"
     )
-    guide.add_argument("--min-hold", type=float, default=0.3, metavar="S", help="shortest press")
+    rules = GuideRules()  # the defaults live in one place: the rules' own
     guide.add_argument(
-        "--min-snr", type=float, default=10.0, help="weakest press, x the frames' noise"
+        "--min-hold", type=float, default=rules.min_hold_s, metavar="S", help="shortest press"
+    )
+    guide.add_argument(
+        "--min-snr", type=float, default=rules.min_snr, help="weakest press, x the frames' noise"
     )
     guide.add_argument(
         "--min-relative",
         type=float,
-        default=0.25,
-        help="weakest press, x the median accepted press (default 0.25)",
+        default=rules.min_relative,
+        help="weakest press, x the median accepted press",
     )
     guide.add_argument(
         "--max-offset",

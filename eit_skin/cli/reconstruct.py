@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from eit_skin.cli.errors import USER_ERRORS, report_error
+from eit_skin.cli.options import add_patch_options, chosen_layer
 from eit_skin.inverse.methods import METHODS
 
 if TYPE_CHECKING:
@@ -65,10 +66,9 @@ FALLBACK_RATE_HZ = 50.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
+    add_patch_options(parser)
     parser.add_argument("--frames", required=True, type=Path, metavar="IN.npz")
     parser.add_argument("--out", required=True, type=Path, metavar="OUT.npz")
-    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
     parser.add_argument(
         "--method",
         choices=METHODS,
@@ -257,12 +257,9 @@ def report_run(command: str, path: Path, run: FileRun) -> None:
 
 
 def _reconstruct(args: argparse.Namespace) -> OfflineImages:
-    from eit_skin.patch.loading import load_patch
     from eit_skin.pipeline.builder import LayerImager, with_method
-    from eit_skin.resources import config_path
 
-    patch = load_patch(config_path(args.patch))
-    layer = patch.layers[0] if args.layer is None else patch.layer(args.layer)
+    patch, layer = chosen_layer(args)
     # the chain the reconstruction node uses (cached by the layer's content), any method
     layer = layer if args.method is None else with_method(layer, args.method)
     imager = LayerImager.build(layer, cache_dir=cache_dir(args))

@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from eit_skin.cli.options import add_patch_options
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -28,7 +30,7 @@ if TYPE_CHECKING:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", default="elbow", help="patch name or YAML path")
+    add_patch_options(parser, default="elbow", layer=False)
     parser.add_argument("--namespace", default="", help="ROS namespace (default: patch name)")
     parser.add_argument("--joint", required=True, help="joint name in /joint_states")
     parser.add_argument(

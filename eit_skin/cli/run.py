@@ -18,11 +18,11 @@ import math
 import sys
 from pathlib import Path
 
-PATCH_HELP = "patch: arm, face, elbow or a YAML path (default: arm)"
+from eit_skin.cli.options import add_patch_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", default="arm", help=PATCH_HELP)
+    add_patch_options(parser, default="arm", layer=False)
     parser.add_argument("--all", action="store_true", help="run arm, face and elbow at once")
     parser.add_argument(
         "--port", default="", help="serial device of the board of a one-layer patch (no simulator)"

@@ -12,12 +12,13 @@ import time
 from pathlib import Path
 
 from eit_skin.cli.errors import USER_ERRORS, report_error
+from eit_skin.cli.options import add_patch_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eit_skin.sim.faults import fault_help
 
-    parser.add_argument("--patch", default="arm", help="arm|face|elbow or a patch YAML path")
+    add_patch_options(parser, default="arm", layer=False)
     parser.add_argument(
         "--scenario",
         default="demo",

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from eit_skin.cli.errors import USER_ERRORS, report_error
+from eit_skin.cli.options import add_patch_options, add_write_option, patch_file
 
 #: Significant digits of the stored hyperparameter.
 DIGITS = 4
@@ -54,8 +55,7 @@ DATA_MESH_PER_TARGET_RADIUS = 0.4
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--patch", required=True, help="patch YAML file (or a shipped name)")
-    parser.add_argument("--layer", default=None, help="layer name (default: the first layer)")
+    add_patch_options(parser)
     parser.add_argument(
         "--noise-figure",
         type=float,
@@ -71,16 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a recording (eit-skin reconstruct's input; optional reference_frames [K, M]): "
         "show its reference check, measured channel noise and the hyperparameter chosen on it",
     )
-    parser.add_argument(
-        "--write",
-        action="store_true",
-        help="store the chosen value as solver.hyperparameter in the patch file",
-    )
+    add_write_option(parser, "the chosen value as solver.hyperparameter")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        path = patch_path(args.patch, args.write)
+        path = patch_file(args)
         for line in model_choice(path, args.layer):
             print(line)
         result = tune_layer(path, args.layer, args.noise_figure)
@@ -104,7 +100,7 @@ def model_choice(path: Path, layer_name: str | None) -> list[str]:
     from eit_skin.pipeline.builder import choose_layer_model
 
     patch = load_patch(path)
-    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    layer = patch.layer(layer_name)
     if layer.solver.accuracy_target is None:
         return []
     return choose_layer_model(layer).lines()
@@ -131,26 +127,6 @@ def measured(path: Path, layer_name: str, frames_path: Path) -> list[str]:
         if repeated.ndim != 2:
             raise ValueError(f"{frames_path}: 'reference_frames' must be [K, {reference.size}]")
     return imager.use_reference(reference, repeated, frames).lines()
-
-
-def patch_path(name_or_path: str, write: bool = False) -> Path:
-    """An existing path as given, else a shipped config.
-
-    Raises:
-        ValueError: ``write`` and the name resolved to a shipped config (never written by name).
-    """
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    from eit_skin.resources import config_path
-
-    resolved = config_path(name_or_path)
-    if write and resolved != path:
-        raise ValueError(
-            f"{name_or_path}: a shipped config is never written by name; "
-            "copy it and give the copy's path"
-        )
-    return resolved
 
 
 @dataclass(frozen=True)
@@ -219,7 +195,7 @@ def tune_layer(path: Path, layer_name: str | None, noise_figure: float | None) -
     from eit_skin.pipeline.builder import LayerImager, forward_model, resolve_layer
 
     patch = load_patch(path)
-    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    layer = patch.layer(layer_name)
     layer = resolve_layer(layer)  # an accuracy target: its chosen model (cached)
     solver = layer.solver
     if noise_figure is None:

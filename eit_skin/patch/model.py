@@ -316,7 +316,14 @@ class Patch:
     source: str = "<dict>"
     mount: Mount = Mount()
 
-    def layer(self, name: str) -> Layer:
+    def layer(self, name: str | None = None) -> Layer:
+        """The layer called ``name``; the first layer when ``name`` is None or empty.
+
+        Raises:
+            KeyError: no layer of that name (the message lists the patch's layers).
+        """
+        if not name:
+            return self.layers[0]
         for layer in self.layers:
             if layer.name == name:
                 return layer
