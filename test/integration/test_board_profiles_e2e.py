@@ -181,14 +181,17 @@ def chains(repo, tmp_path_factory):
         ), {k: v.read_text()[-1500:] for k, v in logs.items()}
         go.set()
 
-        def played(chain) -> int:  # frames of the recording that reached us (not the reference)
+        def imaged(chain) -> int:  # images of recording frames (not the reference) that came
             frames = probe.messages[chain["frames_topic"]]
             first = bytes(frames[0][1].voltages) if frames else b""
-            return sum(bytes(m.voltages) != first for _, m in frames[-3 * VARIED :])
+            varied = {stamp_ns(m) for _, m in frames if bytes(m.voltages) != first}
+            return sum(stamp_ns(m) in varied for _, m in probe.messages[chain["image_topic"]])
 
+        # the boards play until each node has imaged enough of the recording: on a loaded
+        # machine a best-effort node skips frames, so count its images, not the frames sent
         assert probe.spin_until(
             lambda: (
-                all(played(c) >= VARIED + 5 for c in out.values())
+                all(imaged(c) >= VARIED + 5 for c in out.values())
                 or any(n.poll() is not None for n in nodes)
             ),
             EVENT_S,
@@ -196,15 +199,6 @@ def chains(repo, tmp_path_factory):
         for chain in out.values():
             chain["board"].stop()  # the boards fall silent: what was sent is what is imaged
 
-        def caught_up(chain) -> bool:  # the image of the last frame we saw has come
-            frames, images = (
-                probe.messages[chain["frames_topic"]],
-                probe.messages[chain["image_topic"]],
-            )
-            return bool(frames and images) and stamp_ns(images[-1][1]) >= stamp_ns(frames[-1][1])
-
-        probe.spin_for(1.0)  # frames still on their way after the boards stopped
-        probe.spin_until(lambda: all(caught_up(c) for c in out.values()), 30)
         for chain in out.values():
             chain["status"] = node_status(probe, chain["patch"].name, "eit_driver")
     finally:  # every node stopped before the tests read the recordings (closed on exit)
@@ -287,13 +281,6 @@ def test_images_equal_eit_skin_reconstruct_of_the_drivers_recording(chains, name
     varied = [k for k in varied if not np.array_equal(frames[k], frames[0])]
     assert len(varied) >= 0.9 * VARIED, (len(varied), len(online))
     different = [k for k in varied if not np.array_equal(online[stamps[k]], physical[k], True)]
-    if different:
-        import shutil
-
-        st = np.array(sorted(online))
-        np.savez(f"/tmp/dbg_{name}.npz", stamps=st, images=np.stack([online[x] for x in st]))
-        shutil.copy(chain["mcap"], f"/tmp/dbg_{name}.mcap")
-        shutil.copy(chain["path"], f"/tmp/dbg_{name}.yaml")
     assert different == []
     assert np.nanmax(np.abs(physical[varied])) > 0  # the recording's changes show
 
