@@ -86,22 +86,16 @@ def _random_touch(rng, label: str, t: float, frame: SheetFrame) -> Stimulus | No
         length = float(rng.uniform(0.3, 0.8)) * ext
         duration = length / speed + 2 * ramp
         return Rub(t, duration, pos, force, radius, ramp, float(rng.uniform(0, 2 * math.pi)), speed)
+    # a pinch or a grab: several fingertips, each pressing with 0.6 of one finger's force
+    fingertip = {"force_n": force * 0.6, "radius_m": radius, "ramp_s": ramp}
     if label == "pinch":
         start = float(rng.uniform(0.5, 0.9)) * ext
         end = float(rng.uniform(0.3, 0.5)) * start
         if end < 2.2 * radius:
             return None
-        return Pinch(
-            t,
-            float(rng.uniform(1.0, 2.0)),
-            pos,
-            force * 0.6,
-            radius,
-            ramp,
-            float(rng.uniform(0, math.pi)),
-            start,
-            end,
-        )
+        duration = float(rng.uniform(1.0, 2.0))
+        axis = float(rng.uniform(0, math.pi))
+        return Pinch(t, duration, pos, **fingertip, axis_rad=axis, start_gap_m=start, end_gap_m=end)
     n = int(rng.integers(3, 6))
     angles = (np.arange(n) + rng.uniform(-0.25, 0.25, n)) * (2 * math.pi / n) + rng.uniform(0, 6.3)
     spread = float(rng.uniform(0.35, 0.6)) * ext
@@ -110,15 +104,9 @@ def _random_touch(rng, label: str, t: float, frame: SheetFrame) -> Stimulus | No
     gaps = np.linalg.norm(offsets[:, None] - offsets[None], axis=-1) + np.eye(n)
     if gaps.min() < 3.0 * radius:
         return None
-    return Grab(
-        t,
-        float(rng.uniform(0.8, 2.0)),
-        pos,
-        force * 0.6,
-        radius,
-        ramp,
-        tuple((float(x), float(y)) for x, y in offsets),
-    )
+    duration = float(rng.uniform(0.8, 2.0))
+    offsets_m = tuple((float(x), float(y)) for x, y in offsets)
+    return Grab(t, duration, pos, **fingertip, offsets=offsets_m)
 
 
 HARD_SCENES = (
