@@ -899,3 +899,16 @@ def test_mount_is_read_in_metres_and_radians_and_keeps_layer_hashes(tmp_path):
     data["mount"] = {"parent_frame": data["frame_id"]}
     with pytest.raises(PatchError, match=r"mount\.parent_frame: is the patch's own frame_id"):
         load_patch(write(tmp_path, data))
+
+
+def test_a_layer_by_name_or_the_first_when_none_is_named():
+    """``Patch.layer``: what every command's ``--layer`` (default: the first) resolves through."""
+    from eit_skin.resources import config_path
+
+    arm = load_patch(config_path("arm"))
+    assert len(arm.layers) >= 2
+    assert arm.layer(None) is arm.layers[0] and arm.layer("") is arm.layers[0]
+    second = arm.layers[1]
+    assert arm.layer(second.name) is second
+    with pytest.raises(KeyError, match=rf"no layer 'nope'; layers: .*{second.name}"):
+        arm.layer("nope")
