@@ -50,6 +50,16 @@ injection (``n_inj * n`` numbers, e.g. 16 x 16 = 256, in the pattern's order, in
 pairs on driven electrodes); :attr:`Protocol.frame_index` picks the used entries
 (:meth:`Protocol.select`). Explicit measurements have no full layout.
 
+Unequal input gains (``negative_input_gain``, the layer's ``device.negative_input_gain``): a
+differential input whose minus side has gain ``g`` relative to its plus side reads
+``(V(plus) - V(sink)) - g (V(minus) - V(sink))`` = ``V(plus) - g V(minus) - (1 - g) V(sink)``:
+the two inputs see potentials against the board's ground, the injection's sink (the current
+returns through a virtual-ground amplifier), so ``g != 1`` leaks ``(1 - g)`` of the minus
+input's common-mode voltage into the reading, largest next to the source. Pair drives only
+(a current pattern has no single sink); ``g = 1`` is exactly ``V(plus) - V(minus)``.
+:attr:`Protocol.measurement_terms` is the one place every measurement operator (the forward
+model's voltages, Jacobian and contact sensitivity, the simulator) reads it from.
+
 Values (``values``): ``"signed"`` (default) or ``"magnitude"``: the board reports ``|V|``;
 the sign of each channel is taken from the homogeneous model (``pipeline.builder``).
 Complex frames (``complex_part``): ``"real"`` (default) or ``"magnitude"`` of a complex
@@ -326,6 +336,8 @@ class Protocol:
         board_to_config: ``[n_el]`` int64: board electrode ``b`` is config electrode
             ``board_to_config[b]`` (``first_electrode`` or ``electrode_order``; identity
             when None is given).
+        negative_input_gain: gain of the minus input relative to the plus input (> 0; 1:
+            matched inputs; module docstring); pair drives only.
     """
 
     name: str
@@ -338,6 +350,7 @@ class Protocol:
     complex_part: str = "real"
     magnitude: bool = False
     board_to_config: np.ndarray | None = None
+    negative_input_gain: float = 1.0
     _selection: sp.csr_matrix | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -380,16 +393,43 @@ class Protocol:
         order = order.astype(np.int64)
         order.setflags(write=False)
         object.__setattr__(self, "board_to_config", order)
+        gain = float(self.negative_input_gain)
+        if not (np.isfinite(gain) and gain > 0):
+            raise ValueError(f"protocol {self.name!r}: negative_input_gain must be > 0, got {gain}")
+        if gain != 1.0 and self.currents is not None:
+            raise ValueError(
+                f"protocol {self.name!r}: negative_input_gain {gain:g} needs a pair drive "
+                "(the inputs' ground is the injection's sink)"
+            )
+        object.__setattr__(self, "negative_input_gain", gain)
         inj.setflags(write=False)
         meas.setflags(write=False)
         object.__setattr__(self, "n_electrodes", n)
         object.__setattr__(self, "injections", inj)
         object.__setattr__(self, "measurements", meas)
-        rows = np.repeat(np.arange(len(meas)), 2)
-        cols = (meas[:, [0]] * n + meas[:, 1:]).ravel()
-        vals = np.tile([1.0, -1.0], len(meas))
-        sel = sp.csr_matrix((vals, (rows, cols)), shape=(len(meas), len(inj) * n))
+        electrodes, weights = self.measurement_terms
+        rows = np.repeat(np.arange(len(meas)), electrodes.shape[1])
+        cols = (meas[:, [0]] * n + electrodes).ravel()
+        sel = sp.csr_matrix((weights.ravel(), (rows, cols)), shape=(len(meas), len(inj) * n))
+        sel.eliminate_zeros()
         object.__setattr__(self, "_selection", sel)
+
+    @property
+    def measurement_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """(``[M, T]`` electrodes, ``[M, T]`` weights) of the measurements.
+
+        Measurement ``m`` of injection ``k`` is ``sum_t weights[m, t] V_k(electrodes[m, t])``.
+
+        ``T = 2`` (plus, minus; weights 1, -1) with matched inputs, else ``T = 3`` (plus,
+        minus, the injection's sink; weights 1, -g, g - 1: module docstring).
+        """
+        pairs = self.measurements[:, 1:]
+        g = self.negative_input_gain
+        if g == 1.0:
+            return pairs, np.broadcast_to(np.array([1.0, -1.0]), pairs.shape)
+        sink = self.injections[self.measurements[:, 0], 1]
+        weights = np.broadcast_to(np.array([1.0, -g, g - 1.0]), (len(pairs), 3))
+        return np.column_stack([pairs, sink]), weights
 
     @property
     def pair_drive(self) -> bool:
@@ -475,7 +515,23 @@ class Protocol:
                 f"{self.n_electrodes}], got {u.shape}"
             )
         k, p, m = self.measurements.T
-        return u[..., k, p] - u[..., k, m]
+        if self.negative_input_gain == 1.0:
+            return u[..., k, p] - u[..., k, m]
+        electrodes, weights = self.measurement_terms
+        return (u[..., k[:, None], electrodes] * weights).sum(axis=-1)
+
+    def same_numbers(self, measurements: np.ndarray) -> bool:
+        """Whether ``(injection, plus, minus)`` triples ``[M, 3]`` give this protocol's numbers.
+
+        The same triples in order; for a magnitude protocol a pair's orientation is immaterial.
+        """
+        other = np.asarray(measurements, dtype=np.int64)
+        mine = self.measurements
+        if other.shape != mine.shape or not np.array_equal(other[:, 0], mine[:, 0]):
+            return False
+        if self.magnitude:
+            return np.array_equal(np.sort(other[:, 1:], axis=1), np.sort(mine[:, 1:], axis=1))
+        return np.array_equal(other, mine)
 
     def touching_table(self) -> np.ndarray:
         """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone (read-only).
@@ -505,8 +561,14 @@ class Protocol:
         return driving[k] | bad[self.measurements[:, 1]] | bad[self.measurements[:, 2]]
 
 
-def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
-    """Expand ``spec`` for ``n_electrodes`` electrodes into the frame's pairs (config numbering)."""
+def build_protocol(
+    spec: ProtocolSpec, n_electrodes: int, negative_input_gain: float = 1.0
+) -> Protocol:
+    """Expand ``spec`` for ``n_electrodes`` electrodes into the frame's pairs (config numbering).
+
+    ``negative_input_gain``: the board's minus-input gain relative to its plus input (the
+    layer's ``device.negative_input_gain``; module docstring).
+    """
     spec.validate(n_electrodes)
     n = int(n_electrodes)
     currents = None
@@ -583,4 +645,5 @@ def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
         complex_part=spec.complex_part,
         magnitude=spec.values == "magnitude" or spec.complex_part == "magnitude",
         board_to_config=board_to_config,
+        negative_input_gain=negative_input_gain,
     )
