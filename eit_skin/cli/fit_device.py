@@ -67,9 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         path = patch_path(args.patch, args.write)
-        layer_name, fit = fit_layer(
-            path, args.layer, args.frames, args.gain, args.per_electrode, args.fit_input_gain
-        )
+        layer_name, fit = fit_layer(path, args)
         for line in fit.lines():
             print(line)
         print(f"gain at the patch's conductance: {fit.gain_at(_patch_sigma(path, layer_name)):.4g}")
@@ -90,26 +88,23 @@ def _patch_sigma(path: Path, layer_name: str) -> float:
     return load_patch(path).layer(layer_name).material.sheet_conductance_s
 
 
-def fit_layer(
-    path: Path,
-    layer_name: str | None,
-    frames: Path,
-    gain: float,
-    per_electrode: str,
-    fit_input_gain: bool = False,
-):
-    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``."""
+def fit_layer(path: Path, args: argparse.Namespace):
+    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``.
+
+    ``args``: the command's ``layer``, ``frames``, ``gain``, ``per_electrode`` and
+    ``fit_input_gain``.
+    """
     from eit_skin.fem.device_fit import fit_device
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
 
     patch = load_patch(path)
-    layer = patch.layers[0] if layer_name is None else patch.layer(layer_name)
+    layer = patch.layers[0] if args.layer is None else patch.layer(args.layer)
     protocol = layer.measured_protocol
-    if not frames.is_file():
-        raise ValueError(f"{frames}: no such file")
-    reader = FramesNpzReader(frames, convert=protocol.select)
+    if not args.frames.is_file():
+        raise ValueError(f"{args.frames}: no such file")
+    reader = FramesNpzReader(args.frames, convert=protocol.select)
     fit = fit_device(
         build_mesh(layer),
         protocol,
@@ -117,10 +112,10 @@ def fit_layer(
         layer.material.sheet_conductance_s,
         layer.contact_impedance_ohm_m,
         layer.current_a,
-        gain=gain,
+        gain=args.gain,
         magnitude=protocol.magnitude,
-        per_electrode={"auto": None, "yes": True, "no": False}[per_electrode],
-        fit_input_gain=fit_input_gain,
+        per_electrode={"auto": None, "yes": True, "no": False}[args.per_electrode],
+        fit_input_gain=args.fit_input_gain,
     )
     return layer.name, fit
 

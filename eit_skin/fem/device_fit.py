@@ -178,8 +178,6 @@ def fit_device(
     n_el = mesh.n_electrodes
     if per_electrode is None:
         per_electrode = measures_driven(protocol)
-    if fit_input_gain and not protocol.pair_drive:
-        raise ValueError("fit_input_gain: needs a pair drive (the inputs' ground is the sink)")
     n_par = 1 + (n_el if per_electrode else 1) + int(fit_input_gain)
     used = _usable_channels(v, protocol.n_measurements, gain, n_par)
     z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,)).copy()
@@ -189,15 +187,7 @@ def fit_device(
     frame = _FrameResidual(
         mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode, fit_input_gain
     )
-    g = protocol.negative_input_gain
-    sigma, z = frame.common_scale(float(sheet_conductance_s), z, g)
-    r, J = frame.evaluate(sigma, z, g, True)
-    initial = float(np.sqrt(np.mean(r**2)))
-    if fit_input_gain:  # the misfit is not smooth in g where channels cross zero: start
-        g = frame.best_gain(sigma, z, g)  # from the best of a grid
-        sigma, z = frame.common_scale(sigma, z, g)
-        r, J = frame.evaluate(sigma, z, g, True)
-    start = (sigma, z.copy(), g, r, J)
+    start, initial = frame.start(float(sheet_conductance_s), z, protocol.negative_input_gain)
     free = np.ones(n_par, dtype=bool)
     sigma, z, g, r, J, iterations = _levenberg_marquardt(frame, start, free, max_iterations)
     # where the data allow: a contact impedance the frame barely depends on (its log
@@ -250,6 +240,10 @@ class _FrameResidual:
     per_electrode: bool
     fit_input_gain: bool = False
 
+    def __post_init__(self) -> None:
+        if self.fit_input_gain and not self.protocol.pair_drive:
+            raise ValueError("fit_input_gain: needs a pair drive (the inputs' ground is the sink)")
+
     def model(self, z: np.ndarray, g: float) -> ForwardModel:
         """The forward model at contact impedance ``z`` and negative input gain ``g``."""
         return ForwardModel(
@@ -280,6 +274,23 @@ class _FrameResidual:
             sink = self.protocol.injections[k, 1]
             cols.append((-g * (u[k, minus] - u[k, sink]))[:, None])
         return r, (self.gain * sign[:, None] * np.hstack(cols))[self.used] / self.rms
+
+    def start(
+        self, sigma: float, z: np.ndarray, g: float
+    ) -> tuple[tuple[float, np.ndarray, float, np.ndarray, np.ndarray], float]:
+        """(the fit's start ``(sigma, z, g, r, J)``, the residual at the given values).
+
+        At the best common scale; a fitted gain starts from the best of a grid (the misfit
+        is not smooth in ``g`` where channels cross zero).
+        """
+        sigma, z = self.common_scale(sigma, z, g)
+        r, J = self.evaluate(sigma, z, g, True)
+        initial = float(np.sqrt(np.mean(r**2)))
+        if self.fit_input_gain:
+            g = self.best_gain(sigma, z, g)
+            sigma, z = self.common_scale(sigma, z, g)
+            r, J = self.evaluate(sigma, z, g, True)
+        return (sigma, z.copy(), g, r, J), initial
 
     def best_gain(self, sigma: float, z: np.ndarray, g: float) -> float:
         """The gain of :data:`INPUT_GAIN_GRID` or ``g`` that fits best at a common scale.

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cached_property
 from typing import Any, ClassVar
 
@@ -274,7 +274,8 @@ class Layer:
     @cached_property
     def measured_protocol(self) -> Protocol:
         """The expanded protocol as the board measures it (``device.negative_input_gain``)."""
-        return build_protocol(self.protocol, self.n_electrodes, self.device.negative_input_gain)
+        protocol = build_protocol(self.protocol, self.n_electrodes)
+        return replace(protocol, negative_input_gain=self.device.negative_input_gain)
 
     @cached_property
     def content_hash(self) -> str:

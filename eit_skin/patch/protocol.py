@@ -50,15 +50,8 @@ injection (``n_inj * n`` numbers, e.g. 16 x 16 = 256, in the pattern's order, in
 pairs on driven electrodes); :attr:`Protocol.frame_index` picks the used entries
 (:meth:`Protocol.select`). Explicit measurements have no full layout.
 
-Unequal input gains (``negative_input_gain``, the layer's ``device.negative_input_gain``): a
-differential input whose minus side has gain ``g`` relative to its plus side reads
-``(V(plus) - V(sink)) - g (V(minus) - V(sink))`` = ``V(plus) - g V(minus) - (1 - g) V(sink)``:
-the two inputs see potentials against the board's ground, the injection's sink (the current
-returns through a virtual-ground amplifier), so ``g != 1`` leaks ``(1 - g)`` of the minus
-input's common-mode voltage into the reading, largest next to the source. Pair drives only
-(a current pattern has no single sink); ``g = 1`` is exactly ``V(plus) - V(minus)``.
-:attr:`Protocol.measurement_terms` is the one place every measurement operator (the forward
-model's voltages, Jacobian and contact sensitivity, the simulator) reads it from.
+Unequal input gains (``negative_input_gain``, the layer's ``device.negative_input_gain``): the
+board reads ``V(plus) - g V(minus)`` against the sink (:mod:`eit_skin.patch.input_gain`).
 
 Values (``values``): ``"signed"`` (default) or ``"magnitude"``: the board reports ``|V|``;
 the sign of each channel is taken from the homogeneous model (``pipeline.builder``).
@@ -74,6 +67,9 @@ from typing import ClassVar
 
 import numpy as np
 import scipy.sparse as sp
+
+from eit_skin.patch.input_gain import input_gain_problem, measurement_terms
+from eit_skin.patch.patterns import pattern_offset, trigonometric_currents
 
 PATTERNS = ("adjacent", "opposite", "skip", "explicit")
 DRIVE_PATTERNS = (*PATTERNS, "trigonometric", "currents")
@@ -288,29 +284,6 @@ def _current_vectors(value) -> tuple[tuple[float, ...], ...]:
     return tuple(out)
 
 
-def trigonometric_currents(n: int) -> np.ndarray:
-    """``[n - 1, n]`` trigonometric current patterns (board numbering, peak 1).
-
-    Rows ``cos(k theta_b)`` for ``k = 1 .. n//2``, then ``sin(k theta_b)`` for
-    ``k = 1 .. (n-1)//2``, ``theta_b = 2 pi b / n``; every row sums to zero.
-    """
-    theta = 2 * np.pi * np.arange(n) / n
-    k_cos = np.arange(1, n // 2 + 1)
-    k_sin = np.arange(1, (n - 1) // 2 + 1)
-    rows = np.vstack([np.cos(np.outer(k_cos, theta)), np.sin(np.outer(k_sin, theta))])
-    rows[np.abs(rows) < 1e-12] = 0.0  # exact zeros where cos/sin vanish
-    return rows
-
-
-def pattern_offset(pattern: str, skip: int, n: int) -> int:
-    """Electrodes from the first to the second of a pair pattern's pairs (``n`` electrodes)."""
-    if pattern == "adjacent":
-        return 1
-    if pattern == "opposite":
-        return n // 2
-    return skip + 1
-
-
 @dataclass(frozen=True, eq=False)
 class Protocol:
     """Drive and measurement pairs of one frame, in frame order, config electrode numbering.
@@ -394,13 +367,9 @@ class Protocol:
         order.setflags(write=False)
         object.__setattr__(self, "board_to_config", order)
         gain = float(self.negative_input_gain)
-        if not (np.isfinite(gain) and gain > 0):
-            raise ValueError(f"protocol {self.name!r}: negative_input_gain must be > 0, got {gain}")
-        if gain != 1.0 and self.currents is not None:
-            raise ValueError(
-                f"protocol {self.name!r}: negative_input_gain {gain:g} needs a pair drive "
-                "(the inputs' ground is the injection's sink)"
-            )
+        problem = input_gain_problem(gain, self.currents is None)
+        if problem:
+            raise ValueError(f"protocol {self.name!r}: {problem}")
         object.__setattr__(self, "negative_input_gain", gain)
         inj.setflags(write=False)
         meas.setflags(write=False)
@@ -416,20 +385,8 @@ class Protocol:
 
     @property
     def measurement_terms(self) -> tuple[np.ndarray, np.ndarray]:
-        """(``[M, T]`` electrodes, ``[M, T]`` weights) of the measurements.
-
-        Measurement ``m`` of injection ``k`` is ``sum_t weights[m, t] V_k(electrodes[m, t])``.
-
-        ``T = 2`` (plus, minus; weights 1, -1) with matched inputs, else ``T = 3`` (plus,
-        minus, the injection's sink; weights 1, -g, g - 1: module docstring).
-        """
-        pairs = self.measurements[:, 1:]
-        g = self.negative_input_gain
-        if g == 1.0:
-            return pairs, np.broadcast_to(np.array([1.0, -1.0]), pairs.shape)
-        sink = self.injections[self.measurements[:, 0], 1]
-        weights = np.broadcast_to(np.array([1.0, -g, g - 1.0]), (len(pairs), 3))
-        return np.column_stack([pairs, sink]), weights
+        """(``[M, T]`` electrodes, ``[M, T]`` weights): :func:`.input_gain.measurement_terms`."""
+        return measurement_terms(self.measurements, self.injections[:, 1], self.negative_input_gain)
 
     @property
     def pair_drive(self) -> bool:
@@ -521,16 +478,14 @@ class Protocol:
         return (u[..., k[:, None], electrodes] * weights).sum(axis=-1)
 
     def same_numbers(self, measurements: np.ndarray) -> bool:
-        """Whether ``(injection, plus, minus)`` triples ``[M, 3]`` give this protocol's numbers.
-
-        The same triples in order; for a magnitude protocol a pair's orientation is immaterial.
-        """
-        other = np.asarray(measurements, dtype=np.int64)
-        mine = self.measurements
-        if other.shape != mine.shape or not np.array_equal(other[:, 0], mine[:, 0]):
+        """Whether ``(injection, plus, minus)`` rows ``[M, 3]`` give these numbers, in order."""
+        other, mine = np.asarray(measurements, dtype=np.int64), self.measurements
+        if other.shape != mine.shape:
             return False
-        if self.magnitude:
-            return np.array_equal(np.sort(other[:, 1:], axis=1), np.sort(mine[:, 1:], axis=1))
+        if self.magnitude:  # a pair's orientation is immaterial
+            other, mine = (
+                np.column_stack([m[:, :1], np.sort(m[:, 1:], axis=1)]) for m in (other, mine)
+            )
         return np.array_equal(other, mine)
 
     def touching_table(self) -> np.ndarray:
@@ -561,14 +516,8 @@ class Protocol:
         return driving[k] | bad[self.measurements[:, 1]] | bad[self.measurements[:, 2]]
 
 
-def build_protocol(
-    spec: ProtocolSpec, n_electrodes: int, negative_input_gain: float = 1.0
-) -> Protocol:
-    """Expand ``spec`` for ``n_electrodes`` electrodes into the frame's pairs (config numbering).
-
-    ``negative_input_gain``: the board's minus-input gain relative to its plus input (the
-    layer's ``device.negative_input_gain``; module docstring).
-    """
+def build_protocol(spec: ProtocolSpec, n_electrodes: int) -> Protocol:
+    """Expand ``spec`` for ``n_electrodes`` electrodes into the frame's pairs (config numbering)."""
     spec.validate(n_electrodes)
     n = int(n_electrodes)
     currents = None
@@ -645,5 +594,4 @@ def build_protocol(
         complex_part=spec.complex_part,
         magnitude=spec.values == "magnitude" or spec.complex_part == "magnitude",
         board_to_config=board_to_config,
-        negative_input_gain=negative_input_gain,
     )
