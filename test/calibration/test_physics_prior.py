@@ -146,9 +146,10 @@ def test_calibrate_command_with_physics_prior(tmp_path, capsys, session):
     presses, model = tmp_path / "p.npz", tmp_path / "m.npz"
     session.subset(np.arange(30)).save(presses)
     argv = ["calibrate", "--patch", str(HYDROGEL_PATCH), "--presses", str(presses)]
-    assert main([*argv, "--physics-prior", "80", "--out", str(model)]) == 0
+    assert main([*argv, "--out", str(model)]) == 0  # on by default (press_calibration.md)
     out = capsys.readouterr().out
-    assert "physics prior: 80 presses simulated" in out and "kept: " in out
+    assert "physics prior: 500 presses simulated" in out and "kept: " in out
+    assert "negative input gain 1)" in out  # the simulated board's inputs are matched
     assert isinstance(PressLocaliser.load(model).position, PriorPosition)
     assert main([*argv, "--physics-prior", "-1", "--out", str(tmp_path / "no.npz")]) == 2
     assert "--physics-prior: -1 presses" in capsys.readouterr().err
