@@ -22,15 +22,15 @@ from eit_skin.patch.loading import load_patch, patch_from_dict
 from eit_skin.patch.model import PatchError
 from eit_skin.patch.protocol import Protocol
 from eit_skin.pipeline.builder import forward_model
-from test.patch.test_loading import base, layer0
+from test.support.patch_copies import small_disc_data
 
 GAIN = 1.15  # the hydrogel set's OpenEIT board (docs/patch-schema.md)
 
 
 def patch_with(**device):
-    data = base()
+    data = small_disc_data()
     if device:
-        layer0(data)["device"] = device
+        data["layers"][0]["device"] = device
     return patch_from_dict(data)
 
 
@@ -120,10 +120,10 @@ def test_a_gain_of_one_changes_nothing(layers, mesh):
     ],
 )
 def test_bad_gains_are_refused_naming_the_key(device, protocol, message):
-    data = base()
-    layer0(data)["device"] = device
+    data = small_disc_data()
+    data["layers"][0]["device"] = device
     if protocol:
-        layer0(data)["protocol"] = protocol
+        data["layers"][0]["protocol"] = protocol
     with pytest.raises(PatchError, match=rf"layers\[0\]\.{message}"):
         patch_from_dict(copy.deepcopy(data))
 
@@ -169,7 +169,7 @@ def test_fit_device_recovers_the_gain_from_one_unloaded_frame(layers, mesh, magn
 def test_fit_device_command_writes_the_gain(tmp_path, capsys, layers):
     import yaml
 
-    data = base()
+    data = small_disc_data()
     path = tmp_path / "disc.yaml"
     path.write_text(yaml.safe_dump(data))
     unequal = layers[2]

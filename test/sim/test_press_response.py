@@ -19,15 +19,15 @@ from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.sim.stimuli import Push
-from test.patch.test_loading import base, layer0
+from test.support.patch_copies import small_disc_data
 
 SCALE_PA = 3e4
 
 
 def patch_of(response: str | None):
-    data = base()
+    data = small_disc_data()
     if response is not None:
-        layer0(data)["material"]["response"] = response
+        data["layers"][0]["material"]["response"] = response
     return patch_from_dict(data)
 
 
@@ -59,8 +59,8 @@ def test_the_default_stays_piezoresistive_and_keeps_its_hash():
     ],
 )
 def test_a_response_that_cannot_be_honoured_is_refused(material, message):
-    data = base()
-    mat = layer0(data)["material"]
+    data = small_disc_data()
+    mat = data["layers"][0]["material"]
     mat.update(material)
     if mat["quantity"] == "stretch":
         del mat["pressure_scale"]
@@ -75,8 +75,8 @@ def pressed():
     out = []
     for response in ("piezoresistive", "thinning"):
         sim = SkinSimulator(patch_of(response), scenario, rate_hz=2.0, seed=1, drift=NO_DRIFT)
-        base_sigma, sigma = sim.fields("sheet", 0.5)
-        change = sim.frame(1)["sheet"].voltages_v - sim.reference("sheet")
+        base_sigma, sigma = sim.fields("pressure", 0.5)
+        change = sim.frame(1)["pressure"].voltages_v - sim.reference("pressure")
         out.append((base_sigma, sigma, change))
     return out
 
