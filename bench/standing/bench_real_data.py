@@ -608,7 +608,7 @@ def main() -> None:
         protocol = build_protocol(layer.protocol, layer.n_electrodes)
         if not (
             np.array_equal(protocol.injections, data.ex_mat)
-            and np.array_equal(protocol.measurements, data.meas_mat)
+            and protocol.same_numbers(data.meas_mat)
         ):
             raise ValueError(f"{name}: the patch's protocol differs from the set's ex/meas_mat")
         radius = sheet_radius(layer)

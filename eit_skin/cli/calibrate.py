@@ -5,12 +5,16 @@ The session (``--presses``, see ``eit_skin.calibration.session``) is checked aga
 on new presses (median and 90th-percentile position error, per depth band when depths are
 given); then the model is fitted on all presses and written to ``--out`` (npz, no pickles).
 
-``--physics-prior N`` (default 0: off) fits the layer's sheet conductance and contact impedance
-to the session's unloaded frame (as ``fit-device`` does), simulates N presses on that model and
-uses them as the localiser's prior (``eit_skin.calibration.physics_prior``); the
-cross-validation then includes the prior, refitted per fold. It is off by default: on the one
-real skin benchmarked (bench/standing/press_calibration.md) the model's presses do not resemble the
-real ones and leave-one-out switches the prior off, at the cost of a simulation.
+``--physics-prior N`` (default :data:`DEFAULT_PRIOR_PRESSES`; 0: off) fits the layer's sheet
+conductance, contact impedance and the board's input gain ratio to the session's unloaded frame
+(as ``fit-device --fit-input-gain`` does), simulates N presses on that model and uses them as
+the localiser's prior (``eit_skin.calibration.physics_prior``; leave-one-out keeps it only where
+it helps); the cross-validation then includes the prior, refitted per fold. On by default since
+the model knows the board's unequal inputs and a press that thins a gel: it helps every
+benchmarked skin from 50 presses on, the real hydrogel most at 400 (bench/standing/
+press_calibration.md), for a device fit and a simulation (6-14 s). Where the default prior
+cannot be built (the model does not fit the unloaded frame at all) it is left out with a note;
+an explicit ``--physics-prior N`` fails with the reason instead.
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ from eit_skin.cli.options import add_max_touches_option, add_patch_options, chos
 
 if TYPE_CHECKING:
     import numpy as np
+
+DEFAULT_PRIOR_PRESSES = 500
+"""Presses simulated for the physics prior unless ``--physics-prior`` says otherwise."""
 
 POOR_FIT = 0.1
 """Device fit residual (share of the unloaded frame's rms) above which the model is called poor."""
@@ -44,9 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--physics-prior",
         type=int,
-        default=0,
+        default=None,
         metavar="N",
-        help="simulate N presses on the device-fitted model as the localiser's prior (0: off)",
+        help="simulate N presses on the device-fitted model as the localiser's prior "
+        f"(default {DEFAULT_PRIOR_PRESSES}; 0: off)",
     )
     parser.add_argument(
         "--prior-mode",
@@ -87,11 +95,41 @@ def _print_depth_errors(
         )
 
 
+def physics_prior(args: argparse.Namespace, patch, layer, session):
+    """(the prior or None, notes to print) for ``--physics-prior`` (module docstring)."""
+    from eit_skin.calibration.physics_prior import PhysicsPrior
+    from eit_skin.sim.press_session import calibrated_to_device, simulate_press_session
+
+    n = DEFAULT_PRIOR_PRESSES if args.physics_prior is None else args.physics_prior
+    if n < 0:
+        raise ValueError(f"--physics-prior: {n} presses, want >= 0")
+    if n == 0:
+        return None, []
+    try:
+        device, fit = calibrated_to_device(patch, layer.name, session.reference)
+    except ValueError as error:
+        if args.physics_prior is not None:
+            raise
+        return None, [f"physics prior left out: {error}"]
+    prior = PhysicsPrior.fit(simulate_press_session(device, n, layer.name, seed=args.seed))
+    notes = [
+        f"physics prior: {n} presses simulated on layer {layer.name!r} fitted to the "
+        f"session's unloaded frame (fit residual {fit.residual:.1%} of its rms, negative "
+        f"input gain {fit.negative_input_gain:.3g})"
+    ]
+    if fit.residual > POOR_FIT:
+        notes.append(
+            "  the model explains this device's unloaded frame poorly: expect little "
+            "from the prior (leave-one-out drops it when it does not help)"
+        )
+    return prior, notes
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from eit_skin.calibration.localiser import PressLocaliser, cross_validate
-    from eit_skin.calibration.physics_prior import PRIOR_MODES, PhysicsPrior, PriorPosition
+    from eit_skin.calibration.physics_prior import PRIOR_MODES, PriorPosition
     from eit_skin.calibration.session import load_press_session
     from eit_skin.patch.model import PatchError
 
@@ -101,27 +139,7 @@ def run(args: argparse.Namespace) -> int:
         session.check_layer(layer)
         if args.max_touches < 1:
             raise ValueError(f"--max-touches: {args.max_touches}, need >= 1")
-        prior, notes = None, []
-        if args.physics_prior < 0:
-            raise ValueError(f"--physics-prior: {args.physics_prior} presses, want >= 0")
-        if args.physics_prior > 0:
-            from eit_skin.sim.press_session import calibrated_to_device, simulate_press_session
-
-            device, fit = calibrated_to_device(patch, layer.name, session.reference)
-            simulated = simulate_press_session(
-                device, args.physics_prior, layer.name, seed=args.seed
-            )
-            prior = PhysicsPrior.fit(simulated)
-            notes.append(
-                f"physics prior: {args.physics_prior} presses simulated on layer {layer.name!r} "
-                f"fitted to the session's unloaded frame (fit residual {fit.residual:.1%} of "
-                "its rms)"
-            )
-            if fit.residual > POOR_FIT:
-                notes.append(
-                    "  the model explains this device's unloaded frame poorly: expect little "
-                    "from the prior (leave-one-out drops it when it does not help)"
-                )
+        prior, notes = physics_prior(args, patch, layer, session)
         modes = PRIOR_MODES if args.prior_mode == "auto" else (args.prior_mode,)
         cv = cross_validate(
             session, layer, folds=args.folds, seed=args.seed, prior=prior, prior_modes=modes

@@ -8,10 +8,13 @@ overrides) on the layer's forward mesh (:func:`eit_skin.fem.device_fit.fit_devic
 the fitted values, the fit residual (rms, relative to the frame's rms, before and after) and
 the electrodes with bad contact. The gain (frame units per volt, ``--gain``, default 1: the
 frames are volts) cannot be fitted together with the conductance from one homogeneous frame;
-the gain the patch's own conductance implies is printed too.
+the gain the patch's own conductance implies is printed too. ``--fit-input-gain`` also fits
+the board's ``device.negative_input_gain`` (its minus input's gain over its plus input's, from
+the same no-load frame: a device calibration, never from presses; pair drives only).
 
 ``--write`` stores ``material.sheet_conductance`` and ``electrodes.contact_impedance`` (a
-number, or a list of one per electrode) in the patch file, editing only those entries'
+number, or a list of one per electrode), and with ``--fit-input-gain``
+``device.negative_input_gain``, in the patch file, editing only those entries'
 text (comments kept), validated with ``load_patch`` before it atomically replaces the file;
 the reconstruction matrix is then built on the calibrated model, cached under the new
 content hash like any other patch change. Shipped configs are only written when given by path.
@@ -46,22 +49,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="one contact impedance per electrode (auto: when the protocol measures on "
         "current-carrying electrodes)",
     )
+    parser.add_argument(
+        "--fit-input-gain",
+        action="store_true",
+        help="also fit device.negative_input_gain (the minus input's gain over the plus "
+        "input's; pair drives)",
+    )
     add_write_option(parser, "the fitted sheet_conductance and contact_impedance")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         path = patch_file(args)
-        layer_name, fit = fit_layer(path, args.layer, args.frames, args.gain, args.per_electrode)
+        layer_name, fit = fit_layer(path, args)
         for line in fit.lines():
             print(line)
         print(f"gain at the patch's conductance: {fit.gain_at(_patch_sigma(path, layer_name)):.4g}")
         if args.write:
-            sigma_text, z_text = write_calibration(path, layer_name, fit)
-            print(
-                f"wrote sheet_conductance: {sigma_text}, contact_impedance: {z_text} to {path} "
-                f"(layer {layer_name})"
-            )
+            texts = write_calibration(path, layer_name, fit, args.fit_input_gain)
+            written = ", ".join(f"{key}: {text}" for key, text in texts.items())
+            print(f"wrote {written} to {path} (layer {layer_name})")
         else:
             print("not written (add --write to store it in the patch file)")
     except USER_ERRORS as exc:
@@ -75,20 +82,23 @@ def _patch_sigma(path: Path, layer_name: str) -> float:
     return load_patch(path).layer(layer_name).material.sheet_conductance_s
 
 
-def fit_layer(path: Path, layer_name: str | None, frames: Path, gain: float, per_electrode: str):
-    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``."""
+def fit_layer(path: Path, args: argparse.Namespace):
+    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``.
+
+    ``args``: the command's ``layer``, ``frames``, ``gain``, ``per_electrode`` and
+    ``fit_input_gain``.
+    """
     from eit_skin.fem.device_fit import fit_device
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
-    from eit_skin.patch.protocol import build_protocol
 
     patch = load_patch(path)
-    layer = patch.layer(layer_name)
-    protocol = build_protocol(layer.protocol, layer.n_electrodes)
-    if not frames.is_file():
-        raise ValueError(f"{frames}: no such file")
-    reader = FramesNpzReader(frames, convert=protocol.select)
+    layer = patch.layer(args.layer)
+    protocol = layer.measured_protocol
+    if not args.frames.is_file():
+        raise ValueError(f"{args.frames}: no such file")
+    reader = FramesNpzReader(args.frames, convert=protocol.select)
     fit = fit_device(
         build_mesh(layer),
         protocol,
@@ -96,17 +106,20 @@ def fit_layer(path: Path, layer_name: str | None, frames: Path, gain: float, per
         layer.material.sheet_conductance_s,
         layer.contact_impedance_ohm_m,
         layer.current_a,
-        gain=gain,
+        gain=args.gain,
         magnitude=protocol.magnitude,
-        per_electrode={"auto": None, "yes": True, "no": False}[per_electrode],
+        per_electrode={"auto": None, "yes": True, "no": False}[args.per_electrode],
+        fit_input_gain=args.fit_input_gain,
     )
     return layer.name, fit
 
 
-def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
-    """Store the fit's conductance and contact impedance in the patch file; their texts.
+def write_calibration(path: Path, layer_name: str, fit, input_gain: bool = False) -> dict[str, str]:
+    """Store the fit in the patch file; ``{entry: text}`` of what was written.
 
-    Only those two entries' text changes; the result must load as the same patch apart from
+    Conductance and contact impedance, and with ``input_gain`` ``device.negative_input_gain``.
+
+    Only those entries' text changes; the result must load as the same patch apart from
     them (content hashes compared) before it atomically replaces the file.
     """
     from dataclasses import replace
@@ -136,6 +149,15 @@ def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
     text = path.read_text(encoding="utf-8")
     text = set_layer_entry(text, layer_name, "material.sheet_conductance", sigma_text, str(path))
     text = set_layer_entry(text, layer_name, "electrodes.contact_impedance", z_text, str(path))
+    texts = {"sheet_conductance": sigma_text, "contact_impedance": z_text}
+    device = layer.device
+    if input_gain:
+        gain_text = f"{fit.negative_input_gain:.{DIGITS}g}"
+        entry = "device.negative_input_gain"
+        text = set_layer_entry(text, layer_name, entry, gain_text, str(path))
+        texts["negative_input_gain"] = gain_text
+        options = dict(device.options) | {"negative_input_gain": float(gain_text)}
+        device = replace(device, options=tuple(options.items()))
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".yaml", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
@@ -146,6 +168,7 @@ def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
             layer,
             material=replace(layer.material, sheet_conductance_s=float(sigma_text)),
             contact_impedance_ohm_m=values if fit.per_electrode else values[0],
+            device=device,
         )
         expected = replace(
             before,
@@ -162,4 +185,4 @@ def write_calibration(path: Path, layer_name: str, fit) -> tuple[str, str]:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    return sigma_text, z_text
+    return texts

@@ -23,6 +23,11 @@ What one frame can tell apart (the choices made here):
   residual exceeds :data:`UNDETERMINED_LOG_STD`: on real tanks measured without the driven
   electrodes, the common ``z`` runs off to "no shunting" for a fraction of a percent of
   residual), it keeps its starting value and the rest is refitted; the report says so.
+* The board's input gain mismatch (``fit_input_gain``: the minus input's gain ``g`` over the
+  plus input's, :mod:`eit_skin.patch.protocol`): with the inputs referred to the sink, a
+  homogeneous frame determines it (``g != 1`` leaks a common-mode voltage that grows towards
+  the source, a shape ``sigma`` and ``z`` cannot make); fitted from the no-load frame only, as
+  a device calibration, never from loads. Pair drives only.
 * Bad contact: an electrode whose fitted ``z`` exceeds :data:`BAD_CONTACT_RATIO` times the
   median, or whose channels' rms residual exceeds :data:`BAD_CONTACT_RATIO` times the median
   over the electrodes (a scale-free rule: the same on any board and in any unit).
@@ -30,7 +35,7 @@ What one frame can tell apart (the choices made here):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,6 +49,9 @@ BAD_CONTACT_RATIO = 3.0
 RELATIVE_TOLERANCE = 1e-6
 #: Steps of the logarithm of a parameter are limited to this (a factor e^2 ~ 7.4 per step).
 MAX_LOG_STEP = 2.0
+#: Starting values of a fitted negative input gain tried (a mismatch beyond a factor 2 between
+#: the two inputs of one amplifier would be a fault, not a calibration).
+INPUT_GAIN_GRID = np.geomspace(0.5, 2.0, 41)
 #: A contact impedance whose log standard error exceeds this (a factor e) is not determined.
 UNDETERMINED_LOG_STD = 1.0
 
@@ -56,6 +64,8 @@ class DeviceFit:
         sheet_conductance_s: fitted homogeneous sheet conductance, S (for the given gain).
         contact_impedance_ohm_m: ``[n_el]`` fitted contact impedance, ohm*m.
         gain: the gain the fit assumed (frame units per volt).
+        negative_input_gain: the minus input's gain over the plus input's (fitted when asked,
+            else the protocol's).
         per_electrode: whether ``z`` was fitted per electrode (else one common value).
         residual: rms of ``gain * V - v`` over the used channels / rms of ``v``.
         initial_residual: the same before the fit (the patch's values, best scale).
@@ -74,6 +84,7 @@ class DeviceFit:
     sheet_conductance_s: float
     contact_impedance_ohm_m: np.ndarray
     gain: float
+    negative_input_gain: float
     per_electrode: bool
     residual: float
     initial_residual: float
@@ -112,6 +123,7 @@ class DeviceFit:
         return [
             f"sheet conductance: {self.sheet_conductance_s:.4g} S (gain {self.gain:g})",
             zs,
+            f"negative input gain: {self.negative_input_gain:.4g} (minus input over plus input)",
             f"z sigma / width: median {ratio:.3g} ({kind})",
             f"fit residual: {self.residual:.3%} of the frame's rms "
             f"(before: {self.initial_residual:.3%}), {self.iterations} iterations, "
@@ -139,6 +151,7 @@ def fit_device(
     gain: float = 1.0,
     magnitude: bool = False,
     per_electrode: bool | None = None,
+    fit_input_gain: bool = False,
     max_iterations: int = 40,
 ) -> DeviceFit:
     """Fit ``sigma`` and ``z`` to a no-load frame (see the module docstring).
@@ -153,6 +166,8 @@ def fit_device(
         gain: frame units per volt (> 0).
         magnitude: the frame holds ``|V|`` (magnitude boards): the model's magnitudes are fitted.
         per_electrode: one ``z`` per electrode; None: when :func:`measures_driven`.
+        fit_input_gain: fit the board's ``negative_input_gain`` too (starting from the
+            protocol's; pair drives only).
         max_iterations: Levenberg-Marquardt iterations at most.
 
     Raises:
@@ -163,26 +178,26 @@ def fit_device(
     n_el = mesh.n_electrodes
     if per_electrode is None:
         per_electrode = measures_driven(protocol)
-    n_par = 1 + (n_el if per_electrode else 1)
+    n_par = 1 + (n_el if per_electrode else 1) + int(fit_input_gain)
     used = _usable_channels(v, protocol.n_measurements, gain, n_par)
     z = np.broadcast_to(np.asarray(contact_impedance_ohm_m, dtype=np.float64), (n_el,)).copy()
     if not per_electrode:
         z[:] = np.exp(np.mean(np.log(z)))
     rms = float(np.sqrt(np.mean(v[used] ** 2)))
-    frame = _FrameResidual(mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode)
-    sigma, z = frame.common_scale(float(sheet_conductance_s), z)
-    r, J = frame.evaluate(sigma, z, True)
-    initial = float(np.sqrt(np.mean(r**2)))
-    start = (sigma, z.copy(), r, J)
+    frame = _FrameResidual(
+        mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode, fit_input_gain
+    )
+    start, initial = frame.start(float(sheet_conductance_s), z, protocol.negative_input_gain)
     free = np.ones(n_par, dtype=bool)
-    sigma, z, r, J, iterations = _levenberg_marquardt(frame, start, free, max_iterations)
+    sigma, z, g, r, J, iterations = _levenberg_marquardt(frame, start, free, max_iterations)
     # where the data allow: a contact impedance the frame barely depends on (its log
     # standard error above UNDETERMINED_LOG_STD at the fit's own residual) wanders off to
     # where it no longer matters; such values are kept at their start and the rest refitted
-    determined = _log_std(J, r)[1:] <= UNDETERMINED_LOG_STD
+    contacts = slice(1, n_par - int(fit_input_gain))
+    determined = _log_std(J, r)[contacts] <= UNDETERMINED_LOG_STD
     if not determined.all():
-        free[1:] = determined
-        sigma, z, r, J, more = _levenberg_marquardt(frame, start, free, max_iterations)
+        free[contacts] = determined
+        sigma, z, g, r, J, more = _levenberg_marquardt(frame, start, free, max_iterations)
         iterations += more
     cost = float(r @ r)
     electrode_residual = _electrode_residual(protocol, used, r)
@@ -193,6 +208,7 @@ def fit_device(
         sheet_conductance_s=sigma,
         contact_impedance_ohm_m=z,
         gain=float(gain),
+        negative_input_gain=float(g),
         per_electrode=bool(per_electrode),
         residual=float(np.sqrt(cost / used.sum())),
         initial_residual=initial,
@@ -222,17 +238,29 @@ class _FrameResidual:
     gain: float
     magnitude: bool
     per_electrode: bool
+    fit_input_gain: bool = False
+
+    def __post_init__(self) -> None:
+        if self.fit_input_gain and not self.protocol.pair_drive:
+            raise ValueError("fit_input_gain: needs a pair drive (the inputs' ground is the sink)")
+
+    def model(self, z: np.ndarray, g: float) -> ForwardModel:
+        """The forward model at contact impedance ``z`` and negative input gain ``g``."""
+        return ForwardModel(
+            self.mesh, replace(self.protocol, negative_input_gain=g), z, self.current_a
+        )
 
     def evaluate(
-        self, sigma: float, z: np.ndarray, jacobian: bool
+        self, sigma: float, z: np.ndarray, g: float, jacobian: bool
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Residual ``[m]`` on the used channels and, when ``jacobian``, its derivative.
 
-        The derivative ``[m, n_par]`` is by ``log sigma`` and ``log z`` (one column, or one
-        per electrode).
+        The derivative ``[m, n_par]`` is by ``log sigma``, ``log z`` (one column, or one
+        per electrode) and, when fitted, ``log g``.
         """
-        model = ForwardModel(self.mesh, self.protocol, z, self.current_a)
-        V = model.voltages(sigma)
+        model = self.model(z, g)
+        solution = model.solve(sigma)
+        V = solution.voltages
         sign = np.sign(V) if self.magnitude else np.ones_like(V)
         r = (self.gain * sign * V - self.v)[self.used] / self.rms
         if not jacobian:
@@ -240,16 +268,55 @@ class _FrameResidual:
         dz = model.contact_jacobian(sigma) * z[None, :]  # dV / dlog z_l
         dsigma = -V + dz.sum(axis=1)  # dV / dlog sigma (the scaling law)
         cols = [dsigma[:, None], dz if self.per_electrode else dz.sum(axis=1, keepdims=True)]
+        if self.fit_input_gain:  # dV / dlog g = -g (V(minus) - V(sink))
+            u = solution.electrode_potentials
+            k, _, minus = self.protocol.measurements.T
+            sink = self.protocol.injections[k, 1]
+            cols.append((-g * (u[k, minus] - u[k, sink]))[:, None])
         return r, (self.gain * sign[:, None] * np.hstack(cols))[self.used] / self.rms
 
-    def common_scale(self, sigma: float, z: np.ndarray) -> tuple[float, np.ndarray]:
+    def start(
+        self, sigma: float, z: np.ndarray, g: float
+    ) -> tuple[tuple[float, np.ndarray, float, np.ndarray, np.ndarray], float]:
+        """(the fit's start ``(sigma, z, g, r, J)``, the residual at the given values).
+
+        At the best common scale; a fitted gain starts from the best of a grid (the misfit
+        is not smooth in ``g`` where channels cross zero).
+        """
+        sigma, z = self.common_scale(sigma, z, g)
+        r, J = self.evaluate(sigma, z, g, True)
+        initial = float(np.sqrt(np.mean(r**2)))
+        if self.fit_input_gain:
+            g = self.best_gain(sigma, z, g)
+            sigma, z = self.common_scale(sigma, z, g)
+            r, J = self.evaluate(sigma, z, g, True)
+        return (sigma, z.copy(), g, r, J), initial
+
+    def best_gain(self, sigma: float, z: np.ndarray, g: float) -> float:
+        """The gain of :data:`INPUT_GAIN_GRID` or ``g`` that fits best at a common scale.
+
+        ``sigma`` and ``z`` as given; one solve (the reading is linear in the gain).
+        """
+        u = self.model(z, 1.0).solve(sigma).electrode_potentials
+        k, plus, minus = self.protocol.measurements.T
+        sink = self.protocol.injections[k, 1]
+        a, b = u[k, plus] - u[k, sink], u[k, minus] - u[k, sink]  # [M]
+        gains = np.append(INPUT_GAIN_GRID, g)
+        shape = self.gain * (a[None, :] - gains[:, None] * b[None, :])[:, self.used]  # [G, m]
+        if self.magnitude:
+            shape = np.abs(shape)
+        v = self.v[self.used]
+        scale = np.maximum(shape @ v / np.einsum("gm,gm->g", shape, shape), 0.0)
+        misfit = ((scale[:, None] * shape - v) ** 2).sum(axis=1)
+        return float(gains[np.argmin(misfit)])
+
+    def common_scale(self, sigma: float, z: np.ndarray, g: float) -> tuple[float, np.ndarray]:
         """``(sigma / c, z c)`` for the best common scale ``c`` (it keeps the shape).
 
         Fitted first, so a wrong unit or conductance does not have to be walked off by the
         iteration.
         """
-        model = ForwardModel(self.mesh, self.protocol, z, self.current_a)
-        V = model.voltages(sigma)
+        V = self.model(z, g).voltages(sigma)
         shape = self.gain * (np.abs(V) if self.magnitude else V)
         used, v = self.used, self.v
         c = float(shape[used] @ v[used] / (shape[used] @ shape[used]))
@@ -263,15 +330,16 @@ class _FrameResidual:
 
 def _levenberg_marquardt(
     frame: _FrameResidual,
-    start: tuple[float, np.ndarray, np.ndarray, np.ndarray],
+    start: tuple[float, np.ndarray, float, np.ndarray, np.ndarray],
     free: np.ndarray,
     max_iterations: int,
-) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int]:
-    """Minimise over the ``free`` log-parameters; ``(sigma, z, r, J, iterations)``.
+) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray, int]:
+    """Minimise over the ``free`` log-parameters; ``(sigma, z, g, r, J, iterations)``.
 
-    ``start`` is ``(sigma, z, r, J)`` (left unchanged).
+    ``start`` is ``(sigma, z, g, r, J)`` (left unchanged).
     """
-    sigma, z, r, J = start
+    sigma, z, g, r, J = start
+    n_z = free.size - 1 - int(frame.fit_input_gain)
     z = z.copy()
     n_par = free.size
     cost = float(r @ r)
@@ -280,16 +348,17 @@ def _levenberg_marquardt(
     for done in range(1, max_iterations + 1):  # noqa: B007 (returned)
         Jf = J[:, free]
         JtJ = Jf.T @ Jf
-        g = Jf.T @ r
+        gradient = Jf.T @ r
         improved = False
         while damping < 1e12:
-            step_f = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), g)
+            step_f = -np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-30), gradient)
             step_f *= min(1.0, MAX_LOG_STEP / max(np.abs(step_f).max(), 1e-300))
             step = np.zeros(n_par)
             step[free] = step_f
             new_sigma = sigma * float(np.exp(step[0]))
-            new_z = z * np.exp(step[1:] if frame.per_electrode else step[1])
-            r_new, _ = frame.evaluate(new_sigma, new_z, False)
+            new_z = z * np.exp(step[1 : 1 + n_z] if frame.per_electrode else step[1])
+            new_g = g * float(np.exp(step[-1])) if frame.fit_input_gain else g
+            r_new, _ = frame.evaluate(new_sigma, new_z, new_g, False)
             new_cost = float(r_new @ r_new)
             if new_cost < cost:
                 improved = True
@@ -299,11 +368,11 @@ def _levenberg_marquardt(
         if not improved:
             break
         fraction = (cost - new_cost) / max(cost, 1e-300)
-        sigma, z, cost = new_sigma, new_z, new_cost
-        r, J = frame.evaluate(sigma, z, True)
+        sigma, z, g, cost = new_sigma, new_z, new_g, new_cost
+        r, J = frame.evaluate(sigma, z, g, True)
         if fraction < RELATIVE_TOLERANCE:
             break
-    return sigma, z, r, J, done
+    return sigma, z, g, r, J, done
 
 
 def _usable_channels(v: np.ndarray, n_measurements: int, gain: float, n_par: int) -> np.ndarray:

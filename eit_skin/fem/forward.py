@@ -358,14 +358,15 @@ class ForwardModel:
             )
             out = np.asarray(lead @ P)
         else:  # many electrodes on a big mesh: bounded memory
-            k, p, m = self._protocol.measurements.T
+            k = self._protocol.measurements[:, 0]
+            electrodes, weights = self._protocol.measurement_terms
             patterns = self._protocol.current_patterns
             out = np.empty((k.size, n_t))
             chunk = max(1, 4_000_000 // n_t)
             for a in range(0, k.size, chunk):
                 sl = slice(a, a + chunk)
                 gu = np.einsum("cl,ldt->cdt", patterns[k[sl]], gw)  # [c, 2, t]
-                gv = gw[p[sl]] - gw[m[sl]]
+                gv = np.einsum("ce,cedt->cdt", weights[sl], gw[electrodes[sl]])
                 out[sl] = np.einsum("cdt,cdt->ct", gu, gv)
         out *= -self._current_a
         return out
@@ -428,20 +429,23 @@ class ForwardModel:
             gram[el] = (da * length / 3).T @ da + (db * length / 3).T @ db
             cross = (da * length / 6).T @ db
             gram[el] += cross + cross.T
-        k, p, q = self._protocol.measurements.T
+        k = self._protocol.measurements[:, 0]
+        electrodes, weights = self._protocol.measurement_terms
         # [l, n_inj, n_el]: current pattern of each injection through each electrode's form
         through = np.einsum("ia,lab->lib", self._protocol.current_patterns, gram)
-        out = (through[:, k, p] - through[:, k, q]).T  # [M, n_el]
+        out = (through[:, k[:, None], electrodes] * weights).sum(axis=-1).T  # [M, n_el]
         return out * (self._current_a / self._z**2)[None, :]
 
     def _lead_coefficients(self) -> sp.csr_matrix:
-        """``[M, n_el * n_el]``: measurement ``m`` is ``sum I_k[a] (e_p - e_q)[b] w_a . w_b``.
+        """``[M, n_el * n_el]``: measurement ``m`` is ``sum I_k[a] c_m[b] w_a . w_b``.
 
-        ``I_k`` is the current pattern of the measurement's injection, ``(p, q)`` its pair; a
+        ``I_k`` is the current pattern of the measurement's injection, ``c_m`` its measurement
+        weights (``e_p - e_q`` for matched inputs: :attr:`Protocol.measurement_terms`); a
         pair drive gives four entries per row, an ``n_el``-electrode pattern ``2 n_el``.
         """
         n_el = self._n_el
-        k, p, q = self._protocol.measurements.T
+        k = self._protocol.measurements[:, 0]
+        measured, weights = self._protocol.measurement_terms  # [M, T]
         patterns = self._protocol.current_patterns  # [n_inj, n_el]
         inj_rows, electrodes = np.nonzero(patterns)
         counts = np.bincount(inj_rows, minlength=patterns.shape[0])
@@ -452,9 +456,10 @@ class ForwardModel:
         src = starts[k][rows] + offset  # index into the nonzero list
         el = electrodes[src]
         amp = patterns[inj_rows[src], el]
-        all_rows = np.concatenate([rows, rows])
-        cols = np.concatenate([el * n_el + p[rows], el * n_el + q[rows]])
-        vals = np.concatenate([amp, -amp])
+        terms = measured.shape[1]
+        all_rows = np.tile(rows, terms)
+        cols = (el[None, :] * n_el + measured[rows].T).ravel()  # term-major, [T * nnz]
+        vals = (amp[None, :] * weights[rows].T).ravel()
         lead = sp.csr_matrix((vals, (all_rows, cols)), shape=(k.size, n_el * n_el))
         lead.sum_duplicates()
         return lead

@@ -7,7 +7,9 @@ one YAML reader and typed-field validator, shared with scenario files), ``outlin
 to build), ``geometry`` (plane polygons), ``material`` (sheet conductance ->
 pressure/stretch), ``device`` (the board a layer is read from: profile names and
 options), ``placement`` (the flat sheet on the robot's 3-D surface), ``protocol``
-(drive and measurement pattern: the one place that knows the measurement order),
+(drive and measurement pattern: the one place that knows the measurement order; with
+``patterns``, its pair offsets and current patterns, and ``input_gain``, a board's unequal
+input gains),
 ``cad_import`` (DXF / SVG drawings -> outline, holes, electrode marks), ``cad_patch`` (a
 drawing -> a patch file's data),
 ``yaml_writer`` (writing patch files, keeping the comments of an edited one).

@@ -79,9 +79,27 @@ _VOLTS_PER_UNIT = DeviceOption(
     True,
 )
 
+NEGATIVE_INPUT_GAIN = DeviceOption(
+    "negative_input_gain",
+    "float",
+    1.0,
+    "",
+    "gain of the differential input's minus side over its plus side (1: matched; the "
+    "model reads V(+) - g V(-) against the sink: docs/patch-schema.md); pair drives only",
+    None,
+    True,
+)
+"""The one option every differential-input profile has (Sciospec's host forms differences of
+single-ended potentials: no such input); it changes the model (the layer's content hash)."""
+
 PROFILES: dict[str, tuple[DeviceOption, ...]] = {
-    "eit_skin": (_baud(921_600),),
-    "openeit": (_baud(115_200), _ack(10.0, "a frame of the selected mode"), _VOLTS_PER_UNIT),
+    "eit_skin": (_baud(921_600), NEGATIVE_INPUT_GAIN),
+    "openeit": (
+        _baud(115_200),
+        _ack(10.0, "a frame of the selected mode"),
+        _VOLTS_PER_UNIT,
+        NEGATIVE_INPUT_GAIN,
+    ),
     "lines": (
         _baud(115_200),
         DeviceOption("separators", "str", ", ;\t", "", "characters that separate values (any mix)"),
@@ -116,6 +134,7 @@ PROFILES: dict[str, tuple[DeviceOption, ...]] = {
             "text the host sends on every connect (a newline is appended), '' for none",
         ),
         _ack(10.0, "the first good frame"),
+        NEGATIVE_INPUT_GAIN,
     ),
     "sciospec": (
         _baud(921_600),
@@ -135,6 +154,7 @@ PROFILES: dict[str, tuple[DeviceOption, ...]] = {
             "libiio context URI ('' : serial:<port>,230400,8n1 from the driver's port)",
         ),
         DeviceOption("excitation_hz", "float", 10_000.0, "Hz", "excitation frequency", None, True),
+        NEGATIVE_INPUT_GAIN,
     ),
 }
 """Profile name -> its options (every profile's ``baud`` where it has a serial port)."""
@@ -170,11 +190,20 @@ class DeviceSpec:
                 return option.default
         raise KeyError(f"board profile {self.profile!r} has no option {name!r}")
 
+    def offers(self, name: str) -> bool:
+        """Whether the profile has option ``name``."""
+        return any(option.name == name for option in PROFILES[self.profile])
+
+    @property
+    def negative_input_gain(self) -> float:
+        """The minus input's gain over the plus input's (1 for a profile without the option)."""
+        name = NEGATIVE_INPUT_GAIN.name
+        return float(self.get(name)) if self.offers(name) else 1.0
+
     @property
     def baud(self) -> int:
         """Serial rate, bit/s (0 for a profile without a serial port)."""
-        names = {option.name for option in PROFILES[self.profile]}
-        return int(self.get("baud")) if "baud" in names else 0
+        return int(self.get("baud")) if self.offers("baud") else 0
 
 
 DEFAULT_DEVICE = DeviceSpec()
@@ -222,6 +251,11 @@ def device_problem(
     The key is relative to the layer (``device.profile``, ``protocol.layout``, ...).
     """
     n = protocol.n_electrodes
+    if device.negative_input_gain != 1.0 and not protocol.pair_drive:
+        return "device.negative_input_gain", (
+            "needs a pair drive: the inputs' ground is the injection's sink, which a current "
+            "pattern does not have"
+        )
     if device.profile == "openeit":
         if n not in OPENEIT_ELECTRODES:
             return "device.profile", f"OpenEIT images 8, 16 or 32 electrodes, the layer has {n}"

@@ -28,7 +28,7 @@ from eit_skin.patch.device import (
 )
 from eit_skin.patch.electrodes import read_electrodes
 from eit_skin.patch.holes import read_holes
-from eit_skin.patch.material import QUANTITIES, Material
+from eit_skin.patch.material import QUANTITIES, RESPONSES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
     METHODS,
@@ -180,6 +180,7 @@ def _material(r: Reader, data: Any, path: str) -> Material:
             "thickness",
             "pressure_scale",
             "gauge_factor",
+            "response",
         ),
     )
     quantity = r.string(d, "quantity", path, choices=QUANTITIES)
@@ -212,9 +213,11 @@ def _material(r: Reader, data: Any, path: str) -> Material:
         if "gauge_factor" in d:
             raise r.error(r.join(path, "gauge_factor"), "only for quantity: stretch")
         scale = r.number(d, "pressure_scale", path, positive=True)
-        return Material(quantity, conductance, pressure_scale_pa=scale)
-    if "pressure_scale" in d:
-        raise r.error(r.join(path, "pressure_scale"), "only for quantity: pressure")
+        response = r.string(d, "response", path, default=RESPONSES[0], choices=RESPONSES)
+        return Material(quantity, conductance, pressure_scale_pa=scale, response=response)
+    for key in ("pressure_scale", "response"):
+        if key in d:
+            raise r.error(r.join(path, key), "only for quantity: pressure")
     gain = r.number(d, "gauge_factor", path, positive=True)
     return Material(quantity, conductance, gauge_factor=gain)
 

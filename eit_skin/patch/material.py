@@ -7,6 +7,14 @@ quantity the layer senses:
 * ``pressure`` (painted two-layer rubber, conductive knit: pressure lowers the
   resistance): ``sigma = sigma0 * (1 + p / pressure_scale_pa)``, so
   ``p = pressure_scale_pa * r`` in pascals.
+  That is the ``piezoresistive`` press ``response`` (the default).
+  ``response: thinning`` is a volume conductor instead (a gelatin-glycerol hydrogel, a
+  saline-soaked foam): its sheet conductance is ``sigma_v * t``, and a press thins the sheet
+  under the probe, so the conductance *falls*:
+  ``sigma = sigma0 / (1 + p / pressure_scale_pa)`` (thickness ``t0 / (1 + p / p_s)``: for
+  small ``p`` a linear-elastic ``t0 (1 - p / p_s)``, ``p_s`` the sheet's compressive modulus;
+  never zero), so ``p = pressure_scale_pa * (1 / (1 + r) - 1)``: ``pressure_scale_pa`` is the
+  pressure that halves the conductance.
 * ``stretch`` (porous rubber: stretch raises the resistance):
   ``sigma = sigma0 / (1 + gauge_factor * strain)``, so
   ``strain = (1 / (1 + r) - 1) / gauge_factor`` (dimensionless, 0.5 = 50 %).
@@ -30,10 +38,14 @@ sheet scales a channel's voltage by at most ``K`` either way.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 QUANTITIES = ("pressure", "stretch")
+RESPONSES = ("piezoresistive", "thinning")
+"""How a pressure layer's conductance answers a press: rises (piezoresistive) or falls (a
+volume conductor that a press thins); module docstring."""
 CONDUCTANCE_RATIO_LIMIT = 10.0
 """The largest factor ``K`` by which a load may change the sheet conductance, either way, that
 the images claim (module docstring)."""
@@ -51,18 +63,28 @@ class Material:
         sheet_conductance_s: background sheet conductance, S (siemens per square), > 0.
         pressure_scale_pa: pressure that doubles the conductance, Pa (pressure only).
         gauge_factor: relative resistance change per unit strain (stretch only), > 0.
+        response: a press raises (``"piezoresistive"``) or lowers (``"thinning"``) the
+            conductance (pressure only; module docstring).
     """
 
     quantity: str
     sheet_conductance_s: float
     pressure_scale_pa: float | None = None
     gauge_factor: float | None = None
+    response: str = "piezoresistive"
+
+    #: Keys added after patches were hashed: left out of the content hash at their default.
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("response",)
 
     def __post_init__(self) -> None:
         if self.quantity not in QUANTITIES:
             raise ValueError(f"unknown quantity {self.quantity!r}, expected one of {QUANTITIES}")
         if not np.isfinite(self.sheet_conductance_s) or self.sheet_conductance_s <= 0:
             raise ValueError(f"sheet conductance must be > 0 S, got {self.sheet_conductance_s}")
+        if self.response not in RESPONSES:
+            raise ValueError(f"unknown response {self.response!r}, expected one of {RESPONSES}")
+        if self.response != RESPONSES[0] and self.quantity != "pressure":
+            raise ValueError(f"response {self.response!r} is for quantity: pressure only")
         if self.quantity == "pressure":
             scale = self.pressure_scale_pa
             if scale is None or not np.isfinite(scale) or scale <= 0:
@@ -76,6 +98,12 @@ class Material:
     def unit(self) -> str:
         """SI unit of the physical quantity: ``"Pa"`` or ``"1"`` (strain)."""
         return UNITS[self.quantity]
+
+    @property
+    def linear_pascals(self) -> float:
+        """Pa per unit relative change of a linear (piezoresistive) pressure layer, else 0."""
+        linear = self.quantity == "pressure" and self.response == "piezoresistive"
+        return float(self.pressure_scale_pa) if linear else 0.0
 
     @property
     def physical_range(self) -> tuple[float, float]:
@@ -93,9 +121,9 @@ class Material:
         NaN (no sheet there) stays NaN.
         """
         r = np.asarray(relative_change, dtype=float)
-        if self.quantity == "pressure":
-            return self.pressure_scale_pa * r
-        gain = self.gauge_factor
+        if self.linear_pascals:
+            return self.linear_pascals * r
+        gain = self.gauge_factor or 1.0 / self.pressure_scale_pa  # stretch, or thinning
         gone = r <= -1.0
         safe = np.where(gone, 1.0, 1.0 + r)
         return np.where(gone, np.inf, (1.0 / safe - 1.0) / gain)
@@ -107,9 +135,9 @@ class Material:
         maps to ``+inf``; NaN stays NaN.
         """
         q = np.asarray(quantity, dtype=float)
-        if self.quantity == "pressure":
-            return q / self.pressure_scale_pa
-        denominator = 1.0 + self.gauge_factor * q
+        if self.linear_pascals:
+            return q / self.linear_pascals
+        denominator = 1.0 + (self.gauge_factor or 1.0 / self.pressure_scale_pa) * q
         gone = denominator <= 0
         safe = np.where(gone, 1.0, denominator)
         return np.where(gone, np.inf, 1.0 / safe - 1.0)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cached_property
 from typing import Any, ClassVar
 
@@ -30,7 +30,7 @@ from eit_skin.patch import geometry
 from eit_skin.patch.device import DEFAULT_DEVICE, DeviceSpec
 from eit_skin.patch.material import Material
 from eit_skin.patch.placement import Placement
-from eit_skin.patch.protocol import ProtocolSpec
+from eit_skin.patch.protocol import Protocol, ProtocolSpec, build_protocol
 from eit_skin.patch.yaml_reader import ConfigError
 
 __all__ = [
@@ -231,7 +231,8 @@ class Layer:
         mesh: mesh sizing.
         solver: reconstruction settings.
         device: the board the layer is read from (profile and options); not part of the
-            content hash (it changes no model).
+            content hash (it changes no model) except ``negative_input_gain`` when not 1
+            (:attr:`measured_protocol`).
         full_scale_v: the board's full scale, V: a value with ``|v|`` above it is no
             measurement of the sheet (flagged ``FLAG_OUT_OF_RANGE``, left out of the image;
             the simulator's ADC gets this full scale); None: not stated, not checked.
@@ -271,9 +272,18 @@ class Layer:
         return geometry.signed_area(self.outline) + sum(geometry.signed_area(h) for h in self.holes)
 
     @cached_property
+    def measured_protocol(self) -> Protocol:
+        """The expanded protocol as the board measures it (``device.negative_input_gain``)."""
+        protocol = build_protocol(self.protocol, self.n_electrodes)
+        return replace(protocol, negative_input_gain=self.device.negative_input_gain)
+
+    @cached_property
     def content_hash(self) -> str:
         """sha256 hex digest of the layer's normalised content (cache key)."""
-        return _hash(_canonical(self))
+        content = _canonical(self)
+        if self.device.negative_input_gain != 1.0:  # a device fact the model uses
+            content["negative_input_gain"] = repr(self.device.negative_input_gain)
+        return _hash(content)
 
 
 DEFAULT_MOUNT_PARENT = "base_link"

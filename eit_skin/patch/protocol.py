@@ -50,6 +50,9 @@ injection (``n_inj * n`` numbers, e.g. 16 x 16 = 256, in the pattern's order, in
 pairs on driven electrodes); :attr:`Protocol.frame_index` picks the used entries
 (:meth:`Protocol.select`). Explicit measurements have no full layout.
 
+Unequal input gains (``negative_input_gain``, the layer's ``device.negative_input_gain``): the
+board reads ``V(plus) - g V(minus)`` against the sink (:mod:`eit_skin.patch.input_gain`).
+
 Values (``values``): ``"signed"`` (default) or ``"magnitude"``: the board reports ``|V|``;
 the sign of each channel is taken from the homogeneous model (``pipeline.builder``).
 Complex frames (``complex_part``): ``"real"`` (default) or ``"magnitude"`` of a complex
@@ -64,6 +67,9 @@ from typing import ClassVar
 
 import numpy as np
 import scipy.sparse as sp
+
+from eit_skin.patch.input_gain import input_gain_problem, measurement_terms
+from eit_skin.patch.patterns import pattern_offset, trigonometric_currents
 
 PATTERNS = ("adjacent", "opposite", "skip", "explicit")
 DRIVE_PATTERNS = (*PATTERNS, "trigonometric", "currents")
@@ -278,29 +284,6 @@ def _current_vectors(value) -> tuple[tuple[float, ...], ...]:
     return tuple(out)
 
 
-def trigonometric_currents(n: int) -> np.ndarray:
-    """``[n - 1, n]`` trigonometric current patterns (board numbering, peak 1).
-
-    Rows ``cos(k theta_b)`` for ``k = 1 .. n//2``, then ``sin(k theta_b)`` for
-    ``k = 1 .. (n-1)//2``, ``theta_b = 2 pi b / n``; every row sums to zero.
-    """
-    theta = 2 * np.pi * np.arange(n) / n
-    k_cos = np.arange(1, n // 2 + 1)
-    k_sin = np.arange(1, (n - 1) // 2 + 1)
-    rows = np.vstack([np.cos(np.outer(k_cos, theta)), np.sin(np.outer(k_sin, theta))])
-    rows[np.abs(rows) < 1e-12] = 0.0  # exact zeros where cos/sin vanish
-    return rows
-
-
-def pattern_offset(pattern: str, skip: int, n: int) -> int:
-    """Electrodes from the first to the second of a pair pattern's pairs (``n`` electrodes)."""
-    if pattern == "adjacent":
-        return 1
-    if pattern == "opposite":
-        return n // 2
-    return skip + 1
-
-
 @dataclass(frozen=True, eq=False)
 class Protocol:
     """Drive and measurement pairs of one frame, in frame order, config electrode numbering.
@@ -326,6 +309,8 @@ class Protocol:
         board_to_config: ``[n_el]`` int64: board electrode ``b`` is config electrode
             ``board_to_config[b]`` (``first_electrode`` or ``electrode_order``; identity
             when None is given).
+        negative_input_gain: gain of the minus input relative to the plus input (> 0; 1:
+            matched inputs; module docstring); pair drives only.
     """
 
     name: str
@@ -338,6 +323,7 @@ class Protocol:
     complex_part: str = "real"
     magnitude: bool = False
     board_to_config: np.ndarray | None = None
+    negative_input_gain: float = 1.0
     _selection: sp.csr_matrix | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -380,16 +366,27 @@ class Protocol:
         order = order.astype(np.int64)
         order.setflags(write=False)
         object.__setattr__(self, "board_to_config", order)
+        gain = float(self.negative_input_gain)
+        problem = input_gain_problem(gain, self.currents is None)
+        if problem:
+            raise ValueError(f"protocol {self.name!r}: {problem}")
+        object.__setattr__(self, "negative_input_gain", gain)
         inj.setflags(write=False)
         meas.setflags(write=False)
         object.__setattr__(self, "n_electrodes", n)
         object.__setattr__(self, "injections", inj)
         object.__setattr__(self, "measurements", meas)
-        rows = np.repeat(np.arange(len(meas)), 2)
-        cols = (meas[:, [0]] * n + meas[:, 1:]).ravel()
-        vals = np.tile([1.0, -1.0], len(meas))
-        sel = sp.csr_matrix((vals, (rows, cols)), shape=(len(meas), len(inj) * n))
+        electrodes, weights = self.measurement_terms
+        rows = np.repeat(np.arange(len(meas)), electrodes.shape[1])
+        cols = (meas[:, [0]] * n + electrodes).ravel()
+        sel = sp.csr_matrix((weights.ravel(), (rows, cols)), shape=(len(meas), len(inj) * n))
+        sel.eliminate_zeros()
         object.__setattr__(self, "_selection", sel)
+
+    @property
+    def measurement_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """(``[M, T]`` electrodes, ``[M, T]`` weights): :func:`.input_gain.measurement_terms`."""
+        return measurement_terms(self.measurements, self.injections[:, 1], self.negative_input_gain)
 
     @property
     def pair_drive(self) -> bool:
@@ -475,7 +472,21 @@ class Protocol:
                 f"{self.n_electrodes}], got {u.shape}"
             )
         k, p, m = self.measurements.T
-        return u[..., k, p] - u[..., k, m]
+        if self.negative_input_gain == 1.0:
+            return u[..., k, p] - u[..., k, m]
+        electrodes, weights = self.measurement_terms
+        return (u[..., k[:, None], electrodes] * weights).sum(axis=-1)
+
+    def same_numbers(self, measurements: np.ndarray) -> bool:
+        """Whether ``(injection, plus, minus)`` rows ``[M, 3]`` give these numbers, in order."""
+        other, mine = np.asarray(measurements, dtype=np.int64), self.measurements
+        if other.shape != mine.shape:
+            return False
+        if self.magnitude:  # a pair's orientation is immaterial
+            other, mine = (
+                np.column_stack([m[:, :1], np.sort(m[:, 1:], axis=1)]) for m in (other, mine)
+            )
+        return np.array_equal(other, mine)
 
     def touching_table(self) -> np.ndarray:
         """``[E, M]`` bool: row ``e`` is :meth:`touching` of electrode ``e`` alone (read-only).

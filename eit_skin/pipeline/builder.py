@@ -53,7 +53,7 @@ from eit_skin.inverse.one_step import ReconstructionMatrix, reference_scale
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.material import RELATIVE_CHANGE_RANGE
 from eit_skin.patch.model import Layer
-from eit_skin.patch.protocol import Protocol, build_protocol
+from eit_skin.patch.protocol import Protocol
 from eit_skin.pipeline.frame_plan import FramePlan, pressure_image
 from eit_skin.pipeline.model_choice import ModelChoice, choose_model
 
@@ -77,7 +77,7 @@ def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
     """
     return ForwardModel(
         build_mesh(layer) if mesh is None else mesh,
-        build_protocol(layer.protocol, layer.n_electrodes),
+        layer.measured_protocol,
         layer.contact_impedance_ohm_m,
         layer.current_a,
     )
@@ -159,7 +159,7 @@ def build_operator(layer: Layer, cache_dir: Path | str | None = "default") -> Op
     (:func:`resolve_layer`).
     """
     layer = resolve_layer(layer, cache_dir)
-    protocol = build_protocol(layer.protocol, layer.n_electrodes)
+    protocol = layer.measured_protocol
     inverse_edge = layer.mesh.inverse_max_edge_m
     inverse_mesh = build_mesh(layer, inverse_edge) if inverse_edge else build_mesh(layer)
     directory = default_cache_dir() if cache_dir == "default" else cache_dir
@@ -449,10 +449,7 @@ class LayerImager:
         """
         rec = self.reconstructor
         if self._plan_of is not rec:
-            material = self.layer.material
-            pascals = (
-                (material.pressure_scale_pa or 0.0) if material.quantity == "pressure" else 0.0
-            )
+            pascals = self.layer.material.linear_pascals  # 0: no linear pressure unit
             self._plan = FramePlan.build(rec, self.grid, pascals, self.signs)
             self._plan_of = rec
         return self._plan
@@ -482,10 +479,10 @@ class LayerImager:
         """
         material = self.layer.material
         v = np.asarray(relative_change)
-        if material.quantity != "pressure" or v.shape != (self.mesh.n_triangles,):
+        if not material.linear_pascals or v.shape != (self.mesh.n_triangles,):
             return self.images(self.physical(v))
         grid = self.grid
-        return pressure_image(v, material.pressure_scale_pa, grid.pixel_owner, grid.shape)
+        return pressure_image(v, material.linear_pascals, grid.pixel_owner, grid.shape)
 
     def physical(self, relative_images: np.ndarray) -> np.ndarray:
         """Relative change -> the layer's quantity (Pa for pressure, strain for stretch).

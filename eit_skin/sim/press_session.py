@@ -19,9 +19,9 @@ import numpy as np
 from eit_skin.calibration.session import PressSession
 from eit_skin.fem.device_fit import DeviceFit, fit_device
 from eit_skin.fem.mesh import build_mesh
+from eit_skin.patch.device import NEGATIVE_INPUT_GAIN
 from eit_skin.patch.geometry import points_in_polygon
 from eit_skin.patch.model import Patch
-from eit_skin.patch.protocol import build_protocol
 from eit_skin.sim.drift import NO_DRIFT
 from eit_skin.sim.scenario import EDGE_MARGIN_M, Scenario, SheetFrame
 from eit_skin.sim.simulator import SkinSimulator
@@ -154,13 +154,16 @@ def simulate_press_frames(
 def calibrated_to_device(
     patch: Patch, layer: str, reference: np.ndarray
 ) -> tuple[Patch, DeviceFit]:
-    """``patch`` with ``layer``'s contact impedance fitted to a device's unloaded frame.
+    """``patch`` with ``layer``'s contact impedance and input gains fitted to a device's frame.
 
     The fit (:func:`~eit_skin.fem.device_fit.fit_device`, gain 1) gives a conductance that
     absorbs the device's unknown gain; only ``z sigma`` shapes relative changes. The layer keeps
     its own sheet conductance (the simulator's ADC works in volts) and takes the contact
     impedance with the fitted ``z sigma``: the frames of the device at the gain that
-    conductance implies (``fit-device``'s "gain at the patch's conductance").
+    conductance implies (``fit-device``'s "gain at the patch's conductance"). Where the board
+    has a differential input (its profile offers ``device.negative_input_gain``) and the
+    protocol a pair drive, the input gain ratio is fitted too (``fit-device --fit-input-gain``)
+    and written to the layer's device section.
 
     Args:
         patch: the skin patch.
@@ -171,7 +174,9 @@ def calibrated_to_device(
         The calibrated patch and the fit (residual, bad contacts).
     """
     chosen = patch.layer(layer)
-    protocol = build_protocol(chosen.protocol, chosen.n_electrodes)
+    protocol = chosen.measured_protocol
+    device = chosen.device
+    fit_gain = protocol.pair_drive and device.offers(NEGATIVE_INPUT_GAIN.name)
     fit = fit_device(
         build_mesh(chosen),
         protocol,
@@ -180,9 +185,17 @@ def calibrated_to_device(
         chosen.contact_impedance_ohm_m,
         chosen.current_a,
         magnitude=protocol.magnitude,
+        fit_input_gain=fit_gain,
     )
     ratio = fit.sheet_conductance_s / chosen.material.sheet_conductance_s
     z = [float(v) * ratio for v in fit.contact_impedance_ohm_m]
-    fitted = replace(chosen, contact_impedance_ohm_m=tuple(z) if fit.per_electrode else z[0])
+    if fit_gain:
+        options = dict(device.options) | {NEGATIVE_INPUT_GAIN.name: fit.negative_input_gain}
+        device = replace(device, options=tuple(options.items()))
+    fitted = replace(
+        chosen,
+        contact_impedance_ohm_m=tuple(z) if fit.per_electrode else z[0],
+        device=device,
+    )
     layers = tuple(fitted if lay.name == layer else lay for lay in patch.layers)
     return replace(patch, layers=layers), fit

@@ -239,7 +239,7 @@ def test_commands_simulate_calibrate_locate(tmp_path, capsys, session):
     presses, model, out = tmp_path / "p.npz", tmp_path / "m.npz", tmp_path / "o.npz"
     argv = ["presses", "simulate", "--patch", "elbow", "--count", "80", "--seed", "5"]
     assert main([*argv, "--out", str(presses)]) == 0
-    argv = ["calibrate", "--patch", "elbow", "--presses", str(presses)]
+    argv = ["calibrate", "--patch", "elbow", "--presses", str(presses), "--physics-prior", "0"]
     assert main([*argv, "--out", str(model)]) == 0
     text = capsys.readouterr().out
     assert "80 presses, 5-fold: position error median" in text and "depth" in text

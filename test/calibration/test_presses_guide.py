@@ -244,7 +244,7 @@ def test_calibration_from_the_guided_session_meets_the_goal(arm, guided, guide_o
     assert guide_output[0] == 0
     model_path = folder / "calibration.npz"
     argv = ["calibrate", "--patch", "arm", "--presses", str(out), "--out", str(model_path)]
-    assert main(argv) == 0
+    assert main([*argv, "--physics-prior", "0"]) == 0
     assert "25 presses, 5-fold" in capsys.readouterr().out
     layer = arm.layers[0]
     model = PressLocaliser.fit(load_press_session(out), layer)

@@ -43,7 +43,7 @@ def calibrated(tmp_path_factory):
     assert main([*argv, "--out", str(presses)]) == 0
     two, one = folder / "calibration2.npz", folder / "calibration1.npz"
     argv = ["calibrate", "--patch", str(PATCH), "--presses", str(presses), "--out", str(two)]
-    assert main([*argv, "--max-touches", "2"]) == 0
+    assert main([*argv, "--max-touches", "2", "--physics-prior", "0"]) == 0
     replace(PressLocaliser.load(two), multi_touch=None).save(one)  # as without --max-touches
     cache = folder / "cache"
     LayerImager.build(load_patch(PATCH).layers[0], cache_dir=cache)

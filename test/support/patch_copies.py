@@ -31,19 +31,25 @@ def small_disc_patch(solver: str = "") -> str:
     return _SMALL_DISC + (f"    solver: {solver}\n" if solver else "")
 
 
+def small_disc_data() -> dict:
+    """:func:`small_disc_patch` (default solver) as data, to edit before loading."""
+    return _numbers(yaml.safe_load(small_disc_patch()))
+
+
 def shipped_patch_data(name: str) -> dict:
     """A shipped patch file as data (YAML 1.1 reads ``3.0e4`` as a string: made a number)."""
+    return _numbers(yaml.safe_load(config_path(name).read_text()))
 
-    def numbers(value):
-        if isinstance(value, dict):
-            return {k: numbers(v) for k, v in value.items()}
-        if isinstance(value, list):
-            return [numbers(v) for v in value]
-        if isinstance(value, str) and _EXPONENT.fullmatch(value):
-            return float(value)
-        return value
 
-    return numbers(yaml.safe_load(config_path(name).read_text()))
+def _numbers(value):
+    """``value`` with exponent strings (``3.0e4``, a string in YAML 1.1) made numbers."""
+    if isinstance(value, dict):
+        return {k: _numbers(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_numbers(v) for v in value]
+    if isinstance(value, str) and _EXPONENT.fullmatch(value):
+        return float(value)
+    return value
 
 
 def write_patch(folder: Path, data: dict, stem: str = "custom") -> Path:
