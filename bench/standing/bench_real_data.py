@@ -9,8 +9,9 @@ of CPU, one core, with a warm matrix cache; the first run builds every candidate
 * Image quality (issue 35): spurious blobs of either sign and artefact energy of both tools
   and of the solver the patch files named before (:data:`PREVIOUS_DEFAULT`).
 * Default choice: every solver candidate (:data:`CANDIDATE_SOLVERS` x noise figures, with and
-  without the model-error rule) on the five sets and a simulated one (:func:`simulated_set`),
-  chosen on five and scored on the sixth (:func:`default_choice`).
+  without the model-error rule; the NOSER ones also with equal channel weights,
+  :data:`CANDIDATE_WEIGHTS`) on the five sets and a simulated one (:func:`simulated_set`),
+  chosen on five and scored on the sixth, and on all six (:func:`default_choice`).
 * eit_skin: the patch file as shipped (device facts only: the package default solver) through
   :class:`eit_skin.pipeline.builder.LayerImager` (the reconstruction node's chain: meshes,
   forward model, one-step matrix, image grid), built without the cache so the build time
