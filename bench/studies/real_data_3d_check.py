@@ -14,13 +14,16 @@ for). The ball (radius ``truth_r`` of the set) sits in the electrode plane at th
 documented positions (single targets only), conductivity 1/1000 of the saline. Each frame is
 ``(V_ball, V_empty)`` of the 3-D model in the set's measurement order (magnitudes where the
 patch says ``sign: -1``), imaged by the 2-D chain. A thin tank (``H`` = the ball radius) is
-the 2-D control.
+the 2-D control. Each frame is also imaged by pyEIT JAC as ``bench_real_data.py`` runs it
+(its distmesh, its examples' settings, the same pixel grid), so the two tools' blobs can be
+compared on a tank whose only departure from 2-D is its height.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -28,7 +31,7 @@ import scipy.sparse.linalg as spl
 from scipy.spatial import Delaunay
 
 from bench.standing import real_data_scoring as scoring
-from bench.standing.bench_real_data import DATA, sheet_radius
+from bench.standing.bench_real_data import DATA, run_pyeit, sheet_radius
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 
@@ -100,6 +103,14 @@ class Tank3d:
         return ue[m[:, 1], m[:, 0]] - ue[m[:, 2], m[:, 0]]
 
 
+def blob_text(image: np.ndarray, grid) -> str:
+    """The strongest insulating blob's centre in mm and its distance from the centre."""
+    xy, _ = scoring.blobs(image, grid.x, grid.y, -1.0)
+    if not len(xy):
+        return "no blob"
+    return f"{np.round(1e3 * xy[0]).astype(int)} r {1e3 * np.linalg.norm(xy[0]):.0f}"
+
+
 def main() -> None:
     name = sys.argv[1] if len(sys.argv) > 1 else "ottawa_ph1"
     heights = [float(h) for h in sys.argv[2:]] or [0.02, 0.06, 0.15]
@@ -126,9 +137,12 @@ def main() -> None:
             v = tank.voltages(np.where(inside, BALL_CONTRAST, 1.0))
             pair = (np.abs(v), np.abs(v0)) if imager.protocol.magnitude else (v, v0)
             image = imager.images(imager.relative_change(pair[0][None], pair[1]))[0]
-            xy, _ = scoring.blobs(image, imager.grid.x, imager.grid.y, -1.0)
-            shown = np.round(1e3 * xy[0]).astype(int) if len(xy) else "no blob"
-            cells.append(f"{np.round(1e3 * target).astype(int)} -> {shown}")
+            synthetic = replace(data, reference=pair[1], frames=pair[0][None])
+            peer = run_pyeit(layer, synthetic, imager.grid)
+            shown = [
+                blob_text(im, g) for im, g in ((image, imager.grid), (peer.images[0], peer.grid))
+            ]
+            cells.append(f"{np.round(1e3 * target).astype(int)} -> {shown[0]} (pyEIT {shown[1]})")
         print(
             f"  tank height {2e3 * h:.0f} mm ({len(nodes)} nodes, {time.perf_counter() - t0:.0f} s;"
             f" measured reference vs this model r = {r:.4f}): " + "; ".join(cells),

@@ -187,9 +187,10 @@ def test_bound_fails_for_a_broken_chain(name: str) -> None:
 
 def test_the_package_default_is_the_one_the_leave_one_set_out_table_chose() -> None:
     """bench/standing/real_data.md chooses the default on five sets for every sixth; what a patch
-    without a solver section gets must be that choice in every fold (issue 35), so a
-    default changed without rerunning the benchmark, or a benchmark whose choice was not
-    shipped, fails here."""
+    without a solver section gets must be the choice on all six sets, and on every set left
+    out it must miss no more goals than that fold's own choice (issue 35: a fold may choose
+    otherwise only if its choice does no better where it was not chosen), so a default changed
+    without rerunning the benchmark, or a benchmark whose choice was not shipped, fails here."""
     method, prior = SolverSpec().method, SolverSpec().prior
     names = {"noser": "NOSER", "laplace": "Laplace", "tikhonov": "Tikhonov"}  # the bench's
     shipped = (
@@ -202,7 +203,10 @@ def test_the_package_default_is_the_one_the_leave_one_set_out_table_chose() -> N
     rows = list(itertools.takewhile(lambda cells: len(cells) == 4, rows))
     assert len(rows) == 6, report[header : header + 8]
     assert method == "one_step"
-    assert {cells[1].strip() for cells in rows} == {shipped}, rows
+    missed = [[int(cells[k].split(" of ")[0]) for k in (2, 3)] for cells in rows]
+    assert all(default <= chosen for chosen, default in missed), rows
+    overall = next(line for line in report if line.startswith("Chosen on all six sets: "))
+    assert overall.startswith(f"Chosen on all six sets: {shipped} ("), overall
 
 
 # --- the scoring rules themselves (synthetic images, exact answers) ---------------------------
