@@ -292,9 +292,9 @@ def damage_section(lines: list[str]) -> None:
         " changed (touched without a break for longer than the drift time constant, 60 s) and no"
         " contact follows. Before this rule: 789 frames with a contact over the whole 1.8 h.",
         "- the image-based touch classifier (`eit-skin classify --patch"
-        " data/real/hydrogel_ohmc16.yaml --frames data/real/hydrogel_damage.npz`) still reports"
-        " it as ONE grab from 200 s to 6648 s (not a stream, but a false touch): left to the"
-        " classifier's false-touch work (issue 37 item 5).",
+        " data/real/hydrogel_ohmc16.yaml --frames data/real/hydrogel_damage.npz`) reports one"
+        " `sheet_changed` line at 96 s and no touch (its changed-sheet rule, docs/classifier.md"
+        " 4c; test/pipeline/test_hydrogel_damage.py); before it, ONE grab from 32 s to 6648 s.",
         "",
     ]
 

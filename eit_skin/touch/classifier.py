@@ -84,6 +84,7 @@ LIVE_SETTINGS = frozenset(
         "track_missed_frames",
         "end_hold_s",
         "update_period_s",
+        "sheet_change_taus",
         "count_frames",
         "strong_fraction",
         "travel_fraction",
@@ -177,6 +178,7 @@ class TouchClassifier:
         self.pixel_m = float(abs(self.x[1] - self.x[0]))
         self.pressure_noise_pa = pressure_noise_pa
         self.stretch_noise = stretch_noise
+        self._given_noise = (pressure_noise_pa, stretch_noise)  # None: learnt by calibration
         shape = (self.y.size, self.x.size)  # [H, W]
         spread = self.config.contact_spread_m if contact_spread_m is None else contact_spread_m
         spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), shape)
@@ -206,6 +208,11 @@ class TouchClassifier:
         self._times: list[float] = []
         self.last_contacts: list[Contact] = []
         self.frames = 0
+        #: why the latest touch was withdrawn while the baseline re-learns, else None
+        self.sheet_changed: str | None = None
+        self._calibration_s = self.config.calibration_s  # longer after a sheet change
+        self._at_rest: Background | None = None  # the background before a sheet change
+        self._changed_s = 0.0  # when the sheet began to change (the withdrawn touch's START)
 
     @property
     def segmenter(self):
@@ -317,12 +324,20 @@ class TouchClassifier:
         if volts is not None:
             self._calibration_volts.append(volts)
         if (
-            t_s - self._t0 + 1e-9 < self.config.calibration_s
+            t_s - self._t0 + 1e-9 < max(self.config.calibration_s, self._calibration_s)
             and len(self._calibration) < _MAX_CALIBRATION_FRAMES
         ):
             return
         stack = np.stack(self._calibration)
         n_avg = min(self.config.average_frames, len(stack))
+        if self.sheet_changed is not None and self._still_changing(running_mean(stack, n_avg)):
+            # the sheet moved over the window: it must now stay still for as long as it has
+            # been changing (a still window of the bound after a long hold; on a sheet that
+            # keeps changing, ever longer ones)
+            self._calibration_s = max(t_s - self._changed_s, self._calibration_s)
+            self._t0 = None
+            self._calibration, self._calibration_stretch, self._calibration_volts = [], [], []
+            return
         self._recent = list(stack[len(stack) - n_avg + 1 :]) if n_avg > 1 else []
         self.background = bg = Background(
             self.x,
@@ -353,6 +368,8 @@ class TouchClassifier:
         self._calibration = []
         self._calibration_stretch = []
         self._calibration_volts = []
+        self._calibration_s = self.config.calibration_s
+        self.sheet_changed = self._at_rest = None
 
     # ------------------------------------------------------------------ stream
     def step(
@@ -426,7 +443,47 @@ class TouchClassifier:
                 self._follow_noise(dt, signal)
             if volts is not None:
                 self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
-        return self.events.advance(t_s, contacts, stretch_peak, shape, detected)
+        events = self.events.advance(t_s, contacts, stretch_peak, shape, detected)
+        return events + self._withdraw_stuck_touch(t_s)
+
+    def _withdraw_stuck_touch(self, t_s: float) -> list[TouchEvent]:
+        """Withdraw a touch going on for longer than ``sheet_change_taus`` baseline constants.
+
+        A touch is brief next to the drift the baseline follows; one that outlasts many of its
+        time constants is the sheet changing under a frozen baseline (docs/classifier.md,
+        "Changed sheet"). Its END has confidence 0 and the reason in ``withdrawn``; from the
+        next frame on the classifier calibrates again (baseline, noise maps, START gates),
+        over that bound instead of ``calibration_s``: the sheet is known to be changing.
+        """
+        limit_s = self.config.sheet_change_taus * self.config.baseline_tau_s
+        started = self.events.started_s
+        if not limit_s > 0 or started is None or t_s - started <= limit_s:
+            return []
+        self.sheet_changed = (
+            f"sheet changed: a 'touch' went on without a break for {t_s - started:.0f} s, "
+            f"longer than {self.config.sheet_change_taus:g} baseline time constants "
+            f"({limit_s:g} s): no touch but the sheet (damage, drying, an electrode); "
+            "withdrawn; no touch until it has stayed still for as long (calibrating again)"
+        )
+        events = self.events.withdraw(t_s, self.sheet_changed)
+        if self._at_rest is None:  # its noise judges when the sheet is still again
+            self._at_rest, self._changed_s = self.background, started
+        self.background, self._t0, self._calibration_s = None, None, limit_s
+        self.pressure_noise_pa, self.stretch_noise = self._given_noise
+        return events
+
+    def _still_changing(self, averaged: np.ndarray) -> bool:
+        """Whether the sheet moved over a re-calibration window (``[T, H, W]`` averaged images).
+
+        The change from its first to its last averaged image, segmented against the noise the
+        sheet had at rest before it changed: a contact standing out is a sheet still changing.
+        """
+        at_rest = self._at_rest
+        if at_rest is None or len(averaged) < 2:
+            return False
+        change = averaged[-1] - averaged[0]
+        contacts, parts = at_rest.segmenter.segment_with_labels(change - at_rest.offset(change))
+        return bool(contacts) and at_rest.stands_out(change, parts > 0)
 
     def finish(self, t_s: float | None = None) -> list[TouchEvent]:
         """End a touch still going on at the end of a stream (END at its last contact)."""
