@@ -2,14 +2,17 @@
 
 Used by the press localiser (:mod:`eit_skin.calibration.localiser`) and its physics prior
 (:mod:`eit_skin.calibration.physics_prior`). Hyperparameters are chosen inside every fit by a
-scale-free rule: the length scale is a factor of the median pairwise distance of the training
-inputs, the ridge is relative to the kernel's unit diagonal, and the pair with the least
-closed-form leave-one-out error wins.
+scale-free rule: the inputs are projected on their first principal components (a count of
+:data:`COMPONENT_COUNTS`, or all of them), the length scale is a factor of the median pairwise
+distance of the projected training inputs, the ridge is relative to the kernel's unit diagonal,
+and the triple with the least closed-form leave-one-out error wins. The projection drops the
+input directions the training presses hardly vary in, mostly noise (issue 37, item 4: on the
+real hydrogel skin at N = 400, 2.6 -> 2.1 mm median: bench/standing/press_calibration.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -18,6 +21,10 @@ LENGTH_SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
 
 RIDGE_GRID = tuple(10.0 ** np.arange(-6, 1))
 """Ridge values tried, relative to the kernel's unit diagonal (dimensionless)."""
+
+COMPONENT_COUNTS = (8, 16, 32, 64)
+"""Leading principal components of the training inputs tried (those below the input dimension
+and the training count), besides all inputs unprojected."""
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -40,6 +47,9 @@ class KernelRidge:
         loo_error: mean Euclidean leave-one-out error of the chosen pair, target units.
         loo_errors: ``[N]`` those errors per training input (only after :meth:`fit`, not
             stored in files).
+        projection: ``[D0, D]`` principal directions the raw inputs ``[., D0]`` are projected
+            on (after removing ``centre``), or None: inputs used as they are.
+        centre: ``[D0]`` mean of the raw training inputs, or None.
     """
 
     inputs: np.ndarray
@@ -50,6 +60,8 @@ class KernelRidge:
     spacing: np.ndarray
     loo_error: float
     loo_errors: np.ndarray | None = None
+    projection: np.ndarray | None = None
+    centre: np.ndarray | None = None
 
     @classmethod
     def fit(
@@ -58,14 +70,33 @@ class KernelRidge:
         targets: np.ndarray,
         factors: tuple[float, ...] = LENGTH_SCALE_FACTORS,
         ridges: tuple[float, ...] = RIDGE_GRID,
+        components: tuple[int, ...] = COMPONENT_COUNTS,
     ) -> KernelRidge:
-        """Fit ``targets`` [N, K] on ``inputs`` [N, D]; the (factor, ridge) pair by LOO error.
+        """Fit ``targets`` [N, K] on ``inputs`` [N, D]; components, factor and ridge by LOO.
+
+        ``components``: counts of leading principal components tried besides all inputs.
+        """
+        raw = np.asarray(inputs, float)
+        y = np.asarray(targets, float).reshape(len(raw), -1)
+        centre = raw.mean(axis=0)
+        directions = np.linalg.svd(raw - centre, full_matrices=False)[2].T  # [D, min(N, D)]
+        best = cls._fit_projected(raw, y, factors, ridges), None
+        for k in sorted(c for c in components if c < min(directions.shape[1], raw.shape[1])):
+            model = cls._fit_projected((raw - centre) @ directions[:, :k], y, factors, ridges)
+            if model.loo_error < best[0].loo_error:
+                best = model, directions[:, :k]
+        model, projection = best
+        if projection is None:
+            return model
+        return replace(model, projection=projection, centre=centre)
+
+    @classmethod
+    def _fit_projected(cls, x, y, factors, ridges) -> KernelRidge:
+        """The (factor, ridge) pair by LOO on inputs ``x`` [N, D] as they are.
 
         One eigendecomposition per length scale gives the exact leave-one-out residuals
         ``(y - H y) / (1 - diag H)`` of every ridge at once.
         """
-        x = np.asarray(inputs, float)
-        y = np.asarray(targets, float).reshape(len(x), -1)
         offset = y.mean(axis=0)
         yc = y - offset
         d2 = squared_distances(x, x)
@@ -93,13 +124,19 @@ class KernelRidge:
 
     def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``[T, K]`` prediction, ``[T]`` confidence in [0, 1]) for ``queries`` [T, D]."""
+        if self.projection is not None:
+            queries = (np.asarray(queries, float) - self.centre) @ self.projection
         d2 = squared_distances(queries, self.inputs)
         nearest = np.sqrt(d2.min(axis=1))
         farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
         return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        projected = {}
+        if self.projection is not None:
+            projected = {f"{prefix}_projection": self.projection, f"{prefix}_centre": self.centre}
         return {
+            **projected,
             f"{prefix}_inputs": self.inputs,
             f"{prefix}_gamma": np.float64(self.gamma),
             f"{prefix}_ridge": np.float64(self.ridge),
@@ -119,4 +156,6 @@ class KernelRidge:
             arrays[f"{prefix}_offset"],
             arrays[f"{prefix}_spacing"],
             float(arrays[f"{prefix}_loo_error"]),
+            projection=arrays.get(f"{prefix}_projection"),
+            centre=arrays.get(f"{prefix}_centre"),
         )
