@@ -36,6 +36,7 @@ from eit_skin.touch.contacts import Contact, PooledDetector
 from eit_skin.touch.events import TouchEvent, TouchFeatures
 from eit_skin.touch.frame_evidence import FrameEvidence
 from eit_skin.touch.settings import setting_values
+from eit_skin.touch.sheet_change import StillnessWindow
 from eit_skin.touch.start_gates import StartGates
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -210,9 +211,7 @@ class TouchClassifier:
         self.frames = 0
         #: why the latest touch was withdrawn while the baseline re-learns, else None
         self.sheet_changed: str | None = None
-        self._calibration_s = self.config.calibration_s  # longer after a sheet change
-        self._at_rest: Background | None = None  # the background before a sheet change
-        self._changed_s = 0.0  # when the sheet began to change (the withdrawn touch's START)
+        self._stillness: StillnessWindow | None = None  # after a sheet change
 
     @property
     def segmenter(self):
@@ -324,20 +323,12 @@ class TouchClassifier:
         if volts is not None:
             self._calibration_volts.append(volts)
         if (
-            t_s - self._t0 + 1e-9 < max(self.config.calibration_s, self._calibration_s)
+            t_s - self._t0 + 1e-9 < self.config.calibration_s
             and len(self._calibration) < _MAX_CALIBRATION_FRAMES
         ):
             return
         stack = np.stack(self._calibration)
         n_avg = min(self.config.average_frames, len(stack))
-        if self.sheet_changed is not None and self._still_changing(running_mean(stack, n_avg)):
-            # the sheet moved over the window: it must now stay still for as long as it has
-            # been changing (a still window of the bound after a long hold; on a sheet that
-            # keeps changing, ever longer ones)
-            self._calibration_s = max(t_s - self._changed_s, self._calibration_s)
-            self._t0 = None
-            self._calibration, self._calibration_stretch, self._calibration_volts = [], [], []
-            return
         self._recent = list(stack[len(stack) - n_avg + 1 :]) if n_avg > 1 else []
         self.background = bg = Background(
             self.x,
@@ -368,8 +359,6 @@ class TouchClassifier:
         self._calibration = []
         self._calibration_stretch = []
         self._calibration_volts = []
-        self._calibration_s = self.config.calibration_s
-        self.sheet_changed = self._at_rest = None
 
     # ------------------------------------------------------------------ stream
     def step(
@@ -397,6 +386,11 @@ class TouchClassifier:
             stretch = np.asarray(stretch, dtype=np.float64)
             stretch = np.where(np.isfinite(stretch), stretch, np.nan)
         self.frames += 1
+        if self._stillness is not None:  # the sheet changed: no touch until it is still
+            if self._stillness.still(t_s, pressure):
+                self._stillness, self.sheet_changed = None, None  # then calibrate again
+            self._t_prev = t_s
+            return []
         if self.background is None:
             self._learn_background(t_s, pressure, stretch, volts)
             self._t_prev = t_s
@@ -451,9 +445,10 @@ class TouchClassifier:
 
         A touch is brief next to the drift the baseline follows; one that outlasts many of its
         time constants is the sheet changing under a frozen baseline (docs/classifier.md,
-        "Changed sheet"). Its END has confidence 0 and the reason in ``withdrawn``; from the
-        next frame on the classifier calibrates again (baseline, noise maps, START gates),
-        over that bound instead of ``calibration_s``: the sheet is known to be changing.
+        "Changed sheet"). Its END has confidence 0 and the reason in ``withdrawn``; no touch
+        STARTs until the sheet has stayed still over a window
+        (:class:`~eit_skin.touch.sheet_change.StillnessWindow`), then the classifier
+        calibrates again (baseline, noise maps, START gates) as at start-up.
         """
         limit_s = self.config.sheet_change_taus * self.config.baseline_tau_s
         started = self.events.started_s
@@ -466,24 +461,12 @@ class TouchClassifier:
             "withdrawn; no touch until it has stayed still for as long (calibrating again)"
         )
         events = self.events.withdraw(t_s, self.sheet_changed)
-        if self._at_rest is None:  # its noise judges when the sheet is still again
-            self._at_rest, self._changed_s = self.background, started
-        self.background, self._t0, self._calibration_s = None, None, limit_s
+        self._stillness = StillnessWindow(
+            self.background, started, limit_s, self.config.average_frames
+        )
+        self.background, self._t0 = None, None
         self.pressure_noise_pa, self.stretch_noise = self._given_noise
         return events
-
-    def _still_changing(self, averaged: np.ndarray) -> bool:
-        """Whether the sheet moved over a re-calibration window (``[T, H, W]`` averaged images).
-
-        The change from its first to its last averaged image, segmented against the noise the
-        sheet had at rest before it changed: a contact standing out is a sheet still changing.
-        """
-        at_rest = self._at_rest
-        if at_rest is None or len(averaged) < 2:
-            return False
-        change = averaged[-1] - averaged[0]
-        contacts, parts = at_rest.segmenter.segment_with_labels(change - at_rest.offset(change))
-        return bool(contacts) and at_rest.stands_out(change, parts > 0)
 
     def finish(self, t_s: float | None = None) -> list[TouchEvent]:
         """End a touch still going on at the end of a stream (END at its last contact)."""
