@@ -2,12 +2,12 @@
 
 Used by the press localiser (:mod:`eit_skin.calibration.localiser`) and its physics prior
 (:mod:`eit_skin.calibration.physics_prior`). Hyperparameters are chosen inside every fit by a
-scale-free rule: the inputs are projected on their first principal components (a count of
-:data:`COMPONENT_COUNTS`, or all of them), the length scale is a factor of the median pairwise
-distance of the projected training inputs, the ridge is relative to the kernel's unit diagonal,
-and the triple with the least closed-form leave-one-out error wins. The projection drops the
-input directions the training presses hardly vary in, mostly noise (issue 37, item 4: on the
-real hydrogel skin at N = 400, 2.6 -> 2.1 mm median: bench/standing/press_calibration.md).
+scale-free rule: the inputs may be projected on their leading principal components (a count
+of :data:`COMPONENT_COUNTS` or all of them; the press localiser's position model), the length
+scale is a factor of the median pairwise distance of the (projected) training inputs, the
+ridge is relative to the kernel's unit diagonal, and the choice with the least closed-form
+leave-one-out error wins. The projection drops the directions in which the training presses
+hardly vary, mostly noise (issue 37, item 4: bench/standing/press_calibration.md).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class KernelRidge:
     """RBF kernel ridge regression (GP posterior mean) with leave-one-out hyperparameters.
 
     Attributes:
-        inputs: ``[N, D]`` training features.
+        inputs: ``[N, D0]`` training features (before any projection).
         gamma: kernel ``exp(-gamma |x - x'|^2)``, 1 / feature unit^2.
         ridge: ridge relative to the unit kernel diagonal.
         weights: ``[N, K]`` dual weights.
@@ -63,6 +63,12 @@ class KernelRidge:
     projection: np.ndarray | None = None
     centre: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        projected = self.inputs
+        if self.projection is not None:
+            projected = (self.inputs - self.centre) @ self.projection
+        object.__setattr__(self, "_kernel_inputs", projected)  # what the kernel compares
+
     @classmethod
     def fit(
         cls,
@@ -70,11 +76,12 @@ class KernelRidge:
         targets: np.ndarray,
         factors: tuple[float, ...] = LENGTH_SCALE_FACTORS,
         ridges: tuple[float, ...] = RIDGE_GRID,
-        components: tuple[int, ...] = COMPONENT_COUNTS,
+        components: tuple[int, ...] = (),
     ) -> KernelRidge:
         """Fit ``targets`` [N, K] on ``inputs`` [N, D]; components, factor and ridge by LOO.
 
-        ``components``: counts of leading principal components tried besides all inputs.
+        ``components``: counts of leading principal components tried besides all inputs (the
+        press localiser's position model: :data:`COMPONENT_COUNTS`; default none).
         """
         raw = np.asarray(inputs, float)
         y = np.asarray(targets, float).reshape(len(raw), -1)
@@ -88,7 +95,7 @@ class KernelRidge:
         model, projection = best
         if projection is None:
             return model
-        return replace(model, projection=projection, centre=centre)
+        return replace(model, inputs=raw, projection=projection, centre=centre)
 
     @classmethod
     def _fit_projected(cls, x, y, factors, ridges) -> KernelRidge:
@@ -126,7 +133,7 @@ class KernelRidge:
         """(``[T, K]`` prediction, ``[T]`` confidence in [0, 1]) for ``queries`` [T, D]."""
         if self.projection is not None:
             queries = (np.asarray(queries, float) - self.centre) @ self.projection
-        d2 = squared_distances(queries, self.inputs)
+        d2 = squared_distances(queries, self._kernel_inputs)
         nearest = np.sqrt(d2.min(axis=1))
         farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
         return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
