@@ -27,6 +27,16 @@ COMPONENT_COUNTS = (8, 16, 32, 64)
 and the training count), besides all inputs unprojected."""
 
 
+def clearly_better(base: np.ndarray, candidate: np.ndarray) -> bool:
+    """Whether ``candidate``'s leave-one-out errors ``[N]`` beat ``base``'s beyond noise.
+
+    The mean paired gain must exceed one standard error of the paired differences: a choice
+    among several fits by leave-one-out is otherwise decided by selection noise.
+    """
+    gained = np.asarray(base) - np.asarray(candidate)
+    return bool(gained.mean() > gained.std(ddof=1) / np.sqrt(gained.size))
+
+
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``[A, B]`` squared Euclidean distances between the rows of ``a`` [A, D] and ``b`` [B, D]."""
     d = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * a @ b.T
@@ -81,21 +91,22 @@ class KernelRidge:
         """Fit ``targets`` [N, K] on ``inputs`` [N, D]; components, factor and ridge by LOO.
 
         ``components``: counts of leading principal components tried besides all inputs (the
-        press localiser's position model: :data:`COMPONENT_COUNTS`; default none).
+        press localiser's position model: :data:`COMPONENT_COUNTS`; default none); the best
+        projection is kept only if it is :func:`clearly_better` than all inputs.
         """
         raw = np.asarray(inputs, float)
         y = np.asarray(targets, float).reshape(len(raw), -1)
+        plain = cls._fit_projected(raw, y, factors, ridges)
         centre = raw.mean(axis=0)
         directions = np.linalg.svd(raw - centre, full_matrices=False)[2].T  # [D, min(N, D)]
-        best = cls._fit_projected(raw, y, factors, ridges), None
+        best, projection = plain, None
         for k in sorted(c for c in components if c < min(directions.shape[1], raw.shape[1])):
             model = cls._fit_projected((raw - centre) @ directions[:, :k], y, factors, ridges)
-            if model.loo_error < best[0].loo_error:
-                best = model, directions[:, :k]
-        model, projection = best
-        if projection is None:
-            return model
-        return replace(model, inputs=raw, projection=projection, centre=centre)
+            if model.loo_error < best.loo_error:
+                best, projection = model, directions[:, :k]
+        if projection is None or not clearly_better(plain.loo_errors, best.loo_errors):
+            return plain  # a projection must beat all inputs beyond selection noise
+        return replace(best, inputs=raw, projection=projection, centre=centre)
 
     @classmethod
     def _fit_projected(cls, x, y, factors, ridges) -> KernelRidge:

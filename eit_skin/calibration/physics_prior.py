@@ -34,7 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from eit_skin.calibration.features import relative_change, split_features
-from eit_skin.calibration.kernel_ridge import COMPONENT_COUNTS, KernelRidge, squared_distances
+from eit_skin.calibration.kernel_ridge import (
+    COMPONENT_COUNTS,
+    KernelRidge,
+    clearly_better,
+    squared_distances,
+)
 from eit_skin.calibration.session import PressSession
 
 PRIOR_MODES = ("mean", "features")
@@ -206,7 +211,4 @@ def fit_prior_position(
                 best = PriorPosition(prior, mode, weight, offset, gain, model)
     if best is plain:
         return plain
-    gained = plain.loo_errors - best.residual.loo_errors
-    if gained.mean() <= gained.std(ddof=1) / np.sqrt(gained.size):
-        return plain
-    return best
+    return best if clearly_better(plain.loo_errors, best.residual.loo_errors) else plain
