@@ -209,7 +209,7 @@ class TouchClassifier:
         self._times: list[float] = []
         self.last_contacts: list[Contact] = []
         self.frames = 0
-        #: why the latest touch was withdrawn while the baseline re-learns, else None
+        #: why the latest touch was withdrawn, until the sheet is still again; else None
         self.sheet_changed: str | None = None
         self._stillness: StillnessWindow | None = None  # after a sheet change
 
@@ -458,7 +458,8 @@ class TouchClassifier:
             f"sheet changed: a 'touch' went on without a break for {t_s - started:.0f} s, "
             f"longer than {self.config.sheet_change_taus:g} baseline time constants "
             f"({limit_s:g} s): no touch but the sheet (damage, drying, an electrode); "
-            "withdrawn; no touch until it has stayed still for as long (calibrating again)"
+            f"withdrawn; no touch until the sheet has stayed still for {limit_s:g} s, then the "
+            "classifier calibrates again"
         )
         events = self.events.withdraw(t_s, self.sheet_changed)
         self._stillness = StillnessWindow(

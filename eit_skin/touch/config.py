@@ -129,7 +129,7 @@ class ClassifierConfig:
         ">= 0",
         "a touch going on without a break for longer than this many baseline time constants is "
         "the sheet changing (damage, drying, an electrode), not a touch: it ends withdrawn "
-        "(confidence 0) and the baseline re-learns; 0: off",
+        "(confidence 0), and once the sheet is still the classifier calibrates again; 0: off",
     )
     count_frames: int = setting(3, "frames", ">= 1", "frames a contact count must be seen to count")
     strong_fraction: float = setting(
