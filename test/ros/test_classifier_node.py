@@ -68,6 +68,12 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     return msg
 
 
+def fingertip_blob(grid: ImageGrid, centre: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(xx [H, W] m, blob [H, W] Pa)``: the pixel x and a 6 kPa fingertip at ``centre``."""
+    xx, yy = np.meshgrid(grid.x, grid.y)
+    return xx, 6000.0 * np.exp(-((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2) / 2e-5)
+
+
 def classifier_probe(name: str, topics, pressure: str):
     """``(probe, publisher)``: a probe hearing the classifier's events, contacts and
     diagnostics, and a publisher of the ``pressure`` layer's images."""
@@ -160,9 +166,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
             lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
         )
         rng = np.random.default_rng(0)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
 
         def send(k: int, touch: bool) -> list[tuple]:
             sent = []
@@ -245,9 +249,7 @@ def test_raw_frames_of_the_same_stamp_tell_a_close_pinch_from_a_push(tmp_path) -
             lambda: pub.get_subscription_count() and frames_pub.get_subscription_count(), EVENT_S
         ), log.read_text()
         rng = np.random.default_rng(1)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
         sigma = 1e-5 * (1 + rng.random(m))
         reference = 0.01 + 0.05 * rng.random(m)
         push = rng.normal(size=m)
@@ -347,9 +349,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
         )
         rng = np.random.default_rng(0)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
 
         def send(k: int, touch: bool) -> list[tuple]:
             image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
@@ -530,9 +530,7 @@ def test_a_touch_that_never_ends_is_withdrawn_as_a_changed_sheet(tmp_path) -> No
     try:
         assert probe.spin_until(lambda: pub.get_subscription_count() > 0, EVENT_S), log.read_text()
         rng = np.random.default_rng(2)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
 
         def send(k: int, touch: bool) -> list[tuple]:
             msg = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
