@@ -40,6 +40,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from bench.standing.real_sessions import hydrogel_ohmc16_session
+from bench.standing.repeatability import disc_floor, floor_table, rectangle_floor
 from eit_skin.calibration.features import relative_change, split_features
 from eit_skin.calibration.kernel_ridge import KernelRidge, squared_distances
 from eit_skin.calibration.localiser import PressLocaliser, cross_validate
@@ -93,6 +94,14 @@ def fit_krr_loo(s: PressSession, layer, prior):
     return lambda f, r: model.predict(relative_change(f, r))[0]
 
 
+def fit_pattern_krr(s: PressSession, layer, prior):
+    """The shipped position model without the principal-component choice (before issue 37/4)."""
+    d = relative_change(s.frames, s.baselines())
+    scale = channel_scale(d)
+    model = KernelRidge.fit(split_features(d / scale)[0], s.press_xy)
+    return lambda f, r: model.predict(split_features(relative_change(f, r) / scale)[0])[0]
+
+
 def fit_shipped(s: PressSession, layer, prior):
     model = PressLocaliser.fit(s, layer)
     return lambda f, r: model.locate(f, s.reference, r).xy
@@ -140,6 +149,7 @@ METHODS = {
     "ridge": fit_ridge,
     "plain KRR": fit_plain,
     "KRR-LOO": fit_krr_loo,
+    "pattern KRR (no projection)": fit_pattern_krr,
     "shipped": fit_shipped,
     "prior mean": fit_with_prior("mean"),
     "prior features": fit_with_prior("features"),
@@ -190,6 +200,22 @@ real hydrogel skin this halves the error of the plain RBF kernel ridge at every 
 code, unchanged, does the same on both simulated skins. A Gaussian process with
 marginal-likelihood hyperparameters was not benchmarked (no time); its posterior mean is the
 same estimator with another hyperparameter rule.
+
+**Principal components (issue 37, item 4).** Leave-one-out now also chooses whether the
+patterns are projected on their leading 8, 16, 32 or 64 principal components over the
+training presses, kept only when the projection beats all M inputs by more than one standard
+error of the paired leave-one-out differences (the physics prior's rule, now one function:
+`clearly_better` in eit_skin/calibration/kernel_ridge.py). The directions the presses hardly
+vary in are mostly noise: on the real hydrogel skin the median error drops at every size
+("pattern KRR (no projection)" is the method before: N = 50 6.7 -> 4.2 mm, N = 100 5.0 -> 3.1,
+N = 400 2.6 -> 1.8, p90 6.1 -> 4.0), within 1.2x its repeatability floor at N = 400 (issue
+37's goal: 1.5x; table above). On the simulated skins it gains from N = 50-100 on (elbow
+N = 400 0.9 -> 0.6 mm) and loses a little at N = 25 (hydrogel 8.7 -> 8.9, elbow 6.5 -> 7.2
+mm: with 20 training presses each one weighs on its own principal components, so
+leave-one-out is optimistic for a projection), where the physics prior is the answer
+(1.7-2.3 mm). The fit costs 4-5x longer (one more eigendecomposition per length scale and
+component count: 0.6-0.9 s at N = 400 here); locating gets cheaper (fewer dimensions). The
+issue's N = 50 / 100 goals on the real skin (3.5 / 2.5 mm) are still not met (4.2 / 3.1).
 
 ## The physics prior (issue 37, `eit-skin calibrate`, on by default: `--physics-prior 500`)
 
@@ -378,6 +404,15 @@ def main() -> None:
         fig.savefig(OUT / f"press_calibration_{slug}.png", dpi=80)
         plt.close(fig)
         lines += [f"![{name}](press_calibration_{slug}.png)", ""]
+    lines += [
+        "## Error against the repeatability floor (issue 37, item 4)",
+        "",
+        "Shipped localiser; floor and error on the same skin, same folds"
+        " (bench/standing/repeatability.py; details: bench/standing/multitouch.md):",
+        "",
+        *floor_table([disc_floor(), rectangle_floor()]),
+        "",
+    ]
     lines += FINDINGS.strip().split("\n")
     (OUT / "press_calibration.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -2,14 +2,17 @@
 
 Used by the press localiser (:mod:`eit_skin.calibration.localiser`) and its physics prior
 (:mod:`eit_skin.calibration.physics_prior`). Hyperparameters are chosen inside every fit by a
-scale-free rule: the length scale is a factor of the median pairwise distance of the training
-inputs, the ridge is relative to the kernel's unit diagonal, and the pair with the least
-closed-form leave-one-out error wins.
+scale-free rule: the inputs may be projected on their leading principal components (a count
+of :data:`COMPONENT_COUNTS` or all of them; the press localiser's position model), the length
+scale is a factor of the median pairwise distance of the (projected) training inputs, the
+ridge is relative to the kernel's unit diagonal, and the choice with the least closed-form
+leave-one-out error wins. The projection drops the directions in which the training presses
+hardly vary, mostly noise (issue 37, item 4: bench/standing/press_calibration.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -18,6 +21,20 @@ LENGTH_SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
 
 RIDGE_GRID = tuple(10.0 ** np.arange(-6, 1))
 """Ridge values tried, relative to the kernel's unit diagonal (dimensionless)."""
+
+COMPONENT_COUNTS = (8, 16, 32, 64)
+"""Leading principal components of the training inputs tried (those below the input dimension
+and the training count), besides all inputs unprojected."""
+
+
+def clearly_better(base: np.ndarray, candidate: np.ndarray) -> bool:
+    """Whether ``candidate``'s leave-one-out errors ``[N]`` beat ``base``'s beyond noise.
+
+    The mean paired gain must exceed one standard error of the paired differences: a choice
+    among several fits by leave-one-out is otherwise decided by selection noise.
+    """
+    gained = np.asarray(base) - np.asarray(candidate)
+    return bool(gained.mean() > gained.std(ddof=1) / np.sqrt(gained.size))
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -31,7 +48,7 @@ class KernelRidge:
     """RBF kernel ridge regression (GP posterior mean) with leave-one-out hyperparameters.
 
     Attributes:
-        inputs: ``[N, D]`` training features.
+        inputs: ``[N, D0]`` training features (before any projection).
         gamma: kernel ``exp(-gamma |x - x'|^2)``, 1 / feature unit^2.
         ridge: ridge relative to the unit kernel diagonal.
         weights: ``[N, K]`` dual weights.
@@ -40,6 +57,9 @@ class KernelRidge:
         loo_error: mean Euclidean leave-one-out error of the chosen pair, target units.
         loo_errors: ``[N]`` those errors per training input (only after :meth:`fit`, not
             stored in files).
+        projection: ``[D0, D]`` principal directions the raw inputs ``[., D0]`` are projected
+            on (after removing ``centre``), or None: inputs used as they are.
+        centre: ``[D0]`` mean of the raw training inputs, or None.
     """
 
     inputs: np.ndarray
@@ -50,6 +70,14 @@ class KernelRidge:
     spacing: np.ndarray
     loo_error: float
     loo_errors: np.ndarray | None = None
+    projection: np.ndarray | None = None
+    centre: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        projected = self.inputs
+        if self.projection is not None:
+            projected = (self.inputs - self.centre) @ self.projection
+        object.__setattr__(self, "_kernel_inputs", projected)  # what the kernel compares
 
     @classmethod
     def fit(
@@ -58,14 +86,35 @@ class KernelRidge:
         targets: np.ndarray,
         factors: tuple[float, ...] = LENGTH_SCALE_FACTORS,
         ridges: tuple[float, ...] = RIDGE_GRID,
+        components: tuple[int, ...] = (),
     ) -> KernelRidge:
-        """Fit ``targets`` [N, K] on ``inputs`` [N, D]; the (factor, ridge) pair by LOO error.
+        """Fit ``targets`` [N, K] on ``inputs`` [N, D]; components, factor and ridge by LOO.
+
+        ``components``: counts of leading principal components tried besides all inputs (the
+        press localiser's position model: :data:`COMPONENT_COUNTS`; default none); the best
+        projection is kept only if it is :func:`clearly_better` than all inputs.
+        """
+        raw = np.asarray(inputs, float)
+        y = np.asarray(targets, float).reshape(len(raw), -1)
+        plain = cls._fit_projected(raw, y, factors, ridges)
+        centre = raw.mean(axis=0)
+        directions = np.linalg.svd(raw - centre, full_matrices=False)[2].T  # [D, min(N, D)]
+        best, projection = plain, None
+        for k in sorted(c for c in components if c < min(directions.shape[1], raw.shape[1])):
+            model = cls._fit_projected((raw - centre) @ directions[:, :k], y, factors, ridges)
+            if model.loo_error < best.loo_error:
+                best, projection = model, directions[:, :k]
+        if projection is None or not clearly_better(plain.loo_errors, best.loo_errors):
+            return plain  # a projection must beat all inputs beyond selection noise
+        return replace(best, inputs=raw, projection=projection, centre=centre)
+
+    @classmethod
+    def _fit_projected(cls, x, y, factors, ridges) -> KernelRidge:
+        """The (factor, ridge) pair by LOO on inputs ``x`` [N, D] as they are.
 
         One eigendecomposition per length scale gives the exact leave-one-out residuals
         ``(y - H y) / (1 - diag H)`` of every ridge at once.
         """
-        x = np.asarray(inputs, float)
-        y = np.asarray(targets, float).reshape(len(x), -1)
         offset = y.mean(axis=0)
         yc = y - offset
         d2 = squared_distances(x, x)
@@ -93,13 +142,19 @@ class KernelRidge:
 
     def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``[T, K]`` prediction, ``[T]`` confidence in [0, 1]) for ``queries`` [T, D]."""
-        d2 = squared_distances(queries, self.inputs)
+        if self.projection is not None:
+            queries = (np.asarray(queries, float) - self.centre) @ self.projection
+        d2 = squared_distances(queries, self._kernel_inputs)
         nearest = np.sqrt(d2.min(axis=1))
         farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
         return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        projected = {}
+        if self.projection is not None:
+            projected = {f"{prefix}_projection": self.projection, f"{prefix}_centre": self.centre}
         return {
+            **projected,
             f"{prefix}_inputs": self.inputs,
             f"{prefix}_gamma": np.float64(self.gamma),
             f"{prefix}_ridge": np.float64(self.ridge),
@@ -119,4 +174,6 @@ class KernelRidge:
             arrays[f"{prefix}_offset"],
             arrays[f"{prefix}_spacing"],
             float(arrays[f"{prefix}_loo_error"]),
+            projection=arrays.get(f"{prefix}_projection"),
+            centre=arrays.get(f"{prefix}_centre"),
         )

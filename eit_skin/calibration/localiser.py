@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from eit_skin.calibration.features import relative_change, split_features
-from eit_skin.calibration.kernel_ridge import KernelRidge
+from eit_skin.calibration.kernel_ridge import COMPONENT_COUNTS, KernelRidge
 from eit_skin.calibration.multi_touch import MultiTouchModel, electrode_pitch
 from eit_skin.calibration.physics_prior import (
     PRIOR_MODES,
@@ -127,7 +127,7 @@ class PressLocaliser:
         pattern, magnitude = split_features(d / scale)
         stats = np.array([magnitude.mean(), max(float(magnitude.std()), 1e-12)])
         position = (
-            KernelRidge.fit(pattern, session.press_xy)
+            KernelRidge.fit(pattern, session.press_xy, components=COMPONENT_COUNTS)
             if prior is None
             else fit_prior_position(pattern, session.press_xy, prior, prior_modes)
         )

@@ -34,7 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from eit_skin.calibration.features import relative_change, split_features
-from eit_skin.calibration.kernel_ridge import KernelRidge, squared_distances
+from eit_skin.calibration.kernel_ridge import (
+    COMPONENT_COUNTS,
+    KernelRidge,
+    clearly_better,
+    squared_distances,
+)
 from eit_skin.calibration.session import PressSession
 
 PRIOR_MODES = ("mean", "features")
@@ -194,7 +199,7 @@ def fit_prior_position(
     offset = m.mean(axis=0)
     spread = median_distance(xy)  # metres on the sheet, not the prior's own spread: a prior
     gain = median_distance(pattern) / spread if spread > 0 else 0.0  # that collapses stays so
-    plain = KernelRidge.fit(pattern, xy)
+    plain = KernelRidge.fit(pattern, xy, components=COMPONENT_COUNTS)  # as without a prior
     best: KernelRidge | PriorPosition = plain
     for mode in modes:
         for weight in MEAN_WEIGHTS if mode == "mean" else FEATURE_WEIGHTS:
@@ -206,7 +211,4 @@ def fit_prior_position(
                 best = PriorPosition(prior, mode, weight, offset, gain, model)
     if best is plain:
         return plain
-    gained = plain.loo_errors - best.residual.loo_errors
-    if gained.mean() <= gained.std(ddof=1) / np.sqrt(gained.size):
-        return plain
-    return best
+    return best if clearly_better(plain.loo_errors, best.residual.loo_errors) else plain

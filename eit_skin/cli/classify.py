@@ -23,6 +23,11 @@ left out in one of its frames), ``faulty_electrodes`` (those left out meanwhile)
 ``channels_left_out`` (the most channels left out of one of its frames, of M). The values
 left out as no measurement of the sheet (beyond the full scale, one-frame jumps) and the
 frames skipped are named on stderr at the end, as ``eit-skin reconstruct`` does.
+
+A changed sheet is no touch: a "touch" the classifier withdraws (it went on for longer than
+``sheet_change_taus`` baseline time constants: docs/classifier.md, "Changed sheet") gives
+no touch line but ``{"kind": "sheet_changed", "t": s, "reason": ...}`` (and the reason on
+stderr).
 """
 
 from __future__ import annotations
@@ -81,6 +86,11 @@ def run(args: argparse.Namespace) -> int:
                 print(
                     f"eit-skin classify: {args.frames}: t = {line['t']:g} s: faulty electrodes "
                     f"left out: {left_out}",
+                    file=sys.stderr,
+                )
+            if line.get("kind") == "sheet_changed":
+                print(
+                    f"eit-skin classify: {args.frames}: t = {line['t']:g} s: {line['reason']}",
                     file=sys.stderr,
                 )
             print(json.dumps(line), flush=True)
@@ -149,7 +159,9 @@ def classify_file(args: argparse.Namespace, runs: dict[Path, FileRun] | None = N
                 yield {"kind": "fault", "t": round(t_rel, 4), "faulty_electrodes": list(faulty)}
             faults.add(t_rel, faulty, images.frame_v.size - images.channels_used)
         for event in events:
-            if event.state == "end":
+            if event.state == "end" and event.withdrawn:  # no touch: the sheet changed
+                yield {"kind": "sheet_changed", "t": round(event.t_s, 4), "reason": event.withdrawn}
+            elif event.state == "end":
                 yield _touch_line(event, faults, patch.placement)
 
 
@@ -202,7 +214,7 @@ def classified_frames(args: argparse.Namespace, patch, runs: dict[Path, FileRun]
             # the electrodes the imaging left out: less confidence near them
             classifier.set_faulty_electrodes(images.faulty_electrodes)
             yield t_rel, images, classifier.step(t_rel, images.image, image, images.frame_v)
-    if not classifier.calibrated:
+    if not classifier.calibrated and classifier.sheet_changed is None:
         raise ValueError(
             f"{args.frames}: {n_imaged} imaged frame(s) do not cover the classifier's "
             f"calibration ({classifier.config.calibration_s:g} s of untouched frames): "

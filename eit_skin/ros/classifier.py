@@ -13,7 +13,10 @@ Publishes ``touch_events`` (``eit_skin_msgs/TouchEvent``, reliable, depth 50), `
 (``ContactArray``) and ``/diagnostics``. Electrode faults: the reconstruction's
 ``/diagnostics`` status of the pressure layer names the electrodes it leaves out
 (``faulty_electrodes``); they go to the classifier (no event from a fault, less confidence
-near one; docs/classifier.md). Pixel geometry: row i, column j is centred at
+near one; docs/classifier.md). A changed sheet: a touch withdrawn by the classifier (longer
+than ``sheet_change_taus`` baseline time constants) ends with confidence 0, is logged as a
+warning, counted (``sheet_changes``) and turns /diagnostics WARN with the reason
+(``sheet_changed``) until the sheet is still again. Pixel geometry: row i, column j is centred at
 (x[j], y[i]) of the pressure layer's image grid, rebuilt from ``patch_config`` (its inverse
 mesh; the single-finger spread map comes from the reconstruction cache:
 :func:`~eit_skin.touch.shapes.contact_geometry`). The first ``calibration_s`` of images
@@ -119,6 +122,7 @@ class ClassifierNode(Node):
             "rejected": 0,
             "events": 0,
             "bad_fault_reports": 0,
+            "sheet_changes": 0,
             "frames_paired": 0,
             "frames_rejected": 0,
         }
@@ -355,6 +359,9 @@ class ClassifierNode(Node):
             place_on_surface([out], self.patch.placement, [(out.centroid.x, out.centroid.y)])
             self.events_pub.publish(out)
             self.counts["events"] += 1
+            if event.withdrawn:  # END with confidence 0: the sheet changed, no touch
+                self.counts["sheet_changes"] += 1
+                self.get_logger().warning(event.withdrawn)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         """Faulty electrodes the reconstruction of our pressure layer leaves out -> classifier.
@@ -394,6 +401,8 @@ class ClassifierNode(Node):
             if self.image_timeout_s and silent_s > self.image_timeout_s and level < 2:
                 level = 2
                 message = f"no image on {self.resolve_topic_name(topic)} for {silent_s:.0f} s"
+        if c.sheet_changed is not None and level < 2:  # no touch until the sheet is still
+            level, message = 1, c.sheet_changed
         values = {
             **{k: str(v) for k, v in self.counts.items()},
             "unpaired": str(self.pairer.unpaired),
@@ -401,6 +410,7 @@ class ClassifierNode(Node):
             "noise_pa": f"{c.pressure_noise_pa or 0.0:.3g}",
             "touch_active": str(c.active),
             "faulty_electrodes": ",".join(str(e) for e in c.faulty),
+            "sheet_changed": c.sheet_changed or "",
             "busy_s": f"{self._busy_s:.3f}",
         }
         msg = DiagnosticArray()

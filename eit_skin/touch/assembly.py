@@ -13,7 +13,7 @@ on the evidence so far (:class:`~eit_skin.touch.events.TouchFeatures`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -233,6 +233,17 @@ class EventAssembler:
         if touch is None:
             return []
         return self._end(touch, touch.t_last_s if t_s is None else t_s)
+
+    @property
+    def started_s(self) -> float | None:
+        """START time of the touch going on, s, or None."""
+        return None if self._touch is None else self._touch.t_start_s
+
+    def withdraw(self, t_s: float, reason: str) -> list[TouchEvent]:
+        """END the touch going on as no touch: confidence 0, ``reason`` in ``withdrawn``."""
+        if self._touch is None:
+            return []
+        return [replace(e, confidence=0.0, withdrawn=reason) for e in self._end(self._touch, t_s)]
 
     # ------------------------------------------------------------------ features
     def _observe_contacts(

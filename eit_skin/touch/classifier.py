@@ -36,6 +36,7 @@ from eit_skin.touch.contacts import Contact, PooledDetector
 from eit_skin.touch.events import TouchEvent, TouchFeatures
 from eit_skin.touch.frame_evidence import FrameEvidence
 from eit_skin.touch.settings import setting_values
+from eit_skin.touch.sheet_change import StillnessWindow
 from eit_skin.touch.start_gates import StartGates
 
 _MAX_CALIBRATION_FRAMES = 10_000
@@ -84,6 +85,7 @@ LIVE_SETTINGS = frozenset(
         "track_missed_frames",
         "end_hold_s",
         "update_period_s",
+        "sheet_change_taus",
         "count_frames",
         "strong_fraction",
         "travel_fraction",
@@ -177,6 +179,7 @@ class TouchClassifier:
         self.pixel_m = float(abs(self.x[1] - self.x[0]))
         self.pressure_noise_pa = pressure_noise_pa
         self.stretch_noise = stretch_noise
+        self._given_noise = (pressure_noise_pa, stretch_noise)  # None: learnt by calibration
         shape = (self.y.size, self.x.size)  # [H, W]
         spread = self.config.contact_spread_m if contact_spread_m is None else contact_spread_m
         spread = np.broadcast_to(np.asarray(spread, dtype=np.float64), shape)
@@ -206,6 +209,9 @@ class TouchClassifier:
         self._times: list[float] = []
         self.last_contacts: list[Contact] = []
         self.frames = 0
+        #: why the latest touch was withdrawn, until the sheet is still again; else None
+        self.sheet_changed: str | None = None
+        self._stillness: StillnessWindow | None = None  # after a sheet change
 
     @property
     def segmenter(self):
@@ -380,6 +386,11 @@ class TouchClassifier:
             stretch = np.asarray(stretch, dtype=np.float64)
             stretch = np.where(np.isfinite(stretch), stretch, np.nan)
         self.frames += 1
+        if self._stillness is not None:  # the sheet changed: no touch until it is still
+            if self._stillness.still(t_s, pressure):
+                self._stillness, self.sheet_changed = None, None  # then calibrate again
+            self._t_prev = t_s
+            return []
         if self.background is None:
             self._learn_background(t_s, pressure, stretch, volts)
             self._t_prev = t_s
@@ -426,7 +437,37 @@ class TouchClassifier:
                 self._follow_noise(dt, signal)
             if volts is not None:
                 self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
-        return self.events.advance(t_s, contacts, stretch_peak, shape, detected)
+        events = self.events.advance(t_s, contacts, stretch_peak, shape, detected)
+        return events + self._withdraw_stuck_touch(t_s)
+
+    def _withdraw_stuck_touch(self, t_s: float) -> list[TouchEvent]:
+        """Withdraw a touch going on for longer than ``sheet_change_taus`` baseline constants.
+
+        A touch is brief next to the drift the baseline follows; one that outlasts many of its
+        time constants is the sheet changing under a frozen baseline (docs/classifier.md,
+        "Changed sheet"). Its END has confidence 0 and the reason in ``withdrawn``; no touch
+        STARTs until the sheet has stayed still over a window
+        (:class:`~eit_skin.touch.sheet_change.StillnessWindow`), then the classifier
+        calibrates again (baseline, noise maps, START gates) as at start-up.
+        """
+        limit_s = self.config.sheet_change_taus * self.config.baseline_tau_s
+        started = self.events.started_s
+        if not limit_s > 0 or started is None or t_s - started <= limit_s:
+            return []
+        self.sheet_changed = (
+            f"sheet changed: a 'touch' went on without a break for {t_s - started:.0f} s, "
+            f"longer than {self.config.sheet_change_taus:g} baseline time constants "
+            f"({limit_s:g} s): no touch but the sheet (damage, drying, an electrode); "
+            f"withdrawn; no touch until the sheet has stayed still for {limit_s:g} s, then the "
+            "classifier calibrates again"
+        )
+        events = self.events.withdraw(t_s, self.sheet_changed)
+        self._stillness = StillnessWindow(
+            self.background, started, limit_s, self.config.average_frames
+        )
+        self.background, self._t0 = None, None
+        self.pressure_noise_pa, self.stretch_noise = self._given_noise
+        return events
 
     def finish(self, t_s: float | None = None) -> list[TouchEvent]:
         """End a touch still going on at the end of a stream (END at its last contact)."""

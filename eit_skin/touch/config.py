@@ -123,6 +123,14 @@ class ClassifierConfig:
     # ---------------------------------------------------------------- event assembly
     end_hold_s: float = setting(0.1, "s", ">= 0", "time without contact before END")
     update_period_s: float = setting(0.1, "s", ">= 0", "shortest time between UPDATEs of one touch")
+    sheet_change_taus: float = setting(
+        12.0,
+        "baseline_tau_s",
+        ">= 0",
+        "a touch going on without a break for longer than this many baseline time constants is "
+        "the sheet changing (damage, drying, an electrode), not a touch: it ends withdrawn "
+        "(confidence 0), and once the sheet is still the classifier calibrates again; 0: off",
+    )
     count_frames: int = setting(3, "frames", ">= 1", "frames a contact count must be seen to count")
     strong_fraction: float = setting(
         0.5,

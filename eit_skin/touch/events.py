@@ -46,6 +46,8 @@ class TouchEvent:
         area_m2: total contact area, m^2.
         peak_pa: largest pressure of the current contacts, Pa.
         n_contacts: contacts in the frame.
+        withdrawn: why an END is no touch after all (the sheet changed under it; its
+            confidence is 0), empty for a touch.
     """
 
     touch_id: int
@@ -59,6 +61,7 @@ class TouchEvent:
     area_m2: float
     peak_pa: float
     n_contacts: int
+    withdrawn: str = ""
 
     @property
     def duration_s(self) -> float:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bench.standing.real_sessions import hydrogel_ohmc16_session
+from bench.standing.repeatability import disc_floor
 from eit_skin.calibration.localiser import (
     CalibrationError,
     PressLocaliser,
@@ -281,15 +282,22 @@ def test_probe_csv_pairs_each_press_with_its_frame(tmp_path, session):
         pair_probe_csv(session.reference, frames, t, probe)
 
 
-# k-fold localiser fits on the 500 real presses: ~30 s idle with 400 training presses
-# (136 s at load 15 on 2 cores)
-@pytest.mark.timeout(120)
-@pytest.mark.parametrize(("n_train", "goal_m"), [(100, 0.008), (400, 0.004)])
-def test_real_hydrogel_presses_meet_the_goals(n_train, goal_m):
-    """Issue 14's goals on the real robot-pressed hydrogel skin (centre guess: ~51 mm)."""
+def test_real_hydrogel_presses_meet_the_goals():
+    """Issue 14's goal on the real robot-pressed hydrogel skin at N = 100 (8 mm; centre
+    guess: ~51 mm), 5-fold: 3.1 mm median since the principal-component choice (was 5.0)."""
     layer = load_patch(HYDROGEL_PATCH).layers[0]
-    cv = cross_validate(hydrogel_ohmc16_session(), layer, folds=5, n_train=n_train)
-    assert np.median(cv.xy_error) < goal_m
+    cv = cross_validate(hydrogel_ohmc16_session(), layer, folds=5, n_train=100)
+    assert np.median(cv.xy_error) < 0.004
+
+
+# k-fold localiser fits on the 500 real presses with 400 training presses: ~10 s idle
+@pytest.mark.timeout(120)
+def test_real_hydrogel_at_400_presses_is_within_1_5x_its_repeatability_floor():
+    """Issue 37's goal on the same skin: N = 400 median error within 1.5x the floor of its
+    near-repeats (bench/standing/repeatability.py): 1.85 mm against 1.57 mm, 1.17x (before
+    the principal-component choice 2.6 mm, 1.38x)."""
+    disc = disc_floor()
+    assert disc.error[0] < 0.0022 and disc.ratio <= 1.5
 
 
 def test_presses_record_and_locate_read_full_layout_frames(tmp_path, capsys, session):

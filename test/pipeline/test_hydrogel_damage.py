@@ -3,6 +3,7 @@ converted sanely, and the damage recording is a changed sheet, never a stream of
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from bench.standing.real_sessions import load_real, multitouch_single_presses
 from eit_skin.calibration.localiser import PressLocaliser
 from eit_skin.calibration.online import MIN_CONFIDENCE, OnlineLocaliser
 from eit_skin.calibration.session import PressSession
+from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
@@ -91,3 +93,27 @@ def test_damage_is_reported_as_a_changed_sheet_not_a_stream_of_touches(hydrogel)
     assert "sheet changed" in online.sheet_changed and "not a touch" in online.sheet_changed
     assert not with_contacts or max(with_contacts) < changed_at
     assert len(with_contacts) <= limit / 8.0 + 1, with_contacts
+
+
+def test_classify_reports_the_damage_as_a_changed_sheet_not_a_touch(capsys) -> None:
+    """`eit-skin classify` (the classifier node's code) on the damage recording: the change
+    that outlasts the bound (12 baseline time constants, 60 s) is withdrawn and reported as a
+    changed sheet, once; the sheet never stays still again, so no touch follows (before: one
+    'grab' from 32 s to 6648 s)."""
+    code = main(
+        [
+            "classify",
+            "--patch",
+            str(REAL / "hydrogel_ohmc16.yaml"),
+            "--frames",
+            str(REAL / "hydrogel_damage.npz"),
+        ]
+    )
+    captured = capsys.readouterr()
+    lines = [json.loads(line) for line in captured.out.splitlines()]
+    assert code == 0
+    changed = [line for line in lines if line.get("kind") == "sheet_changed"]
+    touches = [line for line in lines if "label" in line]
+    assert len(changed) == 1 and "sheet changed" in changed[0]["reason"]
+    assert changed[0]["t"] < 200.0 and "sheet changed" in captured.err
+    assert not touches

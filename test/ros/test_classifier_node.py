@@ -68,6 +68,12 @@ def image_msg(grid: ImageGrid, k: int, values: np.ndarray) -> Image:
     return msg
 
 
+def fingertip_blob(grid: ImageGrid, centre: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(xx [H, W] m, blob [H, W] Pa)``: the pixel x and a 6 kPa fingertip at ``centre``."""
+    xx, yy = np.meshgrid(grid.x, grid.y)
+    return xx, 6000.0 * np.exp(-((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2) / 2e-5)
+
+
 def classifier_probe(name: str, topics, pressure: str):
     """``(probe, publisher)``: a probe hearing the classifier's events, contacts and
     diagnostics, and a publisher of the ``pressure`` layer's images."""
@@ -160,9 +166,7 @@ def test_blob_appears_stays_disappears(tmp_path, make_case) -> None:
             lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
         )
         rng = np.random.default_rng(0)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
 
         def send(k: int, touch: bool) -> list[tuple]:
             sent = []
@@ -245,9 +249,7 @@ def test_raw_frames_of_the_same_stamp_tell_a_close_pinch_from_a_push(tmp_path) -
             lambda: pub.get_subscription_count() and frames_pub.get_subscription_count(), EVENT_S
         ), log.read_text()
         rng = np.random.default_rng(1)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
         sigma = 1e-5 * (1 + rng.random(m))
         reference = 0.01 + 0.05 * rng.random(m)
         push = rng.normal(size=m)
@@ -347,9 +349,7 @@ def test_events_take_the_calibrated_position_of_the_same_stamp(tmp_path) -> None
             lambda: probe.node.count_publishers(topics.touch_events) > 0, EVENT_S
         )
         rng = np.random.default_rng(0)
-        xx, yy = np.meshgrid(grid.x, grid.y)
-        cx, cy = case.centre
-        blob = 6000.0 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 2e-5)
+        xx, blob = fingertip_blob(grid, case.centre)
 
         def send(k: int, touch: bool) -> list[tuple]:
             image = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
@@ -504,6 +504,74 @@ def test_images_that_do_not_fit_are_counted_dropped_and_logged_once(tmp_path) ->
         text = log.read_text()
         lines = text.count("does not match the patch grid") + text.count("is shorter than")
         assert 1 <= lines <= 1 + (time.monotonic() - started) / REJECT_LOG_PERIOD_S, text
+    finally:
+        assert stop_node(node) == 0, log.read_text()
+        probe.close()
+
+
+def test_a_touch_that_never_ends_is_withdrawn_as_a_changed_sheet(tmp_path) -> None:
+    """baseline_tau_s 0.1 s x sheet_change_taus 5: a blob that stays on for longer than 0.5 s
+    of image time is the sheet changing (docs/classifier.md, "Changed sheet"): its END has
+    confidence 0, the node logs the reason, and /diagnostics turns WARN naming it
+    (``sheet_changed``) and counts it (``sheet_changes``)."""
+    case = elbow(tmp_path)
+    patch = load_patch(config_path(case.config))
+    topics = patch_topics(patch, "/elbow_changed_test")
+    grid = layer_image_grid(patch.layer(case.pressure))
+    probe, pub = classifier_probe("changed_sheet_probe", topics, case.pressure)
+    log = tmp_path / "classifier.log"
+    params = {
+        "patch_config": case.config,
+        "diagnostics_period_s": 0.02,
+        "baseline_tau_s": 0.1,
+        "sheet_change_taus": 5.0,
+    }
+    node = start_node("eit_classifier", topics.namespace, params, log)
+    try:
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, EVENT_S), log.read_text()
+        rng = np.random.default_rng(2)
+        xx, blob = fingertip_blob(grid, case.centre)
+
+        def send(k: int, touch: bool) -> list[tuple]:
+            msg = image_msg(grid, k, 10.0 * rng.standard_normal(xx.shape) + touch * blob)
+            pub.publish(msg)
+            return [(pub, msg)]
+
+        contacts = probe.messages[topics.contacts]
+        k = preroll(probe, send, contacts, log)
+        for _ in range(30):  # 0.6 s quiet
+            wait_for_contacts(probe, contacts, send(k, False))
+            k += 1
+        events = probe.messages[topics.touch_events]
+
+        def withdrawn() -> bool:
+            return any(m.state == TouchEvent.END for _, m in events)
+
+        deadline = time.monotonic() + EVENT_S
+        while not withdrawn() and time.monotonic() < deadline:  # the blob stays on
+            seen = images(probe)
+            send(k, True)
+            k += 1
+            probe.spin_until(lambda seen=seen: withdrawn() or images(probe) > seen, 1.0)
+        assert withdrawn(), (classifier_values(probe), log.read_text())
+        touch = [m for _, m in events]
+        assert touch[0].state == TouchEvent.START and {m.id for m in touch} == {touch[0].id}
+        end = touch[-1]
+        assert end.state == TouchEvent.END and end.confidence == 0.0
+        assert end.duration.sec + 1e-9 * end.duration.nanosec > 0.5
+
+        def warned() -> bool:
+            return any(
+                s.level[0] == 1 and s.message.startswith("sheet changed")
+                for _, m in probe.messages[DIAGNOSTICS]
+                for s in m.status
+                if "touch classifier" in s.name
+            )
+
+        assert probe.spin_until(warned, EVENT_S), classifier_values(probe)
+        values = classifier_values(probe)
+        assert values["sheet_changes"] == "1"
+        assert probe.spin_until(lambda: "sheet changed" in log.read_text(), EVENT_S)
     finally:
         assert stop_node(node) == 0, log.read_text()
         probe.close()
