@@ -232,6 +232,7 @@ class TouchFilter:
         self._disc = disc_rel[self.inside]  # [P, M]
         self._nuisance = None if nuisance_rel is None else np.asarray(nuisance_rel, float)
         self._rows: np.ndarray | None = None  # [P, M'] projected, unit-norm rows
+        self._norms: np.ndarray | None = None  # [P] the projected rows' norms before that
         self._usable: np.ndarray | None = None
 
     def statistic(self, change, sigma, reference) -> np.ndarray:
@@ -249,8 +250,64 @@ class TouchFilter:
             basis, _ = np.linalg.qr(np.column_stack(columns))
             rows = rows - (rows @ basis) @ basis.T
             norm = np.linalg.norm(rows, axis=1, keepdims=True)
+            self._norms = norm[:, 0]
             self._rows = rows / np.maximum(norm, np.finfo(float).tiny)
         x = change[..., usable]
         out = np.full((*change.shape[:-1], *self.inside.shape), np.nan)
         out[..., self.inside] = x @ self._rows.T
         return out
+
+    def fit_discs(
+        self, change, sigma, reference, noise, k: float, fraction: float, most: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Fingertip discs that together explain one whitened change, by greedy pursuit.
+
+        The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
+        Then, up to ``most`` discs: the chosen discs' patterns are fitted to the change by
+        least squares, and the pixel best matching what they leave joins if its match stands
+        out of the map's noise (its value over ``noise`` above ``k``), every fitted
+        coefficient stays positive (a touch raises the conductivity) and its **amplitude**
+        (coefficient over its pattern's norm: the disc's relative conductivity change,
+        whatever the sensitivity there) is at least ``fraction`` of the largest. So a
+        pinch's or grab's other fingers join, while what one finger's pattern mismatch
+        leaves (a few per cent of its amplitude) and the noise do not.
+
+        Args:
+            change: ``[M]`` whitened change (NaN: channel left out).
+            sigma: ``[M]`` channel noise, V.
+            reference: ``[M]`` reference frame, V.
+            noise: ``[H, W]`` noise of the map of such changes (same unit as the map).
+            k: bar for a further disc, multiples of ``noise``.
+            fraction: smallest amplitude of a further disc, relative to the largest.
+            most: most discs (>= 1).
+
+        Returns:
+            ``(pixels, amplitudes)``: ``[D, 2]`` (row, column) pixel indices and ``[D]``
+            amplitudes, ``1 <= D <= most``, strongest first.
+        """
+        change = np.asarray(change, dtype=np.float64)
+        self.statistic(change, sigma, reference)  # the rows for these channels
+        x = change[self._usable]
+        rows, norms = self._rows, self._norms
+        scale = np.asarray(noise, dtype=np.float64)[self.inside]
+        inverse = np.where(scale > 0, 1.0 / np.where(scale > 0, scale, 1.0), 0.0)
+        chosen = [int(np.argmax(x @ rows.T))]
+        fit = rows[chosen] @ x
+        while len(chosen) < most:
+            basis = rows[chosen].T  # [M', D]
+            left = x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+            match = left @ rows.T  # the best match, not the best z: that leans to quiet pixels
+            match[chosen] = -np.inf
+            best = int(np.argmax(match))
+            if not match[best] * inverse[best] > k:
+                break
+            trial = [*chosen, best]
+            coef = np.linalg.lstsq(rows[trial].T, x, rcond=None)[0]
+            amplitude = coef / norms[trial]
+            if np.any(coef <= 0) or amplitude[-1] < fraction * amplitude.max():
+                break
+            chosen, fit = trial, coef
+        amplitude = fit / norms[chosen]
+        order = np.argsort(-amplitude)
+        pixels = np.argwhere(self.inside)[np.asarray(chosen)[order]]
+        return pixels, amplitude[order]
