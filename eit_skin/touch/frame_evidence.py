@@ -264,13 +264,15 @@ class TouchFilter:
 
         The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
         Then, up to ``most`` discs: the chosen discs' patterns are fitted to the change by
-        least squares, and the pixel best matching what they leave joins if its match stands
-        out of the map's noise (its value over ``noise`` above ``k``), every fitted
-        coefficient stays positive (a touch raises the conductivity) and its **amplitude**
-        (coefficient over its pattern's norm: the disc's relative conductivity change,
-        whatever the sensitivity there) is at least ``fraction`` of the largest. So a
-        pinch's or grab's other fingers join, while what one finger's pattern mismatch
-        leaves (a few per cent of its amplitude) and the noise do not.
+        least squares, and the pixel best matching what they leave is a candidate if its
+        match stands out of the map's noise (its value over ``noise`` above ``k``); every
+        disc is then moved in turn to the best match of what the others leave, until none
+        moves (:meth:`_polish`), and the candidate joins if every fitted coefficient stays
+        positive (a touch raises the conductivity) and every **amplitude** (coefficient
+        over its pattern's norm: the disc's relative conductivity change, whatever the
+        sensitivity there) is at least ``fraction`` of the largest. So a pinch's or grab's
+        other fingers join, while what one finger's pattern mismatch leaves (a few per cent
+        of its amplitude) and the noise do not.
 
         Args:
             change: ``[M]`` whitened change (NaN: channel left out).
@@ -291,23 +293,52 @@ class TouchFilter:
         rows, norms = self._rows, self._norms
         scale = np.asarray(noise, dtype=np.float64)[self.inside]
         inverse = np.where(scale > 0, 1.0 / np.where(scale > 0, scale, 1.0), 0.0)
-        chosen = [int(np.argmax(x @ rows.T))]
+        chosen = [self._best_match(x, [])]
         fit = rows[chosen] @ x
         while len(chosen) < most:
-            basis = rows[chosen].T  # [M', D]
-            left = x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
-            match = left @ rows.T  # the best match, not the best z: that leans to quiet pixels
-            match[chosen] = -np.inf
-            best = int(np.argmax(match))
-            if not match[best] * inverse[best] > k:
+            best = self._best_match(x, chosen)
+            if not (x - self._fitted(x, chosen)) @ rows[best] * inverse[best] > k:
                 break
-            trial = [*chosen, best]
+            trial = self._polish(x, [*chosen, best], most)
             coef = np.linalg.lstsq(rows[trial].T, x, rcond=None)[0]
             amplitude = coef / norms[trial]
-            if np.any(coef <= 0) or amplitude[-1] < fraction * amplitude.max():
+            if np.any(coef <= 0) or amplitude.min() < fraction * amplitude.max():
                 break
             chosen, fit = trial, coef
         amplitude = fit / norms[chosen]
         order = np.argsort(-amplitude)
         pixels = np.argwhere(self.inside)[np.asarray(chosen)[order]]
         return pixels, amplitude[order]
+
+    def _fitted(self, x: np.ndarray, chosen: list[int]) -> np.ndarray:
+        """``[M']`` least-squares fit of the ``chosen`` rows' patterns to ``x`` (0: none)."""
+        if not chosen:
+            return np.zeros_like(x)
+        basis = self._rows[chosen].T  # [M', D]
+        return basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+
+    def _best_match(self, x: np.ndarray, others: list[int]) -> int:
+        """The row (not one of ``others``) best matching what the ``others`` leave of ``x``.
+
+        The best match, not the best z-score: that would lean to quiet pixels.
+        """
+        match = (x - self._fitted(x, others)) @ self._rows.T
+        match[others] = -np.inf
+        return int(np.argmax(match))
+
+    def _polish(self, x: np.ndarray, chosen: list[int], rounds: int) -> list[int]:
+        """``chosen`` rows, each moved in turn to the best match of what the others leave.
+
+        Until none moves, at most ``rounds`` rounds: a greedy first disc lands between two
+        fingers (it matches both a little), and the second then beside the other one.
+        """
+        chosen = list(chosen)
+        for _ in range(rounds):
+            moved = False
+            for i in range(len(chosen)):
+                best = self._best_match(x, chosen[:i] + chosen[i + 1 :])
+                moved |= best != chosen[i]
+                chosen[i] = best
+            if not moved:
+                break
+        return chosen
