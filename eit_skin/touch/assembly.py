@@ -338,8 +338,8 @@ class EventAssembler:
         """The fingertip discs in this frame's raw change (``(pixels, amplitudes)``).
 
         :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs` on the change the
-        matched filter read, its detector's noise map, ``k_detect``, ``blob_fraction`` and at
-        most :data:`MAX_START_DISCS`; None without a filter map this frame.
+        matched filter read, its detector's noise map, ``blob_fraction`` and at most
+        :data:`MAX_START_DISCS`; None without a filter map this frame.
         """
         gates, cfg = self.gates, self.config
         change, start = gates.filter_change, gates.start_detector
@@ -351,7 +351,6 @@ class EventAssembler:
             evidence.sigma,
             evidence.reference,
             start.noise,
-            cfg.k_detect,
             cfg.blob_fraction,
             MAX_START_DISCS,
         )

@@ -258,14 +258,17 @@ class TouchFilter:
         return out
 
     def fit_discs(
-        self, change, sigma, reference, noise, k: float, fraction: float, most: int
+        self, change, sigma, reference, noise, fraction: float, most: int
     ) -> tuple[np.ndarray, np.ndarray]:
         """Fingertip discs that together explain one whitened change, by greedy pursuit.
 
         The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
         Then, up to ``most`` discs: the chosen discs' patterns are fitted to the change by
         least squares, and the pixel best matching what they leave is a candidate if its
-        match stands out of the map's noise (its value over ``noise`` above ``k``); every
+        match stands out of the map's noise: its value over ``noise`` above
+        ``sqrt(2 ln P)`` (``P`` pixels; the universal threshold of sparse estimation, about
+        the largest of ``P`` unit normals: the touch is already detected, the question is
+        only whether noise alone would match somewhere as well); every
         disc is then moved in turn to the best match of what the others leave, until none
         moves (:meth:`_polish`), and the candidate joins if every fitted coefficient stays
         positive (a touch raises the conductivity) and every **amplitude** (coefficient
@@ -279,7 +282,6 @@ class TouchFilter:
             sigma: ``[M]`` channel noise, V.
             reference: ``[M]`` reference frame, V.
             noise: ``[H, W]`` noise of the map of such changes (same unit as the map).
-            k: bar for a further disc, multiples of ``noise``.
             fraction: smallest amplitude of a further disc, relative to the largest.
             most: most discs (>= 1).
 
@@ -293,6 +295,7 @@ class TouchFilter:
         rows, norms = self._rows, self._norms
         scale = np.asarray(noise, dtype=np.float64)[self.inside]
         inverse = np.where(scale > 0, 1.0 / np.where(scale > 0, scale, 1.0), 0.0)
+        k = math.sqrt(2.0 * math.log(max(rows.shape[0], 2)))
         chosen = [self._best_match(x, [])]
         fit = rows[chosen] @ x
         while len(chosen) < most:
