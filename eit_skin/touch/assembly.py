@@ -33,9 +33,6 @@ from eit_skin.touch.frame_evidence import shape_change_z
 from eit_skin.touch.shapes import blob_moments
 from eit_skin.touch.start_gates import StartGates
 
-MAX_START_DISCS = 5
-"""Most fingertip discs a START's position is fitted with (a hand's fingers)."""
-
 
 class EventAssembler:
     """The touch going on and the evidence of a candidate before its START.
@@ -338,21 +335,15 @@ class EventAssembler:
         """The fingertip discs in this frame's raw change (``(pixels, amplitudes)``).
 
         :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs` on the change the
-        matched filter read, its detector's noise map, ``blob_fraction`` and at most
-        :data:`MAX_START_DISCS`; None without a filter map this frame.
+        matched filter read, its detector's noise map and ``blob_fraction``; None without a
+        filter map this frame.
         """
-        gates, cfg = self.gates, self.config
+        gates, evidence = self.gates, self.gates.evidence
         change, start = gates.filter_change, gates.start_detector
         if change is None or start is None or start.noise is None or gates.touch_filter is None:
             return None
-        evidence = gates.evidence
         return gates.touch_filter.fit_discs(
-            change,
-            evidence.sigma,
-            evidence.reference,
-            start.noise,
-            cfg.blob_fraction,
-            MAX_START_DISCS,
+            change, evidence.sigma, evidence.reference, start.noise, self.config.blob_fraction
         )
 
     def _early_estimate(self, discs: tuple[np.ndarray, np.ndarray] | None) -> EarlyEstimate:

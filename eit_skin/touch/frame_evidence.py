@@ -30,6 +30,8 @@ from eit_skin.patch.protocol import Protocol
 PLATEAU_FRACTION = 0.8
 #: Fewest plateau frames the statistic is computed from (6 regressors, at least 6 more).
 MIN_FRAMES = 12
+#: Most fingertip discs :meth:`TouchFilter.fit_discs` fits (a hand's fingers).
+MOST_DISCS = 5
 
 
 class FrameEvidence:
@@ -258,12 +260,12 @@ class TouchFilter:
         return out
 
     def fit_discs(
-        self, change, sigma, reference, noise, fraction: float, most: int
+        self, change, sigma, reference, noise, fraction: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """Fingertip discs that together explain one whitened change, by greedy pursuit.
 
         The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
-        Then, up to ``most`` discs: the chosen discs' patterns are fitted to the change by
+        Then, up to :data:`MOST_DISCS` discs: the chosen discs' patterns are fitted to the change by
         least squares, and the pixel best matching what they leave is a candidate if its
         match stands out of the map's noise: its value over ``noise`` above
         ``sqrt(2 ln P)`` (``P`` pixels; the universal threshold of sparse estimation, about
@@ -283,11 +285,10 @@ class TouchFilter:
             reference: ``[M]`` reference frame, V.
             noise: ``[H, W]`` noise of the map of such changes (same unit as the map).
             fraction: smallest amplitude of a further disc, relative to the largest.
-            most: most discs (>= 1).
 
         Returns:
             ``(pixels, amplitudes)``: ``[D, 2]`` (row, column) pixel indices and ``[D]``
-            amplitudes, ``1 <= D <= most``, strongest first.
+            amplitudes, ``1 <= D <= MOST_DISCS``, strongest first.
         """
         change = np.asarray(change, dtype=np.float64)
         self.statistic(change, sigma, reference)  # the rows for these channels
@@ -298,11 +299,11 @@ class TouchFilter:
         k = math.sqrt(2.0 * math.log(max(rows.shape[0], 2)))
         chosen = [self._best_match(x, [])]
         fit = rows[chosen] @ x
-        while len(chosen) < most:
+        while len(chosen) < MOST_DISCS:
             best = self._best_match(x, chosen)
             if not (x - self._fitted(x, chosen)) @ rows[best] * inverse[best] > k:
                 break
-            trial = self._polish(x, [*chosen, best], most)
+            trial = self._polish(x, [*chosen, best], MOST_DISCS)
             coef = np.linalg.lstsq(rows[trial].T, x, rcond=None)[0]
             amplitude = coef / norms[trial]
             if np.any(coef <= 0) or amplitude.min() < fraction * amplitude.max():

@@ -101,7 +101,7 @@ def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face
         rel = sum(a * disc[p] for a, p in zip(amplitudes, pixels, strict=True))
         change = reference * rel / sigma  # whitened: (v - reference) / sigma
         return TouchFilter(disc, inside, contact).fit_discs(
-            change, sigma, reference, noise, fraction, 5
+            change, sigma, reference, noise, fraction
         )
 
     found, amplitude = fit([0.02, 0.01])  # a pinch, one finger pressing half as hard
