@@ -336,15 +336,16 @@ class EventAssembler:
 
         :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs` on the change the
         matched filter read, its detector's noise map and ``blob_fraction``; None without a
-        filter map this frame.
+        filter map this frame or a disc in it.
         """
         gates, evidence = self.gates, self.gates.evidence
         change, start = gates.filter_change, gates.start_detector
         if change is None or start is None or start.noise is None or gates.touch_filter is None:
             return None
-        return gates.touch_filter.fit_discs(
+        discs = gates.touch_filter.fit_discs(
             change, evidence.sigma, evidence.reference, start.noise, self.config.blob_fraction
         )
+        return discs if discs[1].size else None
 
     def _early_estimate(self, discs: tuple[np.ndarray, np.ndarray] | None) -> EarlyEstimate:
         """Where, how large and how strong a touch is that no contact segmented yet.

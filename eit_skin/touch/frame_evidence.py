@@ -288,7 +288,8 @@ class TouchFilter:
 
         Returns:
             ``(pixels, amplitudes)``: ``[D, 2]`` (row, column) pixel indices and ``[D]``
-            amplitudes, ``1 <= D <= MOST_DISCS``, strongest first.
+            amplitudes (> 0), ``1 <= D <= MOST_DISCS``, strongest first; ``D = 0`` if no
+            pixel matches the change positively.
         """
         change = np.asarray(change, dtype=np.float64)
         self.statistic(change, sigma, reference)  # the rows for these channels
@@ -299,6 +300,8 @@ class TouchFilter:
         k = math.sqrt(2.0 * math.log(max(rows.shape[0], 2)))
         chosen = [self._best_match(x, [])]
         fit = rows[chosen] @ x
+        if not fit[0] > 0:  # nothing matches a touch
+            return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
         while len(chosen) < MOST_DISCS:
             best = self._best_match(x, chosen)
             if not (x - self._fitted(x, chosen)) @ rows[best] * inverse[best] > k:

@@ -115,6 +115,8 @@ def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face
     assert len(fit([0.02, 0.0])[0]) == 1
     assert len(fit([0.02, 0.004])[0]) == 1
     assert len(fit([0.02, 0.004], fraction=0.1)[0]) == 2
+    # no change at all: no disc (the START keeps the filter map's peak region)
+    assert len(fit([0.0, 0.0])[0]) == 0
 
 
 def test_a_simulated_pinch_starts_at_the_centre_of_its_fingers_not_on_one(face):
