@@ -430,13 +430,19 @@ def disc_centroid(
 ) -> np.ndarray:
     """``[2]`` m: the centre of a touch's contacts, each weighed by its strength.
 
-    The amplitude-weighted centroid of ``discs`` (``(pixels [D, 2], amplitudes [D])``,
-    :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs`) on the pixel grid ``xx``,
-    ``yy`` ``[H, W]``, m.
+    The amplitude-weighted centroid of ``discs`` (``(places [D, 2], amplitudes [D])``,
+    fractional (row, column) pixel indices:
+    :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs`) on the regular pixel grid
+    ``xx``, ``yy`` ``[H, W]``, m.
     """
-    pixels, amplitude = discs
-    at = np.column_stack([xx[pixels[:, 0], pixels[:, 1]], yy[pixels[:, 0], pixels[:, 1]]])
-    return amplitude @ at / amplitude.sum()
+    places, amplitude = discs
+    rows, columns = amplitude @ places / amplitude.sum()
+    return np.array(
+        [
+            np.interp(columns, np.arange(xx.shape[1]), xx[0]),
+            np.interp(rows, np.arange(yy.shape[0]), yy[:, 0]),
+        ]
+    )
 
 
 def early_estimate(
@@ -474,13 +480,14 @@ def early_estimate(
         yy: ``[H, W]`` pixel-centre y, m.
         fraction: blob weight fraction (``blob_fraction``).
         gain: ``confidence_gain``.
-        discs: ``(pixels [D, 2], amplitudes [D])`` or None.
+        discs: ``(places [D, 2] fractional (row, column) pixel indices, amplitudes [D])`` or
+            None.
     """
     values = np.where(np.isfinite(located), located, -np.inf)
     i, j = np.unravel_index(int(np.argmax(values)), values.shape)
     top = values[i, j]
     parts, _ = ndimage.label(values > fraction * top) if top > 0 else (np.zeros(values.shape), 0)
-    held = [(i, j)] if discs is None else [(i, j), *map(tuple, discs[0])]
+    held = [(i, j)] if discs is None else [(i, j), *map(tuple, np.rint(discs[0]).astype(int))]
     ids = {int(parts[p]) for p in held} - {0}
     region = np.isin(parts, list(ids)) if ids else np.zeros(values.shape, dtype=bool)
     region[i, j] = True

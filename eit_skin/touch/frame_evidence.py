@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.optimize import nnls
 
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.inverse.electrode_faults import row_medians
@@ -287,9 +288,10 @@ class TouchFilter:
             fraction: smallest amplitude of a further disc, relative to the largest.
 
         Returns:
-            ``(pixels, amplitudes)``: ``[D, 2]`` (row, column) pixel indices and ``[D]``
-            amplitudes (> 0), ``1 <= D <= MOST_DISCS``, strongest first; ``D = 0`` if no
-            pixel matches the change positively.
+            ``(places, amplitudes)``: ``[D, 2]`` fractional (row, column) pixel indices
+            (between pixel centres: :meth:`_between_pixels`) and ``[D]`` amplitudes (> 0),
+            ``1 <= D <= MOST_DISCS``, strongest first; ``D = 0`` if no pixel matches the
+            change positively.
         """
         change = np.asarray(change, dtype=np.float64)
         self.statistic(change, sigma, reference)  # the rows for these channels
@@ -312,10 +314,41 @@ class TouchFilter:
             if np.any(coef <= 0) or amplitude.min() < fraction * amplitude.max():
                 break
             chosen, fit = trial, coef
-        amplitude = fit / norms[chosen]
+        places, amplitude = self._between_pixels(x, chosen, fit / norms[chosen])
         order = np.argsort(-amplitude)
-        pixels = np.argwhere(self.inside)[np.asarray(chosen)[order]]
-        return pixels, amplitude[order]
+        return places[order], amplitude[order]
+
+    def _between_pixels(
+        self, x: np.ndarray, chosen: list[int], amplitude: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``([D, 2] (row, column), [D] amplitudes)`` of the ``chosen`` discs between pixels.
+
+        Each disc in turn: what the other discs leave of ``x`` (their coefficients in the
+        joint least-squares fit) is fitted, by non-negative
+        least squares, with the patterns of its pixel and the (up to) 8 around it; its
+        amplitude is the sum of theirs, its place (fractional pixel indices) their
+        amplitude-weighted mean. A contact lies between pixel centres, and near an electrode
+        the pattern changes so fast from one pixel to the next that the nearest pixel's
+        amplitude is off by up to 2x. A disc nothing fits there keeps its pixel and
+        ``amplitude``.
+        """
+        pixels = np.argwhere(self.inside)
+        index = np.full(self.inside.shape, -1)
+        index[self.inside] = np.arange(pixels.shape[0])
+        places = pixels[chosen].astype(np.float64)
+        amplitude = np.array(amplitude, dtype=np.float64)
+        coef = np.linalg.lstsq(self._rows[chosen].T, x, rcond=None)[0]  # the joint fit
+        for i, p in enumerate(chosen):
+            others = chosen[:i] + chosen[i + 1 :]
+            left = x - self._rows[others].T @ np.delete(coef, i)
+            r, c = pixels[p]
+            block = index[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2].ravel()
+            block = block[block >= 0]
+            local = nnls(self._rows[block].T, left)[0] / self._norms[block]
+            if local.sum() > 0:
+                places[i] = local @ pixels[block] / local.sum()
+                amplitude[i] = local.sum()
+        return places, amplitude
 
     def _fitted(self, x: np.ndarray, chosen: list[int]) -> np.ndarray:
         """``[M']`` least-squares fit of the ``chosen`` rows' patterns to ``x`` (0: none)."""
