@@ -332,7 +332,7 @@ class EventAssembler:
         touch.label, touch.confidence = decide(features, self.config)
 
     def _discs(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The fingertip discs in this frame's raw change (``(pixels, amplitudes)``).
+        """The fingertip discs in this frame's raw change (``(places, amplitudes)``).
 
         :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs` on the change the
         matched filter read, its detector's noise map and ``blob_fraction``; None without a
@@ -436,13 +436,9 @@ def disc_centroid(
     ``xx``, ``yy`` ``[H, W]``, m.
     """
     places, amplitude = discs
-    rows, columns = amplitude @ places / amplitude.sum()
-    return np.array(
-        [
-            np.interp(columns, np.arange(xx.shape[1]), xx[0]),
-            np.interp(rows, np.arange(yy.shape[0]), yy[:, 0]),
-        ]
-    )
+    row, column = amplitude @ places / amplitude.sum()
+    dx, dy = xx[0, 1] - xx[0, 0], yy[1, 0] - yy[0, 0]  # the grid's steps (either sign)
+    return np.array([xx[0, 0] + column * dx, yy[0, 0] + row * dy])
 
 
 def early_estimate(
