@@ -236,12 +236,13 @@ the fitted `negative_input_gain` is the board's.
   input (residual of the unloaded frame 71 % -> 52 %; the pattern study's g+/g- = 0.86 is the
   same 1 / 1.16); the prior alone, no real press used for position, now places presses at 33.4
   / 54.7 mm (was 51.6 / 67.8 mm with a piezoresistive press and matched inputs; the centre 51
-  mm). With it, leave-one-out keeps the prior in most folds (features, weight 2), and the
-  localiser gains from 50 presses on: N = 50 6.7 -> 6.2 mm median, N = 100 5.0 -> 4.8, N = 200
-  3.2 / 8.5 -> 3.1 / 7.5, N = 400 2.6 / 6.1 -> 2.3 / 5.3 mm (median / p90), where the old
-  prior was dropped. At N = 25 the median is 0.5 mm worse (9.7 -> 10.2 mm) and the p90 better
-  (35.4 -> 34.0 mm): within the fold noise either way. The issue's goals (N = 50 <= 3.5 mm, N
-  = 100 <= 2.5 mm) are **not** met. Why: the model still explains only half of the unloaded
+  mm). Before the principal-component projection, leave-one-out kept the prior in most folds
+  and it gained from 50 presses on (N = 50 6.7 -> 6.2 mm median, N = 400 2.6 / 6.1 -> 2.3 /
+  5.3 mm). With the projection the plain localiser is better than that at every size (N = 50
+  4.2 mm, N = 100 3.1, N = 400 1.8 / 4.0 mm) and leave-one-out drops the prior in every fold
+  at every size, so on this skin the default (`prior (both)`) equals `shipped` exactly. The
+  issue's goals (N = 50 <= 3.5 mm, N = 100 <= 2.5 mm) are **not** met. Why the prior does not
+  help more here: the model still explains only half of the unloaded
   frame and the per-press patterns correlate weakly with the model's at the true positions
   (median r over 200 presses, channels scaled by their spread: 0.32 with the fitted gain, 0.23
   with matched inputs, -0.23 with a piezoresistive press), and no single gain gets every pair
@@ -256,23 +257,24 @@ the fitted `negative_input_gain` is the board's.
   indentation is more than a thinned disc.
 - **Simulated skins** (the model describes the skin; other presses, noise and drift): the
   prior alone locates presses to 1.2-1.7 mm median; with it the localiser needs ~25 presses
-  for what took 100-200 without (hydrogel, now a thinning gel: 9.1 -> 1.9 mm median at N = 25;
-  elbow 6.5 -> 2.3 mm) and stays better at N = 400 (p90 0.8 -> 0.5, 3.7 -> 1.5 mm). The mean
-  function wins at small N, the features at large N (the kernel then corrects the prior where
-  it is off); `auto` (both) follows the better one. The elbow "simulated on another device"
-  (contact impedance x 10, conductance x 2, and now unequal inputs, g = 1.15) is calibrated
-  from its unloaded frame by the device fit (g found: 1.150, residual 74 % -> 0 %); with the
-  prior 6.7 -> 2.5 mm median at N = 25, 1.0 / 2.6 -> 0.7 / 1.8 mm at N = 400.
+  for what took 100-200 without (`shipped` -> `prior (both)` at N = 25: hydrogel, now a
+  thinning gel, 8.9 -> 1.9 mm median; elbow 7.2 -> 2.3 mm) and is as good or better at N = 400
+  (p90 0.7 -> 0.5, 2.2 -> 1.5 mm). The mean function wins at small N, the features at large N
+  (the kernel then corrects the prior where it is off); `auto` (both) follows the better one.
+  The elbow "simulated on another device" (contact impedance x 10, conductance x 2, and now
+  unequal inputs, g = 1.15) is calibrated from its unloaded frame by the device fit (g found:
+  1.150, residual 74 % -> 0 %); with the prior 7.1 -> 2.5 mm median at N = 25, and 0.7 / 1.7
+  -> 0.8 / 1.7 mm at N = 400 (a tenth of a millimetre, within the fold noise).
 - **Wrong priors** (test/calibration/test_physics_prior.py): a prior trained on shuffled
   positions is switched off (the plain model, exactly, at N = 200); a mirrored one is learnt
   through the features mode and still helps (the kernel learns the warp). A board with unequal
   inputs the patch does not know is calibrated into the prior from the unloaded frame.
 - Hence the prior is **on by default** in `eit-skin calibrate` (`--physics-prior 0` turns it
-  off): it helps or is neutral at every size on every set here, never costs a large session
-  anything, and on the real skin it is the best method from N = 50 on. It costs a device fit
-  and a simulation (6-14 s for 500 presses on this shared machine, plus the meshes on a
-  patch's first run) and 2-4x the fit time; where the model cannot be fitted to the unloaded
-  frame the default prior is left out with a note.
+  off): on the simulated skins it is the best method up to N = 200 and within the fold noise
+  at N = 400; on the real skin leave-one-out drops it and the result is the plain localiser's,
+  exactly. It costs a device fit and a simulation (6-14 s for 500 presses on this shared
+  machine, plus the meshes on a patch's first run) and 2-4x the fit time; where the model
+  cannot be fitted to the unloaded frame the default prior is left out with a note.
 """
 
 

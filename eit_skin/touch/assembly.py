@@ -169,14 +169,17 @@ class EventAssembler:
         touch.faulty = [self.gates.faulty] * len(touch.changes)
         self._run_shapes = []
         self._run_changes = []
+        discs = self._discs()
         if contacts:
             self._observe_contacts(touch, t_s, contacts, stretch_peak, shape)
         else:  # the pooled detector saw it first: no contact segmented yet
             self.tracker.reset()
             touch.t_last_s = t_s
-            touch.early = self._early_estimate()
+            touch.early = self._early_estimate(discs)
         self._relabel(touch)
-        return [self._event(touch, "start", t_s)]
+        # the raw frames' discs place a START better than its first, partial contacts
+        at = None if discs is None else disc_centroid(discs, self._xx, self._yy)
+        return [self._event(touch, "start", t_s, at)]
 
     def _follow(self, touch: OngoingTouch, t_s, contacts, stretch_peak, shape) -> list[TouchEvent]:
         """UPDATE, END or nothing for ``touch``, going on (arguments as :meth:`advance`)."""
@@ -190,7 +193,7 @@ class EventAssembler:
                 if seeing.hit and t_s - touch.t_start_s < cfg.confirm_s - 1e-9:
                     touch.t_last_s = t_s
                     touch.missing = 0
-                    touch.early = self._early_estimate()
+                    touch.early = self._early_estimate(self._discs())
                     return self._maybe_update(touch, t_s)
                 if t_s - touch.t_start_s >= cfg.confirm_s - 1e-9:
                     return self._end(touch, t_s)
@@ -339,12 +342,29 @@ class EventAssembler:
         self.last_features = features
         touch.label, touch.confidence = decide(features, self.config)
 
-    def _early_estimate(self) -> EarlyEstimate:
+    def _discs(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The fingertip discs in this frame's raw change (``(places, amplitudes)``).
+
+        :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs` on the change the
+        matched filter read, its detector's noise map and ``blob_fraction``; None without a
+        filter map this frame or a disc in it.
+        """
+        gates, evidence = self.gates, self.gates.evidence
+        change, start = gates.filter_change, gates.start_detector
+        if change is None or start is None or start.noise is None or gates.touch_filter is None:
+            return None
+        discs = gates.touch_filter.fit_discs(
+            change, evidence.sigma, evidence.reference, start.noise, self.config.blob_fraction
+        )
+        return discs if discs[1].size else None
+
+    def _early_estimate(self, discs: tuple[np.ndarray, np.ndarray] | None) -> EarlyEstimate:
         """Where, how large and how strong a touch is that no contact segmented yet.
 
-        From the evidence that fired it (:func:`early_estimate`): the raw frames' matched
-        filter map when there is one, else the pooled image's z-scores; this frame's
-        :attr:`signal` for area and peak; the detector that sees it for the confidence.
+        From the evidence that fired it (:func:`early_estimate`): the raw frames' ``discs``
+        and matched filter map when there are, else the pooled image's z-scores; this
+        frame's :attr:`signal` for area and peak; the detector that sees it for the
+        confidence.
         """
         gates = self.gates
         start = gates.start_detector
@@ -357,9 +377,13 @@ class EventAssembler:
             self._yy,
             self.config.blob_fraction,
             self.config.confidence_gain,
+            discs,
         )
 
-    def _event(self, touch: OngoingTouch, state: str, t_s: float) -> TouchEvent:
+    def _event(
+        self, touch: OngoingTouch, state: str, t_s: float, at: np.ndarray | None = None
+    ) -> TouchEvent:
+        """The event of ``touch`` at ``t_s``; ``at``: its position, m, if known better."""
         contacts = touch.last_contacts
         early = touch.early if not contacts else None
         if contacts:
@@ -372,6 +396,8 @@ class EventAssembler:
             strong = shapes["peak"] >= self.config.strong_fraction * shapes["peak"].max()
             latest = shapes[np.flatnonzero(strong)[-1]]
             centroid = (latest["x_m"], latest["y_m"])
+        if at is not None:
+            centroid = at
         confidence = float(touch.confidence)
         if early is not None:  # no contact yet: no surer than the evidence
             confidence = min(confidence, early.confidence)
@@ -410,6 +436,22 @@ class EarlyEstimate:
     confidence: float
 
 
+def disc_centroid(
+    discs: tuple[np.ndarray, np.ndarray], xx: np.ndarray, yy: np.ndarray
+) -> np.ndarray:
+    """``[2]`` m: the centre of a touch's contacts, each weighed by its strength.
+
+    The amplitude-weighted centroid of ``discs`` (``(places [D, 2], amplitudes [D])``,
+    fractional (row, column) pixel indices:
+    :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs`) on the regular pixel grid
+    ``xx``, ``yy`` ``[H, W]``, m.
+    """
+    places, amplitude = discs
+    row, column = amplitude @ places / amplitude.sum()
+    dx, dy = xx[0, 1] - xx[0, 0], yy[1, 0] - yy[0, 0]  # the grid's steps (either sign)
+    return np.array([xx[0, 0] + column * dx, yy[0, 0] + row * dy])
+
+
 def early_estimate(
     located: np.ndarray,
     signal: np.ndarray | None,
@@ -418,17 +460,22 @@ def early_estimate(
     yy: np.ndarray,
     fraction: float,
     gain: float,
+    discs: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> EarlyEstimate:
     """Position, area, peak and confidence of a touch a pooled detector STARTed.
 
-    **Position**: the centroid of the connected region of ``located`` above ``fraction`` of
+    **Position**: with ``discs`` (the fingertip discs the raw frames show,
+    :meth:`~eit_skin.touch.frame_evidence.TouchFilter.fit_discs`), their amplitude-weighted
+    centroid (:func:`disc_centroid`): the centre of a pinch's or grab's contacts, not one
+    finger's. Else the centroid of the connected region of ``located`` above ``fraction`` of
     its largest value holding that value, weighed ``located - fraction * peak`` (as
     :func:`~eit_skin.touch.shapes.blob_moments`). With the raw frames, ``located`` is the
     matched filter's map (the best-matching fingertip positions); the pooled image's z-scores
     otherwise. Neither the pooled image itself nor the averaged image: in the first frames of
     a touch their peaks lie tens of mm off (docs/classifier.md, "START position").
-    **Peak**: the largest value of ``signal`` in that region, Pa; **area**: the region's
-    pixels with ``signal`` at or above half that peak, m^2 (0 without a positive peak).
+    **Peak**: the largest value of ``signal`` in the regions of ``located`` above ``fraction``
+    of its largest value that hold that value or a disc, Pa; **area**: their pixels with
+    ``signal`` at or above half that peak, m^2 (0 without a positive peak).
     **Confidence**: ``0.5 + 0.5 tanh(gain (z_max - k) / k)`` of the ``detector`` that fired
     (0.5 on its threshold ``k``).
 
@@ -440,14 +487,21 @@ def early_estimate(
         yy: ``[H, W]`` pixel-centre y, m.
         fraction: blob weight fraction (``blob_fraction``).
         gain: ``confidence_gain``.
+        discs: ``(places [D, 2] fractional (row, column) pixel indices, amplitudes [D])`` or
+            None.
     """
     values = np.where(np.isfinite(located), located, -np.inf)
     i, j = np.unravel_index(int(np.argmax(values)), values.shape)
     top = values[i, j]
     parts, _ = ndimage.label(values > fraction * top) if top > 0 else (np.zeros(values.shape), 0)
-    region = parts == parts[i, j] if parts[i, j] > 0 else np.zeros(values.shape, dtype=bool)
+    held = [(i, j)] if discs is None else [(i, j), *map(tuple, np.rint(discs[0]).astype(int))]
+    ids = {int(parts[p]) for p in held} - {0}
+    region = np.isin(parts, list(ids)) if ids else np.zeros(values.shape, dtype=bool)
     region[i, j] = True
-    _, x, y, *_ = blob_moments(np.where(region, located, 0.0), xx, yy, fraction, region)
+    if discs is not None:
+        x, y = disc_centroid(discs, xx, yy)
+    else:
+        _, x, y, *_ = blob_moments(np.where(region, located, 0.0), xx, yy, fraction, region)
     if not (np.isfinite(x) and np.isfinite(y)):
         x, y = xx[i, j], yy[i, j]
     peak, area = 0.0, 0.0

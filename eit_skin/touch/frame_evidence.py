@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.optimize import nnls
 
 from eit_skin.inverse.channel_noise import difference_noise
 from eit_skin.inverse.electrode_faults import row_medians
@@ -30,6 +31,8 @@ from eit_skin.patch.protocol import Protocol
 PLATEAU_FRACTION = 0.8
 #: Fewest plateau frames the statistic is computed from (6 regressors, at least 6 more).
 MIN_FRAMES = 12
+#: Most fingertip discs :meth:`TouchFilter.fit_discs` fits (a hand's fingers).
+MOST_DISCS = 5
 
 
 class FrameEvidence:
@@ -232,6 +235,7 @@ class TouchFilter:
         self._disc = disc_rel[self.inside]  # [P, M]
         self._nuisance = None if nuisance_rel is None else np.asarray(nuisance_rel, float)
         self._rows: np.ndarray | None = None  # [P, M'] projected, unit-norm rows
+        self._norms: np.ndarray | None = None  # [P] the projected rows' norms before that
         self._usable: np.ndarray | None = None
 
     def statistic(self, change, sigma, reference) -> np.ndarray:
@@ -249,8 +253,132 @@ class TouchFilter:
             basis, _ = np.linalg.qr(np.column_stack(columns))
             rows = rows - (rows @ basis) @ basis.T
             norm = np.linalg.norm(rows, axis=1, keepdims=True)
+            self._norms = norm[:, 0]
             self._rows = rows / np.maximum(norm, np.finfo(float).tiny)
         x = change[..., usable]
         out = np.full((*change.shape[:-1], *self.inside.shape), np.nan)
         out[..., self.inside] = x @ self._rows.T
         return out
+
+    def fit_discs(
+        self, change, sigma, reference, noise, fraction: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Fingertip discs that together explain one whitened change, by greedy pursuit.
+
+        The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
+        Then, up to :data:`MOST_DISCS` discs: the chosen discs' patterns are fitted to the change by
+        least squares, and the pixel best matching what they leave is a candidate if its
+        match stands out of the map's noise: its value over ``noise`` above
+        ``sqrt(2 ln P)`` (``P`` pixels; the universal threshold of sparse estimation, about
+        the largest of ``P`` unit normals: the touch is already detected, the question is
+        only whether noise alone would match somewhere as well); every
+        disc is then moved in turn to the best match of what the others leave, until none
+        moves (:meth:`_polish`), and the candidate joins if every fitted coefficient stays
+        positive (a touch raises the conductivity) and every **amplitude** (coefficient
+        over its pattern's norm: the disc's relative conductivity change, whatever the
+        sensitivity there) is at least ``fraction`` of the largest. So a pinch's or grab's
+        other fingers join, while what one finger's pattern mismatch leaves (a few per cent
+        of its amplitude) and the noise do not.
+
+        Args:
+            change: ``[M]`` whitened change (NaN: channel left out).
+            sigma: ``[M]`` channel noise, V.
+            reference: ``[M]`` reference frame, V.
+            noise: ``[H, W]`` noise of the map of such changes (same unit as the map).
+            fraction: smallest amplitude of a further disc, relative to the largest.
+
+        Returns:
+            ``(places, amplitudes)``: ``[D, 2]`` fractional (row, column) pixel indices
+            (between pixel centres: :meth:`_between_pixels`) and ``[D]`` amplitudes (> 0),
+            ``1 <= D <= MOST_DISCS``, strongest first; ``D = 0`` if no pixel matches the
+            change positively.
+        """
+        change = np.asarray(change, dtype=np.float64)
+        self.statistic(change, sigma, reference)  # the rows for these channels
+        x = change[self._usable]
+        rows, norms = self._rows, self._norms
+        scale = np.asarray(noise, dtype=np.float64)[self.inside]
+        inverse = np.where(scale > 0, 1.0 / np.where(scale > 0, scale, 1.0), 0.0)
+        k = math.sqrt(2.0 * math.log(max(rows.shape[0], 2)))
+        chosen = [self._best_match(x, [])]
+        fit = rows[chosen] @ x
+        if not fit[0] > 0:  # nothing matches a touch
+            return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+        while len(chosen) < MOST_DISCS:
+            best = self._best_match(x, chosen)
+            if not (x - self._fitted(x, chosen)) @ rows[best] * inverse[best] > k:
+                break
+            trial = self._polish(x, [*chosen, best], MOST_DISCS)
+            coef = np.linalg.lstsq(rows[trial].T, x, rcond=None)[0]
+            amplitude = coef / norms[trial]
+            if np.any(coef <= 0) or amplitude.min() < fraction * amplitude.max():
+                break
+            chosen, fit = trial, coef
+        places, amplitude = self._between_pixels(x, chosen, fit / norms[chosen])
+        order = np.argsort(-amplitude)
+        return places[order], amplitude[order]
+
+    def _between_pixels(
+        self, x: np.ndarray, chosen: list[int], amplitude: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``([D, 2] (row, column), [D] amplitudes)`` of the ``chosen`` discs between pixels.
+
+        Each disc in turn: what the other discs leave of ``x`` (their coefficients in the
+        joint least-squares fit) is fitted, by non-negative
+        least squares, with the patterns of its pixel and the (up to) 8 around it; its
+        amplitude is the sum of theirs, its place (fractional pixel indices) their
+        amplitude-weighted mean. A contact lies between pixel centres, and near an electrode
+        the pattern changes so fast from one pixel to the next that the nearest pixel's
+        amplitude is off by up to 2x. A disc nothing fits there keeps its pixel and
+        ``amplitude``.
+        """
+        pixels = np.argwhere(self.inside)
+        index = np.full(self.inside.shape, -1)
+        index[self.inside] = np.arange(pixels.shape[0])
+        places = pixels[chosen].astype(np.float64)
+        amplitude = np.array(amplitude, dtype=np.float64)
+        coef = np.linalg.lstsq(self._rows[chosen].T, x, rcond=None)[0]  # the joint fit
+        for i, p in enumerate(chosen):
+            others = chosen[:i] + chosen[i + 1 :]
+            left = x - self._rows[others].T @ np.delete(coef, i)
+            r, c = pixels[p]
+            block = index[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2].ravel()
+            block = block[block >= 0]
+            local = nnls(self._rows[block].T, left)[0] / self._norms[block]
+            if local.sum() > 0:
+                places[i] = local @ pixels[block] / local.sum()
+                amplitude[i] = local.sum()
+        return places, amplitude
+
+    def _fitted(self, x: np.ndarray, chosen: list[int]) -> np.ndarray:
+        """``[M']`` least-squares fit of the ``chosen`` rows' patterns to ``x`` (0: none)."""
+        if not chosen:
+            return np.zeros_like(x)
+        basis = self._rows[chosen].T  # [M', D]
+        return basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+
+    def _best_match(self, x: np.ndarray, others: list[int]) -> int:
+        """The row (not one of ``others``) best matching what the ``others`` leave of ``x``.
+
+        The best match, not the best z-score: that would lean to quiet pixels.
+        """
+        match = (x - self._fitted(x, others)) @ self._rows.T
+        match[others] = -np.inf
+        return int(np.argmax(match))
+
+    def _polish(self, x: np.ndarray, chosen: list[int], rounds: int) -> list[int]:
+        """``chosen`` rows, each moved in turn to the best match of what the others leave.
+
+        Until none moves, at most ``rounds`` rounds: a greedy first disc lands between two
+        fingers (it matches both a little), and the second then beside the other one.
+        """
+        chosen = list(chosen)
+        for _ in range(rounds):
+            moved = False
+            for i in range(len(chosen)):
+                best = self._best_match(x, chosen[:i] + chosen[i + 1 :])
+                moved |= best != chosen[i]
+                chosen[i] = best
+            if not moved:
+                break
+        return chosen

@@ -53,6 +53,8 @@ class StartGates:
         start_detector: the matched filter's detector (None without raw frames).
         flicker: the sheet's flicker in the latest frame it was computed for.
         faulty: electrodes the imaging leaves out (sorted; their channels are left out).
+        filter_change: ``[M]`` the whitened change the matched filter read this frame (its
+            running mean; NaN: channel left out), or None (no filter map this frame).
     """
 
     def __init__(
@@ -72,6 +74,7 @@ class StartGates:
         self._armed = True
         self._start_armed = True
         self._start_fresh = False  # the filter's map is of this frame
+        self.filter_change: np.ndarray | None = None
         self._raws: list[np.ndarray] = []  # the latest average_frames + 1 raw images
         self._whites: list[np.ndarray] = []  # the latest 3 whitened raw frames (volts given)
         self._rough: list[tuple[float, float, float]] = []  # per candidate frame
@@ -137,10 +140,12 @@ class StartGates:
         n = 0 if start is None else start.frames_per_sample
         # a running mean of n raw frames, as calibrated (none yet: the image decides)
         self._start_fresh = start is not None and len(self._whites) >= n
+        self.filter_change = None
         if self._start_fresh:
             start.rising = self.detector.rising
             change = np.mean(self._whites[-n:], axis=0)
             change[~self.evidence.usable(faulty)] = np.nan
+            self.filter_change = change
             filtered = start.update_pooled(self._filtered(change))
             self._start_armed = self._start_armed or not start.hit
             # an electrode's channels flickering like a fault START nothing

@@ -10,11 +10,12 @@ import pytest
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
+from eit_skin.sim.scripts import builtin_scenario
 from eit_skin.sim.simulator import SkinSimulator
-from eit_skin.touch.assembly import early_estimate
+from eit_skin.touch.assembly import disc_centroid, early_estimate
 from eit_skin.touch.classifier import TouchClassifier, classify_stream
 from eit_skin.touch.contacts import PooledDetector
-from eit_skin.touch.frame_evidence import channel_electrodes
+from eit_skin.touch.frame_evidence import TouchFilter, channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
 
 
@@ -39,23 +40,34 @@ def test_the_early_estimate_is_the_located_maps_peak_region_and_the_images_half_
 
 
 @pytest.fixture(scope="module")
-def face_push(tmp_path_factory):
-    """Events of the simulator's push on the face, classified with its raw frames (as the node)."""
+def face(tmp_path_factory):
+    """The face patch, its imager and the classifier's fingertip patterns (built once)."""
     patch = load_patch(config_path("face"))
     imager = LayerImager.build(patch.layers[0], cache_dir=tmp_path_factory.mktemp("cache"))
-    rec = SkinSimulator(patch, "push", 50.0, seed=3).run()
+    disc, contact = raw_patterns(patch.layers[0], imager)
+    return patch, imager, disc, contact, single_contact_spread(imager)
+
+
+def simulated_events(face, script: str, seed: int):
+    """Events of a built-in ``script`` on the face, classified with its raw frames (as the node)."""
+    patch, imager, disc, contact, spread = face
+    rec = SkinSimulator(patch, script, 50.0, seed=seed).run()
     layer = rec.layers[patch.layers[0].name]
     images = imager.physical(imager.images(imager.relative_change(layer.frames, layer.reference)))
-    disc, contact = raw_patterns(patch.layers[0], imager)
     clf = TouchClassifier(
         imager.grid.x,
         imager.grid.y,
-        contact_spread_m=single_contact_spread(imager),
+        contact_spread_m=spread,
         channel_electrodes=channel_electrodes(imager.protocol),
         disc_rel=disc,
         contact_rel=contact,
     )
     return classify_stream(clf, rec.t, images, None, layer.frames), rec.truth
+
+
+@pytest.fixture(scope="module")
+def face_push(face):
+    return simulated_events(face, "push", 3)
 
 
 def test_a_simulated_push_starts_where_it_is_and_updates_follow_until_its_end(face_push):
@@ -72,3 +84,72 @@ def test_a_simulated_push_starts_where_it_is_and_updates_follow_until_its_end(fa
     assert end.label == "push"
     np.testing.assert_allclose(end.centroid_m, truth[0].contacts[0], atol=0.008)
     assert start.n_contacts == 0  # the raw frames' filter fired it, before any contact
+
+
+def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face):
+    _, imager, disc, contact, _ = face
+    inside = np.isfinite(disc).all(axis=2)
+    xx, yy = np.meshgrid(imager.grid.x, imager.grid.y)
+    rng = np.random.default_rng(5)
+    reference = 0.01 + 0.05 * rng.random(disc.shape[2])  # V
+    sigma = 1e-5 * reference  # V
+    noise = np.ones(inside.shape)  # the map's noise (a noiseless change: k passes)
+    fingers = [(0.03, 0.04), (-0.03, -0.04)]  # m, 100 mm apart: a wide grab's two fingers
+    pixels = [np.unravel_index(np.argmin(np.hypot(xx - x, yy - y)), xx.shape) for x, y in fingers]
+
+    def fit(amplitudes, fraction=0.3):
+        rel = sum(a * disc[p] for a, p in zip(amplitudes, pixels, strict=True))
+        change = reference * rel / sigma  # whitened: (v - reference) / sigma
+        return TouchFilter(disc, inside, contact).fit_discs(
+            change, sigma, reference, noise, fraction
+        )
+
+    found, amplitude = fit([0.02, 0.01])  # a pinch, one finger pressing half as hard
+    np.testing.assert_allclose(found, pixels, atol=1e-3)  # each finger on its own pixel
+    np.testing.assert_allclose(amplitude, [0.02, 0.01], rtol=1e-4)
+    np.testing.assert_allclose(
+        disc_centroid((found, amplitude), xx, yy),
+        (2 * np.array([xx[pixels[0]], yy[pixels[0]]]) + [xx[pixels[1]], yy[pixels[1]]]) / 3,
+        atol=1e-5,  # m
+    )
+    # between pixel centres: its place and strength from the pixels around it
+    half = 0.5 * (disc[pixels[0]] + disc[pixels[0][0], pixels[0][1] + 1])
+    change = reference * (0.02 * half + 0.01 * disc[pixels[1]]) / sigma
+    found, amplitude = TouchFilter(disc, inside, contact).fit_discs(
+        change, sigma, reference, noise, 0.3
+    )
+    np.testing.assert_allclose(found, [(pixels[0][0], pixels[0][1] + 0.5), pixels[1]], atol=0.05)
+    np.testing.assert_allclose(amplitude, [0.02, 0.01], rtol=0.15)
+    # a push is one disc; a finger below blob_fraction of the other does not join
+    assert len(fit([0.02, 0.0])[0]) == 1
+    assert len(fit([0.02, 0.004])[0]) == 1
+    assert len(fit([0.02, 0.004], fraction=0.1)[0]) == 2
+    # no change at all: no disc (the START keeps the filter map's peak region)
+    assert len(fit([0.0, 0.0])[0]) == 0
+
+
+def test_a_simulated_pinch_starts_at_the_centre_of_its_fingers_not_on_one(face):
+    """Issue 37 item 6: a pinch STARTs near the centre of its two fingers at the START time.
+
+    The built-in pinch presses its fingers 0.9 of the face's half extent apart (45 mm); the
+    START's error is measured against the fingers' force-weighted centroid at its frame.
+    """
+    patch = face[0]
+    pinch = builtin_scenario("pinch", patch).touches[0]
+    errors, beside = [], []
+    for seed in range(4):  # the noise's seed: four presses of the same pinch
+        events, _ = simulated_events(face, "pinch", seed)
+        start = next(e for e in events if e.state == "start")
+        fingers = pinch.contacts(start.t_s)
+        assert pinch.envelope(start.t_s) > 0  # START after contact: both fingers press
+        at = np.asarray(start.centroid_m)
+        errors.append(float(np.linalg.norm(at - pinch.centroid(start.t_s))))
+        beside.append(float(np.min(np.linalg.norm(fingers - at, axis=1))))
+        assert start.area_m2 > 0 and start.peak_pa > 0 and 0 < start.confidence <= 1
+        assert events[-1].label == "pinch"
+    half_gap = 0.5 * float(np.linalg.norm(np.subtract(*pinch.contacts(pinch.t_start_s))))
+    assert half_gap > 0.02
+    assert np.median(errors) <= 0.008
+    assert sum(e <= 0.008 for e in errors) >= 3
+    # one finger's best match would lie half a gap (22 mm) from the centre
+    assert all(e < b for e, b in zip(errors, beside, strict=True))
