@@ -9,7 +9,8 @@ robot's probe log with a recording), ``features`` (relative change, pattern, mag
 hand: presses found in a frame stream, judged and paired with the targets), ``online``
 (:class:`OnlineLocaliser`: a calibration bound to one layer of a running patch, one frame at a
 time; used by the reconstruction node), ``multi_touch`` (several touches at once from
-single-press calibrations: superposition).
+single-press calibrations: superposition), ``stored_fields`` (how each model's fields are
+named in a calibration file).
 """
 
 from __future__ import annotations

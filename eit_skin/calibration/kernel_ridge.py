@@ -16,6 +16,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from eit_skin.calibration.stored_fields import StoredFields, stored_fields
+
 LENGTH_SCALE_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
 """Kernel length scales tried, as factors of the median pairwise feature distance."""
 
@@ -152,28 +154,30 @@ class KernelRidge:
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         projected = {}
         if self.projection is not None:
-            projected = {f"{prefix}_projection": self.projection, f"{prefix}_centre": self.centre}
-        return {
+            projected = {"projection": self.projection, "centre": self.centre}
+        return stored_fields(
+            prefix,
             **projected,
-            f"{prefix}_inputs": self.inputs,
-            f"{prefix}_gamma": np.float64(self.gamma),
-            f"{prefix}_ridge": np.float64(self.ridge),
-            f"{prefix}_weights": self.weights,
-            f"{prefix}_offset": self.offset,
-            f"{prefix}_spacing": self.spacing,
-            f"{prefix}_loo_error": np.float64(self.loo_error),
-        }
+            inputs=self.inputs,
+            gamma=np.float64(self.gamma),
+            ridge=np.float64(self.ridge),
+            weights=self.weights,
+            offset=self.offset,
+            spacing=self.spacing,
+            loo_error=np.float64(self.loo_error),
+        )
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> KernelRidge:
+        fields = StoredFields(arrays, prefix)
         return cls(
-            arrays[f"{prefix}_inputs"],
-            float(arrays[f"{prefix}_gamma"]),
-            float(arrays[f"{prefix}_ridge"]),
-            arrays[f"{prefix}_weights"],
-            arrays[f"{prefix}_offset"],
-            arrays[f"{prefix}_spacing"],
-            float(arrays[f"{prefix}_loo_error"]),
-            projection=arrays.get(f"{prefix}_projection"),
-            centre=arrays.get(f"{prefix}_centre"),
+            fields["inputs"],
+            fields.value("gamma"),
+            fields.value("ridge"),
+            fields["weights"],
+            fields["offset"],
+            fields["spacing"],
+            fields.value("loo_error"),
+            projection=fields.get("projection"),
+            centre=fields.get("centre"),
         )

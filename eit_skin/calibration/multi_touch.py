@@ -41,6 +41,7 @@ from functools import cached_property
 
 import numpy as np
 
+from eit_skin.calibration.stored_fields import StoredFields, stored_fields
 from eit_skin.patch.model import Layer
 
 FALSE_SPLIT_RATE = 0.05
@@ -132,24 +133,26 @@ class MultiTouchModel:
         return PairBasis(self.responses, self.press_xy, self.min_separation_m)
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {
-            f"{prefix}_responses": self.responses,
-            f"{prefix}_press_xy": self.press_xy,
-            f"{prefix}_min_separation_m": np.float64(self.min_separation_m),
-            f"{prefix}_threshold": np.float64(self.threshold),
-            f"{prefix}_false_split_rate": np.float64(self.false_split_rate),
-            f"{prefix}_residuals": self.residuals,
-        }
+        return stored_fields(
+            prefix,
+            responses=self.responses,
+            press_xy=self.press_xy,
+            min_separation_m=np.float64(self.min_separation_m),
+            threshold=np.float64(self.threshold),
+            false_split_rate=np.float64(self.false_split_rate),
+            residuals=self.residuals,
+        )
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> MultiTouchModel:
+        fields = StoredFields(arrays, prefix)
         return cls(
-            arrays[f"{prefix}_responses"],
-            arrays[f"{prefix}_press_xy"],
-            float(arrays[f"{prefix}_min_separation_m"]),
-            float(arrays[f"{prefix}_threshold"]),
-            float(arrays[f"{prefix}_false_split_rate"]),
-            arrays[f"{prefix}_residuals"],
+            fields["responses"],
+            fields["press_xy"],
+            fields.value("min_separation_m"),
+            fields.value("threshold"),
+            fields.value("false_split_rate"),
+            fields["residuals"],
         )
 
     def decompose(self, x: np.ndarray, max_touches: int) -> TouchSplit | None:

@@ -41,6 +41,7 @@ from eit_skin.calibration.kernel_ridge import (
     squared_distances,
 )
 from eit_skin.calibration.session import PressSession
+from eit_skin.calibration.stored_fields import StoredFields, stored_fields
 
 PRIOR_MODES = ("mean", "features")
 """Ways the prior enters the position model (see the module docstring)."""
@@ -85,19 +86,14 @@ class PhysicsPrior:
         return self.model.predict(pattern)[0]
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {
-            f"{prefix}_scale": self.scale,
-            f"{prefix}_n_presses": np.int64(self.n_presses),
-            **self.model.arrays(f"{prefix}_model"),
-        }
+        fields = stored_fields(prefix, scale=self.scale, n_presses=np.int64(self.n_presses))
+        return fields | self.model.arrays(f"{prefix}_model")
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> PhysicsPrior:
-        return cls(
-            arrays[f"{prefix}_scale"],
-            KernelRidge.from_arrays(arrays, f"{prefix}_model"),
-            int(arrays[f"{prefix}_n_presses"]),
-        )
+        fields = StoredFields(arrays, prefix)
+        model = KernelRidge.from_arrays(arrays, fields.key("model"))
+        return cls(fields["scale"], model, int(fields["n_presses"]))
 
 
 def median_distance(x: np.ndarray) -> float:
@@ -142,26 +138,27 @@ class PriorPosition:
         return xy + prior_mean(m, self.mode, self.weight), confidence
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {
-            **self.residual.arrays(prefix),
-            f"{prefix}_prior_mode": np.str_(self.mode),
-            f"{prefix}_prior_weight": np.float64(self.weight),
-            f"{prefix}_prior_offset": self.prior_offset,
-            f"{prefix}_prior_gain": np.float64(self.prior_gain),
-            **self.prior.arrays(f"{prefix}_prior"),
-        }
+        own = stored_fields(
+            f"{prefix}_prior",
+            mode=np.str_(self.mode),
+            weight=np.float64(self.weight),
+            offset=self.prior_offset,
+            gain=np.float64(self.prior_gain),
+        )
+        return self.residual.arrays(prefix) | own | self.prior.arrays(f"{prefix}_prior")
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> PriorPosition:
-        mode = str(arrays[f"{prefix}_prior_mode"])
+        fields = StoredFields(arrays, f"{prefix}_prior")
+        mode = str(fields["mode"])
         if mode not in PRIOR_MODES:
-            raise ValueError(f"key '{prefix}_prior_mode': {mode!r}, want one of {PRIOR_MODES}")
+            raise ValueError(f"key '{fields.key('mode')}': {mode!r}, want one of {PRIOR_MODES}")
         return cls(
-            PhysicsPrior.from_arrays(arrays, f"{prefix}_prior"),
+            PhysicsPrior.from_arrays(arrays, fields.prefix),
             mode,
-            float(arrays[f"{prefix}_prior_weight"]),
-            arrays[f"{prefix}_prior_offset"],
-            float(arrays[f"{prefix}_prior_gain"]),
+            fields.value("weight"),
+            fields["offset"],
+            fields.value("gain"),
             KernelRidge.from_arrays(arrays, prefix),
         )
 
