@@ -271,12 +271,10 @@ def test_a_degrading_electrode_gives_no_event(tmp_path) -> None:
     assert ends(events(ClassifierConfig(start_roughness=0.0), raw=True))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known, issue 37 item 5 open: with the package default (one-step NOSER, noise "
-    "figure 0.13) the idle small disc gives one false push right after the 0.5 s calibration",
-)
 def test_the_package_default_solver_keeps_the_idle_small_disc_quiet(tmp_path) -> None:
+    # issue 37 item 5: the package default (one-step NOSER, noise figure 0.13) gave one false
+    # push right after the 0.5 s calibration: the pooled noise map, a per-pixel MAD of 24
+    # smooth frames, read a pixel at a fraction of its noise (now a standard deviation)
     t, images, _, grid, spread, electrodes, _, _, _ = _degrading_electrode_images(
         tmp_path, onset_s=10.0, solver=""
     )
@@ -357,6 +355,6 @@ def test_a_light_push_starts_sooner_from_its_raw_frames(tmp_path) -> None:
     image_start, image_end = events(False)
     start, end = events(True)
     assert image_start.t_s - push.t_start_s > 0.1  # the image alone: late
-    assert start.t_s - push.t_start_s <= 0.1
+    assert start.t_s - push.t_start_s <= 0.1 + 1e-9  # the frame 100 ms after contact
     assert start.t_s <= image_start.t_s - 0.02 + 1e-9
     assert (end.label, end.t_s) == (image_end.label, image_end.t_s)
