@@ -57,3 +57,10 @@ class NoiseCount:
         weight = max(alpha, step / (self.samples + step))
         self.samples = min(self.samples + step, max(2.0 * step / alpha, 1.0))
         return weight
+
+    def restart(self) -> None:
+        """The images changed (an electrode left out of the imaging, or taken back).
+
+        The map is of other images: it counts as one sample and is learnt again, fast.
+        """
+        self.samples = min(self.samples, 1.0)
