@@ -2,7 +2,8 @@
 
 Modules: ``contacts`` (noise, segmentation, tracking, early detection), ``shapes`` (blob
 moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: the per-frame
-chain), its concerns ``background`` (baseline and noise following), ``start_gates`` (pooled
+chain), its concerns ``background`` (baseline and noise following; ``noise_count``: how
+well a learnt noise map is known), ``start_gates`` (pooled
 image, matched filter, flicker and roughness), ``assembly`` (START / UPDATE / END) and
 ``events`` (events, features, labels), its settings ``config`` (:class:`ClassifierConfig`,
 each setting declared once with ``settings``), ``pairing`` (:class:`StampPairer`: pressure

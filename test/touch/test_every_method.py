@@ -15,14 +15,13 @@ import numpy as np
 import pytest
 
 from eit_skin.patch.loading import load_patch
-from eit_skin.pipeline.builder import LayerImager
-from eit_skin.pipeline.processor import LayerProcessor
 from eit_skin.sim.drift import DriftModel
 from eit_skin.sim.scenario import Scenario
 from eit_skin.sim.simulator import SkinSimulator
 from eit_skin.touch.classifier import TouchClassifier
 from eit_skin.touch.frame_evidence import channel_electrodes
 from eit_skin.touch.shapes import raw_patterns, single_contact_spread
+from test.support.degraded_disc import degrade, pipeline_images
 from test.support.patch_copies import small_disc_patch
 
 SECONDS = 14.0
@@ -47,14 +46,9 @@ def idle_frames(tmp_path_factory):
     drift = DriftModel(0.05, 0.003, 15.0, 0.1)
     sim = SkinSimulator(patch, Scenario("idle", (), SECONDS), 50.0, seed=17, drift=drift)
     rec = sim.run(duration_s=SECONDS)
-    frames = rec.layers[layer.name].frames.copy()
     protocol = sim.protocol(layer.name)
-    sigma = np.std(np.diff(frames[:25], axis=0), axis=0) / np.sqrt(2.0)
-    rng = np.random.default_rng(23)
     when = (rec.t >= FAULT_S[0]) & (rec.t < FAULT_S[1])
-    chans = protocol.touching([5])
-    extra = rng.normal(size=frames.shape) * sigma * np.sqrt(10.0**2 - 1)
-    frames[np.ix_(when, chans)] += extra[np.ix_(when, chans)]
+    frames = degrade(rec.layers[layer.name].frames, protocol, 5, when, seed=23)
     return rec.t, frames, channel_electrodes(protocol)
 
 
@@ -66,14 +60,7 @@ def imaged(request, idle_frames, tmp_path_factory):
     path = folder / "small.yaml"
     path.write_text(small_disc_patch(METHODS[request.param]))
     layer = load_patch(path).layers[0]
-    imager = LayerImager.build(layer, cache_dir=folder / "cache")
-    proc = LayerProcessor(imager)
-    n_ref = proc.reference_frames
-    proc.set_reference(frames[:n_ref].mean(axis=0), 0.0, frames[:n_ref])
-    images, faulty = [], []
-    for k in range(len(t)):
-        images.append(proc.step(frames[k], float(t[k])).image)
-        faulty.append(tuple(proc.faulty_electrodes))
+    imager, images, faulty = pipeline_images(layer, t, frames, folder / "cache")
     disc, contact = raw_patterns(layer, imager)
     arguments = {
         "x": imager.grid.x,
@@ -84,7 +71,7 @@ def imaged(request, idle_frames, tmp_path_factory):
         "disc_rel": disc,
         "contact_rel": contact,
     }
-    return np.array(images), faulty, arguments
+    return images, faulty, arguments
 
 
 def _starts(imaged, t, frames, first: int, last: int) -> list:
