@@ -2,10 +2,11 @@
 
 Modules: ``contacts`` (noise, segmentation, tracking, early detection), ``shapes`` (blob
 moments, one fingertip's blur), ``classifier`` (:class:`TouchClassifier`: the per-frame
-chain), its concerns ``background`` (baseline and noise following), ``start_gates`` (pooled
-image, matched filter, flicker and roughness), ``assembly`` (START / UPDATE / END),
-``events`` (events, features, labels) and ``sheet_change`` (after a withdrawn touch: is the
-sheet still again?), its settings ``config`` (:class:`ClassifierConfig`,
+chain), its concerns ``background`` (baseline and noise following; ``noise_count``: how
+well a learnt noise map is known), ``start_gates`` (pooled image, matched filter, flicker and
+roughness), ``assembly`` (START / UPDATE / END), ``events`` (events, features, labels) and
+``sheet_change`` (after a withdrawn touch: is the sheet still again?), its settings ``config``
+(:class:`ClassifierConfig`,
 each setting declared once with ``settings``), ``pairing`` (:class:`StampPairer`: pressure
 and stretch images of the same moment, also from two boards), ``frame_evidence`` (the raw
 frames' shape change over a touch: a close pinch).

@@ -21,6 +21,7 @@ from eit_skin.touch.contacts import (
     estimate_noise_map,
     noise_sample_frames,
 )
+from eit_skin.touch.noise_count import NoiseCount
 
 
 def running_mean(stack: np.ndarray, n: int) -> np.ndarray:
@@ -76,8 +77,7 @@ class Background:
         averaged = running_mean(stack, n_avg)  # what the segmentation will look at
         self.noise_var: np.ndarray | None = None
         self.noise_floor = 0.0
-        self.sample_frames = float(config.average_frames)  # frames per independent sample
-        self.noise_samples = 1.0  # independent frames behind the noise map
+        self.count = NoiseCount(0, config.average_frames)  # samples behind the noise map
         self.pressure_noise_pa = pressure_noise_pa
         if pressure_noise_pa:
             sigma = pressure_noise_pa / math.sqrt(n_avg)
@@ -92,8 +92,9 @@ class Background:
                 )
                 self.noise_var = sigma**2
                 self.noise_floor = config.noise_floor_fraction * estimate_noise(averaged)
-                self.sample_frames = noise_sample_frames(averaged - self.baseline, n_avg)
-                self.noise_samples = len(averaged) / self.sample_frames
+                self.count = NoiseCount(
+                    len(averaged), noise_sample_frames(averaged - self.baseline, n_avg)
+                )
             else:
                 sigma = estimate_noise(averaged)
         self.stretch_baseline = None
@@ -140,15 +141,14 @@ class Background:
     def stands_out(self, signal: np.ndarray, mask: np.ndarray) -> bool:
         """Whether a contact pixel of ``signal`` ``[H, W]`` (``mask``) clears the START bar.
 
-        The bar is ``k_high`` times the noise map's uncertainty, ``1 + sqrt(2 / n)`` for ``n``
-        independent frames behind it (x1.41 after calibration, x1.06 after ~20 s of
-        learning): a pixel whose estimate is half its true noise makes contacts out of
-        noise. Segmentation and shapes keep the plain map.
+        The bar is ``k_high`` times the noise map's uncertainty
+        (:attr:`~eit_skin.touch.noise_count.NoiseCount.inflation`: x1.67 after a 0.5 s
+        calibration, x1.06 after ~20 s of learning): a pixel whose estimate is half its true
+        noise makes contacts out of noise. Segmentation and shapes keep the plain map.
         """
         if self.noise_var is None:
             return True
-        inflation = 1.0 + math.sqrt(2.0 / max(self.noise_samples, 1.0))
-        bar = self.config.segmentation.k_high * inflation
+        bar = self.config.segmentation.k_high * self.count.inflation
         with np.errstate(invalid="ignore", divide="ignore"):
             z = signal[mask] / self.segmenter.noise_sigma[mask]
         return bool(np.any(z >= bar))
@@ -163,15 +163,16 @@ class Background:
             self.stretch_baseline[ok] += alpha * (stretch[ok] - self.stretch_baseline[ok])
 
     def follow_noise(self, alpha: float, signal: np.ndarray) -> None:
-        """Per-pixel noise variance: exponential average (weight ``alpha``) of ``signal**2``.
+        """Per-pixel noise variance: learn ``signal**2`` (weight ``alpha`` once learnt).
 
-        ``signal`` ``[H, W]``: a no-touch averaged image minus baseline and offset, Pa. The
-        short calibration cannot see every pixel's noise well; this keeps learning it.
+        By :meth:`~eit_skin.touch.noise_count.NoiseCount.learn`: a running mean while few
+        samples were seen, then an exponential average. ``signal`` ``[H, W]``: a no-touch
+        averaged image minus baseline and offset, Pa. The short calibration cannot see every
+        pixel's noise well; this keeps learning it.
         """
         if self.noise_var is None:
             return
+        weight = self.count.learn(alpha)
         ok = np.isfinite(signal)
-        self.noise_var[ok] += alpha * (signal[ok] ** 2 - self.noise_var[ok])
+        self.noise_var[ok] += weight * (signal[ok] ** 2 - self.noise_var[ok])
         self.segmenter.noise_sigma = np.maximum(np.sqrt(self.noise_var), self.noise_floor)
-        step = 1.0 / self.sample_frames  # independent samples this frame adds
-        self.noise_samples = min(self.noise_samples + step, max(2.0 * step / alpha, 1.0))

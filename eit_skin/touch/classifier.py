@@ -238,9 +238,10 @@ class TouchClassifier:
         """The electrodes the imaging now leaves out (``LayerProcessor.faulty_electrodes``).
 
         Events whose centroid lies within ``fault_radius`` single-finger spreads of a faulty
-        electrode carry ``fault_confidence`` times their confidence, and the START gates leave
-        its raw channels out; nothing else changes (why: docs/classifier.md, "Faulty
-        electrodes").
+        electrode carry ``fault_confidence`` times their confidence, the START gates leave
+        its raw channels out, and the image's noise maps, now of other images, are learnt
+        again (:meth:`~eit_skin.touch.noise_count.NoiseCount.restart`); nothing else changes
+        (why: docs/classifier.md, "Faulty electrodes").
 
         Raises:
             ValueError: an index out of range, or faulty electrodes without ``electrodes_m``.
@@ -250,6 +251,12 @@ class TouchClassifier:
             raise ValueError("faulty electrodes given, but the classifier has no electrodes_m")
         if faulty and not (faulty[0] >= 0 and faulty[-1] < len(self.electrodes_m)):
             raise ValueError(f"faulty electrodes out of range 0..{len(self.electrodes_m) - 1}")
+        if faulty != self.gates.faulty and self.background is not None:
+            # other images now (issue 37 item 5: a left-out electrode made the arm's one-step
+            # images noisier than learnt, and the pooled image STARTed 1-3 false pushes)
+            self.background.count.restart()
+            if self.gates.detector is not None:
+                self.gates.detector.count.restart()
         self.gates.faulty = faulty
 
     def near_fault(self, point_m) -> bool:

@@ -21,7 +21,6 @@ a gate in metres; a track missing for more than ``max_missed`` frames is dropped
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass, field
 
@@ -29,6 +28,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from eit_skin.touch.noise_count import NoiseCount
 from eit_skin.touch.settings import check_settings, setting
 
 MAD_TO_SIGMA = 1.4826
@@ -393,7 +393,7 @@ class PooledDetector:
     for a blob of about the kernel's width; normalised convolution, pixels outside the sheet
     left out) keeps the blob and averages that noise down. The pooled image is thresholded in
     units of ITS noise ``z = pooled / sigma_pooled`` (per-pixel map estimated from no-touch
-    frames exactly like the image noise, :func:`estimate_noise_map`). Each image's median over
+    frames exactly like the image noise, but by standard deviations). Each image's median over
     the sheet is removed first: pooling averages pixel noise down but keeps a sheet-wide
     offset (drift the baseline has not caught up with yet) whole; a touch covers far less
     than half of the sheet.
@@ -448,8 +448,7 @@ class PooledDetector:
         self.noise: np.ndarray | None = None
         self._noise_var: np.ndarray | None = None
         self._noise_floor = 0.0
-        self._samples = 0.0
-        self.sample_frames = float(self.frames_per_sample)  # images per independent sample
+        self.count = NoiseCount(0, self.frames_per_sample)  # samples behind the noise map
         self.pooled = np.full(inside.shape, np.nan)
         self.z = np.zeros(inside.shape)
         self.run = np.zeros(inside.shape, dtype=np.int64)
@@ -474,12 +473,17 @@ class PooledDetector:
     def learn_noise(self, images: np.ndarray) -> None:
         """Noise map of the pooled image from >= 3 no-touch (baseline-free) frames ``[T, H, W]``.
 
-        Each pixel's robust estimate (:func:`estimate_noise_map`, floored at half the global
-        one); :meth:`follow_noise` keeps learning it. Neighbouring pooled pixels share most of
-        their noise, so few frames estimate the whole map too low or too high together: the
-        map used is inflated by about two standard errors of an estimate from ``n`` independent
-        samples, ``1 + sqrt(2 / n)`` (x1.41 after 12, x1.06 after 500); ``n`` counts the
-        frames over :func:`noise_sample_frames` of the pooled maps.
+        Each pixel's standard deviation over the frames (floored at half the global robust
+        :func:`estimate_noise`), not its MAD: a pooled pixel's few calibration values are
+        smooth in time, and their MAD put single pixels at 0.23 of their noise (idle small
+        disc, one-step NOSER: a false push right after calibration); a touch among them only
+        raises the estimate, which learning then brings down. :meth:`follow_noise` keeps
+        learning it. Neighbouring pooled pixels share most of their noise, so few frames
+        estimate the whole map too low or too high together: the
+        map used is inflated by two standard errors of its estimate,
+        :attr:`~eit_skin.touch.noise_count.NoiseCount.inflation` (``T`` frames count as
+        ``T / c`` samples, ``c`` the :func:`noise_sample_frames` of the pooled maps: x1.41
+        after 0.5 s at 50 Hz, x1.06 after ~20 s of learning).
         """
         self.learn_pooled_noise(self.pool(images))
 
@@ -489,17 +493,25 @@ class PooledDetector:
         E.g. the raw frames' :class:`~eit_skin.touch.frame_evidence.TouchFilter` statistic.
         """
         pooled = np.where(self.inside, np.asarray(pooled, dtype=np.float64), np.nan)
-        sigma = estimate_noise_map(pooled, window=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # pixels off the sheet
+            var = np.nanvar(pooled, axis=0, ddof=1)
         self._noise_floor = 0.5 * estimate_noise(pooled)
-        self._noise_var = sigma**2
-        self.sample_frames = noise_sample_frames(pooled, self.frames_per_sample)
-        self._samples = pooled.shape[0] / self.sample_frames
+        self._noise_var = np.where(np.isfinite(var), var, self._noise_floor**2)
+        self.count = NoiseCount(
+            pooled.shape[0], noise_sample_frames(pooled, self.frames_per_sample), efficiency=1.0
+        )
         self._set_noise()
         self.reset()
 
+    @property
+    def sample_frames(self) -> float:
+        """Consecutive images per independent sample of the pooled noise (calibration)."""
+        return self.count.sample_frames
+
     def _set_noise(self) -> None:
         sigma = np.maximum(np.sqrt(self._noise_var), self._noise_floor)
-        self.noise = sigma * (1.0 + math.sqrt(2.0 / max(self._samples, 1)))
+        self.noise = sigma * self.count.inflation
 
     def update(self, signal: np.ndarray) -> int:
         """Pool one baseline-free image ``[H, W]``; the longest run (frames) of ``z > k``."""
@@ -547,17 +559,14 @@ class PooledDetector:
     def follow_noise(self, alpha: float) -> None:
         """Learn the noise from the latest pooled image (nothing touching, :attr:`quiet`).
 
-        Running mean of its square while fewer than ``2 / alpha`` frames were seen, then an
-        exponential average (weight ``alpha`` per frame); the sample count behind the estimate
-        (for the inflation of :meth:`learn_noise`) is capped at ``2 / alpha``.
+        Its square joins the variance map by :meth:`~eit_skin.touch.noise_count.NoiseCount.learn`
+        (a running mean while few samples were seen, then weight ``alpha`` per frame).
         """
         if self._noise_var is None or not alpha > 0:
             return
-        step = 1.0 / self.sample_frames
-        weight = max(alpha, step / (self._samples + step))
+        weight = self.count.learn(alpha)
         ok = np.isfinite(self.pooled)
         self._noise_var[ok] += weight * (self.pooled[ok] ** 2 - self._noise_var[ok])
-        self._samples = min(self._samples + step, 2.0 * step / alpha)
         self._set_noise()
 
     def reset(self) -> None:

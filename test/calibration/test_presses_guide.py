@@ -219,12 +219,10 @@ def test_guide_finds_refuses_and_redoes_the_hand_presses(guided, guide_output, t
     assert code == 0, text
     assert (folder / "session.svg").is_file() and (folder / "session.pdf").is_file()
     weak = re.findall(r"refused, too weak: (.*); press target (\d+) again", text)
-    # the brush of the finger on target 4 is refused by its image's peak ...
-    assert [k for why, k in weak if "image peak" in why] == ["4"]
-    # ... and the only other weak ones are the classifier's false touches on idle frames
-    # (a raw change below the frames' own noise: issue 37 item 5), never a real press
-    noise = [float(m) for why, _ in weak for m in re.findall(r"change ([\d.]+) x noise", why)]
-    assert len(noise) == len(weak) - 1 and all(x < 1.0 for x in noise)
+    # the brush of the finger on target 4 is refused by its image's peak, and nothing else:
+    # the classifier's false touches on idle frames are gone (issue 37 item 5: noise maps
+    # that know how few frames they have seen)
+    assert [(k, "image peak" in why) for why, k in weak] == [("4", True)]
     assert text.count("answer: redo") == 1
     assert "target 8/25" in text.split("answer: redo")[1].splitlines()[1]
     assert len(re.findall(r"accepted \(", text)) == N_TARGETS + 1  # 25 + the redone one

@@ -485,7 +485,9 @@ def test_weak_slow_touch_starts_within_150_ms_only_with_the_pooled_detector() ->
     assert start.n_contacts == 0  # before any pixel crosses k_high
     np.testing.assert_allclose(start.centroid_m, (0.005, -0.005), atol=0.004)
     assert end.label == "push" and end.n_contacts >= 1
-    assert late[0].state == "start" and late[0].t_s > LATE_ONSET_S + 0.18
+    # the 6-sigma contacts alone START it late or, with the bar raised by the noise map's
+    # uncertainty (8.5 sigmas at full force against ~7.3), not at all
+    assert not late or (late[0].state == "start" and late[0].t_s > LATE_ONSET_S + 0.18)
 
 
 def test_touch_too_weak_to_segment_ends_after_confirm_s_and_does_not_restart() -> None:
