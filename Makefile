@@ -26,7 +26,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 .DEFAULT_GOAL := demo
 
 # The set-up steps run two at a time (the message build beside ros2-tools' builds).
-SETUP_STAMPS := $(VENV)/.stamp-package
+SETUP_STAMPS := $(VENV)/.stamp-bytecode
 
 setup:
 	@$(MAKE) --no-print-directory -s -j2 $(SETUP_STAMPS)
@@ -56,6 +56,16 @@ $(VENV)/.stamp-msgs: $(VENV)/.stamp-deps msg/CMakeLists.txt msg/package.xml $(wi
 $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg package.xml
 	@echo "[setup] installing eit_skin (editable)"
 	@$(UV) pip install --quiet --no-deps -e .
+	@touch $@
+
+# PYTHONDONTWRITEBYTECODE (above) keeps __pycache__ out of the source tree, and uv installs
+# without compiling: so without this step every process compiled the venv's modules again
+# (0.7 s of CPU per node start, over hundreds of node processes in the tests; and a fresh
+# venv's first processes all compiling at once is when one crashed once, in compile()).
+# Once, after the last installer; files that are not Python 3 (templates) are skipped.
+$(VENV)/.stamp-bytecode: $(VENV)/.stamp-package
+	@echo "[setup] compiling the venv's modules to bytecode"
+	@$(BIN)/python -m compileall -q -j 2 $(VENV)/lib > $(BUILD)/bytecode.log 2>&1 || true
 	@touch $@
 
 # launch, launch_testing, launch_ros, tf2_msgs and the ros2 CLI (not on PyPI) from
