@@ -219,7 +219,8 @@ def estimate_channel_noise(
     ref = np.asarray(reference, dtype=np.float64)
     if reference_frames is not None and len(reference_frames) >= 2:
         stack = np.asarray(reference_frames, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():  # a channel flagged in all but one frame: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
             sigma = np.nanstd(np.where(np.isfinite(stack), stack, np.nan), axis=0, ddof=1)
         return ChannelNoise(sigma, f"{len(stack)} repeated reference frames")
     if frames is not None and len(frames) >= MIN_DIFFERENCE_FRAMES:
