@@ -45,6 +45,16 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(d, 0.0)
 
 
+def nearest_share(nearest: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """``[T]`` confidence: share of the sorted training ``spacing`` [N] >= ``nearest`` [T].
+
+    ``nearest``: each query's distance to its nearest training input; ``spacing``: each
+    training input's distance to its nearest other one (the localiser's confidence rule).
+    """
+    farther = spacing.size - np.searchsorted(spacing, nearest, side="left")
+    return farther / spacing.size
+
+
 @dataclass(frozen=True, eq=False)
 class KernelRidge:
     """RBF kernel ridge regression (GP posterior mean) with leave-one-out hyperparameters.
@@ -147,9 +157,8 @@ class KernelRidge:
         if self.projection is not None:
             queries = (np.asarray(queries, float) - self.centre) @ self.projection
         d2 = squared_distances(queries, self._kernel_inputs)
-        nearest = np.sqrt(d2.min(axis=1))
-        farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
-        return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
+        confidence = nearest_share(np.sqrt(d2.min(axis=1)), self.spacing)
+        return np.exp(-self.gamma * d2) @ self.weights + self.offset, confidence
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         projected = {}

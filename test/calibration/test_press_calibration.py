@@ -284,7 +284,8 @@ def test_probe_csv_pairs_each_press_with_its_frame(tmp_path, session):
 
 def test_real_hydrogel_presses_meet_the_goals():
     """Issue 14's goal on the real robot-pressed hydrogel skin at N = 100 (8 mm; centre
-    guess: ~51 mm), 5-fold: 3.1 mm median since the principal-component choice (was 5.0)."""
+    guess: ~51 mm), 5-fold: 2.35 mm median with the response map (3.1 without, 5.0 before
+    the principal-component choice); issue 37's N = 50 / 100 goals: test_response_map.py."""
     layer = load_patch(HYDROGEL_PATCH).layers[0]
     cv = cross_validate(hydrogel_ohmc16_session(), layer, folds=5, n_train=100)
     assert np.median(cv.xy_error) < 0.004
