@@ -11,8 +11,12 @@ Methods (all fitted on the training folds only):
 * plain KRR: RBF kernel ridge on relative frames, median-distance length scale, ridge 1e-3
   (the issue's ~5 mm baseline);
 * KRR-LOO: the shipped kernel ridge (length scale and ridge by LOO) on relative frames;
+* pattern KRR (no projection) / projected KRR (no response map): the shipped features with
+  the inverse kernel ridge only, without / with the principal-component choice (the shipped
+  method before issue 37 items 4 / 1);
 * shipped: :class:`~eit_skin.calibration.localiser.PressLocaliser` (channel-scaled relative
-  change split into unit pattern -> position and magnitude -> depth, KRR-LOO);
+  change split into unit pattern -> position and magnitude -> depth, KRR-LOO; position by the
+  inverse kernel ridge or the response map, whichever leave-one-out says);
 * prior mean / prior features / prior (both): the shipped localiser with a physics prior
   (:mod:`eit_skin.calibration.physics_prior`, issue 37): 500 presses simulated on the layer's
   model (other seed than the session; for the real skin the patch after ``fit-device`` on the
@@ -42,9 +46,10 @@ import numpy as np
 from bench.standing.real_sessions import hydrogel_ohmc16_session
 from bench.standing.repeatability import disc_floor, floor_table, rectangle_floor
 from eit_skin.calibration.features import relative_change, split_features
-from eit_skin.calibration.kernel_ridge import KernelRidge, squared_distances
+from eit_skin.calibration.kernel_ridge import COMPONENT_COUNTS, KernelRidge, squared_distances
 from eit_skin.calibration.localiser import PressLocaliser, cross_validate
 from eit_skin.calibration.physics_prior import PhysicsPrior, PriorPosition, channel_scale
+from eit_skin.calibration.response_map import ResponseMap
 from eit_skin.calibration.session import PressSession
 from eit_skin.patch.loading import load_patch
 from eit_skin.patch.model import Patch
@@ -102,9 +107,28 @@ def fit_pattern_krr(s: PressSession, layer, prior):
     return lambda f, r: model.predict(split_features(relative_change(f, r) / scale)[0])[0]
 
 
+def fit_projected_krr(s: PressSession, layer, prior):
+    """The shipped position model without the response map (before issue 37 item 1)."""
+    d = relative_change(s.frames, s.baselines())
+    scale = channel_scale(d)
+    pattern = split_features(d / scale)[0]
+    model = KernelRidge.fit(pattern, s.press_xy, components=COMPONENT_COUNTS)
+    return lambda f, r: model.predict(split_features(relative_change(f, r) / scale)[0])[0]
+
+
 def fit_shipped(s: PressSession, layer, prior):
     model = PressLocaliser.fit(s, layer)
+    CHOICES.append(position_choice(model.position))
     return lambda f, r: model.locate(f, s.reference, r).xy
+
+
+def position_choice(position) -> str:
+    """What a fitted position model is: prior mode and weight, response map or inverse."""
+    if isinstance(position, PriorPosition):
+        return f"{position.mode} {position.weight:g}"
+    if isinstance(position, ResponseMap):
+        return f"map {position.projection.shape[1]}"
+    return "inverse"
 
 
 OTHER_DEVICE_GAIN = 1.15
@@ -131,18 +155,14 @@ def other_device(patch: Patch) -> Patch:
 def fit_with_prior(*modes: str):
     def fit(s: PressSession, layer, prior):
         model = PressLocaliser.fit(s, layer, prior=prior, prior_modes=modes)
-        CHOICES.append(
-            f"{model.position.mode} {model.position.weight:g}"
-            if isinstance(model.position, PriorPosition)
-            else "off"
-        )
+        CHOICES.append(position_choice(model.position))
         return lambda f, r: model.locate(f, s.reference, r).xy
 
     return fit
 
 
 CHOICES: list[str] = []
-"""What each fit with a prior chose (mode and weight, or off), for the report."""
+"""What each shipped fit chose (:func:`position_choice`), for the report."""
 
 METHODS = {
     "centre": fit_centre,
@@ -150,6 +170,7 @@ METHODS = {
     "plain KRR": fit_plain,
     "KRR-LOO": fit_krr_loo,
     "pattern KRR (no projection)": fit_pattern_krr,
+    "projected KRR (no response map)": fit_projected_krr,
     "shipped": fit_shipped,
     "prior mean": fit_with_prior("mean"),
     "prior features": fit_with_prior("features"),
@@ -327,15 +348,14 @@ def main() -> None:
         lines += [f"## {name}: {s.n_presses} presses, M = {s.n_measurements}", ""]
         lines += ["| method | " + " | ".join(f"N = {n}" for n in SIZES) + " | fit time N=400 |"]
         lines += ["|---" * (len(SIZES) + 2) + "|"]
-        curves, choices = {}, []
+        curves, choices = {}, {"shipped": [], "prior (both)": []}
         for method, fit in METHODS.items():
             cells, curve = [], []
             for n in SIZES:
                 CHOICES.clear()
                 err, sec = kfold(s, layer, fit, n, priors[name])
-                if method == "prior (both)":
-                    kept = [c for c in CHOICES if c != "off"]
-                    choices.append(f"N = {n}: {len(kept)} of {len(CHOICES)} ({', '.join(kept)})")
+                if method in choices:
+                    choices[method].append(f"N = {n}: {', '.join(CHOICES)}")
                 cells.append(f"{np.median(err) * 1e3:.1f} / {np.percentile(err, 90) * 1e3:.1f}")
                 curve.append(np.median(err) * 1e3)
             curves[method] = curve
@@ -352,7 +372,9 @@ def main() -> None:
             f"- physics prior alone (no real press used for position; channel spread of all"
             f" {s.n_presses} presses): {np.median(zero_shot):.1f}"
             f" / {np.percentile(zero_shot, 90):.1f} mm.",
-            f"- folds where prior (both) kept the prior (mode weight): {'; '.join(choices)}.",
+            "- position model per fold (prior mode and weight, response map on K components,"
+            f" or inverse): shipped: {'; '.join(choices['shipped'])}; prior (both):"
+            f" {'; '.join(choices['prior (both)'])}.",
         ]
         cv = cross_validate(s, layer, folds=FOLDS, n_train=400)
         bands = []

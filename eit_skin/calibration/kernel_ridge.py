@@ -45,6 +45,11 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(d, 0.0)
 
 
+def nearest_other(d2: np.ndarray) -> np.ndarray:
+    """``[N]`` distance of each point to its nearest other one, from squared distances [N, N]."""
+    return np.sqrt(np.where(np.eye(len(d2), dtype=bool), np.inf, d2).min(axis=1))
+
+
 def nearest_share(nearest: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     """``[T]`` confidence: share of the sorted training ``spacing`` [N] >= ``nearest`` [T].
 
@@ -148,8 +153,7 @@ class KernelRidge:
                     best = (float(errors.mean()), gamma, ridge, errors)
         error, gamma, ridge, errors = best
         weights = np.linalg.solve(np.exp(-gamma * d2) + ridge * np.eye(len(x)), yc)
-        np.fill_diagonal(d2, np.inf)
-        spacing = np.sort(np.sqrt(d2.min(axis=1)))
+        spacing = np.sort(nearest_other(d2))
         return cls(x, gamma, ridge, weights, offset, spacing, error, errors)
 
     def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -29,6 +29,7 @@ from eit_skin.calibration.kernel_ridge import (
     COMPONENT_COUNTS,
     KernelRidge,
     clearly_better,
+    nearest_other,
     nearest_share,
     squared_distances,
 )
@@ -46,9 +47,7 @@ def press_region_grid(xy: np.ndarray, steps: int = GRID_STEPS) -> np.ndarray:
     covered, also beyond the hull of a few presses); the step is the larger side of the
     presses' bounding box over ``steps``.
     """
-    d2 = squared_distances(xy, xy)
-    np.fill_diagonal(d2, np.inf)
-    reach = float(np.sqrt(d2.min(axis=1)).max())
+    reach = float(nearest_other(squared_distances(xy, xy)).max())
     low, high = xy.min(axis=0), xy.max(axis=0)
     step = float((high - low).max()) / steps
     axes = [
@@ -148,9 +147,7 @@ def fit_response_map(
         + reach.T**2 * (shift * shift).sum(axis=1)[:, None]
     )
     errors = np.linalg.norm(posterior_mean(misfit, variance, grid) - xy, axis=1)
-    d2 = squared_distances(z, z)
-    np.fill_diagonal(d2, np.inf)
-    spacing = np.sort(np.sqrt(d2.min(axis=1)))
+    spacing = np.sort(nearest_other(squared_distances(z, z)))
     return ResponseMap(
         centre, projection, grid, responses, variance, z, spacing, float(errors.mean()), errors
     )
