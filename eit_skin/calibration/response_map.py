@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, QhullError
 
 from eit_skin.calibration.kernel_ridge import (
     COMPONENT_COUNTS,
@@ -44,8 +44,8 @@ def press_region_grid(xy: np.ndarray, steps: int = GRID_STEPS) -> np.ndarray:
 
     The points inside the presses' convex hull or within ``reach`` of a press, ``reach`` the
     largest distance of a press to its nearest other one (so every press's neighbourhood is
-    covered, also beyond the hull of a few presses); the step is the larger side of the
-    presses' bounding box over ``steps``.
+    covered, also beyond the hull of a few presses; presses on one line have no hull); the
+    step is the larger side of the presses' bounding box over ``steps``.
     """
     reach = float(nearest_other(squared_distances(xy, xy)).max())
     low, high = xy.min(axis=0), xy.max(axis=0)
@@ -55,7 +55,10 @@ def press_region_grid(xy: np.ndarray, steps: int = GRID_STEPS) -> np.ndarray:
     ]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
     near = squared_distances(grid, xy).min(axis=1) <= reach * reach
-    return grid[near | (Delaunay(xy).find_simplex(grid) >= 0)]
+    try:
+        return grid[near | (Delaunay(xy).find_simplex(grid) >= 0)]
+    except QhullError:  # collinear presses: their neighbourhoods only
+        return grid[near]
 
 
 def posterior_mean(misfit: np.ndarray, variance: float, grid: np.ndarray) -> np.ndarray:
@@ -136,15 +139,15 @@ def fit_response_map(
     inverse = np.linalg.inv(
         np.exp(-fwd.gamma * squared_distances(xy, xy)) + fwd.ridge * np.eye(len(xy))
     )
-    reach = np.exp(-fwd.gamma * squared_distances(grid, xy)) @ inverse  # B [G, N]
+    influence = np.exp(-fwd.gamma * squared_distances(grid, xy)) @ inverse  # B [G, N]
     shift = fwd.weights / np.diag(inverse)[:, None]  # [N, K]: y_i - LOO prediction
     variance = float(np.mean(shift * shift))
     responses = fwd.predict(grid)[0]  # [G, K]
     # |z_i - (r_g - B_gi s_i)|^2 for every press i and grid point g, without an [N, G, K] array
     misfit = (
         squared_distances(z, responses)
-        + 2.0 * reach.T * ((z * shift).sum(axis=1)[:, None] - shift @ responses.T)
-        + reach.T**2 * (shift * shift).sum(axis=1)[:, None]
+        + 2.0 * influence.T * ((z * shift).sum(axis=1)[:, None] - shift @ responses.T)
+        + influence.T**2 * (shift * shift).sum(axis=1)[:, None]
     )
     errors = np.linalg.norm(posterior_mean(misfit, variance, grid) - xy, axis=1)
     spacing = np.sort(nearest_other(squared_distances(z, z)))

@@ -77,6 +77,13 @@ def test_the_map_is_kept_only_where_it_beats_the_inverse_model() -> None:
     assert isinstance(shuffled, KernelRidge)
 
 
+def test_presses_on_one_line_still_get_a_grid_along_it() -> None:
+    xy = np.column_stack([np.linspace(-0.05, 0.05, 21), np.zeros(21)])
+    grid = press_region_grid(xy)  # no convex hull: the presses' neighbourhoods
+    assert np.all(squared_distances(grid, xy).min(axis=1) <= 0.005**2 + 1e-12)
+    assert grid[:, 0].min() <= -0.05 and grid[:, 0].max() >= 0.05
+
+
 def test_real_hydrogel_few_press_goals(real_session, real_layer) -> None:
     """Issue 37 item 1 on the real 500-press skin, 5-fold: N = 50 <= 3.5 mm and N = 100 <=
     2.5 mm median (measured 2.6 and 2.35 mm; the inverse model alone: 4.2 and 3.1 mm)."""
