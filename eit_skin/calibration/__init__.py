@@ -2,7 +2,8 @@
 
 Modules: ``session`` (press session files: frames of presses at known positions, pairing a
 robot's probe log with a recording), ``features`` (relative change, pattern, magnitude),
-``kernel_ridge`` (RBF kernel ridge with leave-one-out hyperparameters), ``physics_prior``
+``kernel_ridge`` (RBF kernel ridge with leave-one-out hyperparameters), ``response_map``
+(position by matching the pattern to a learnt position -> pattern map), ``physics_prior``
 (presses simulated on the device's model as the localiser's prior), ``localiser``
 (:class:`PressLocaliser`: fit, k-fold cross-validation, locate, calibration files),
 ``template`` (a printable 1:1 template of numbered press targets), ``guide`` (calibration by

@@ -45,6 +45,21 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(d, 0.0)
 
 
+def nearest_other(d2: np.ndarray) -> np.ndarray:
+    """``[N]`` distance of each point to its nearest other one, from squared distances [N, N]."""
+    return np.sqrt(np.where(np.eye(len(d2), dtype=bool), np.inf, d2).min(axis=1))
+
+
+def nearest_share(nearest: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """``[T]`` confidence: share of the sorted training ``spacing`` [N] >= ``nearest`` [T].
+
+    ``nearest``: each query's distance to its nearest training input; ``spacing``: each
+    training input's distance to its nearest other one (the localiser's confidence rule).
+    """
+    farther = spacing.size - np.searchsorted(spacing, nearest, side="left")
+    return farther / spacing.size
+
+
 @dataclass(frozen=True, eq=False)
 class KernelRidge:
     """RBF kernel ridge regression (GP posterior mean) with leave-one-out hyperparameters.
@@ -138,8 +153,7 @@ class KernelRidge:
                     best = (float(errors.mean()), gamma, ridge, errors)
         error, gamma, ridge, errors = best
         weights = np.linalg.solve(np.exp(-gamma * d2) + ridge * np.eye(len(x)), yc)
-        np.fill_diagonal(d2, np.inf)
-        spacing = np.sort(np.sqrt(d2.min(axis=1)))
+        spacing = np.sort(nearest_other(d2))
         return cls(x, gamma, ridge, weights, offset, spacing, error, errors)
 
     def predict(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -147,9 +161,8 @@ class KernelRidge:
         if self.projection is not None:
             queries = (np.asarray(queries, float) - self.centre) @ self.projection
         d2 = squared_distances(queries, self._kernel_inputs)
-        nearest = np.sqrt(d2.min(axis=1))
-        farther = self.spacing.size - np.searchsorted(self.spacing, nearest, side="left")
-        return np.exp(-self.gamma * d2) @ self.weights + self.offset, farther / self.spacing.size
+        confidence = nearest_share(np.sqrt(d2.min(axis=1)), self.spacing)
+        return np.exp(-self.gamma * d2) @ self.weights + self.offset, confidence
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         projected = {}

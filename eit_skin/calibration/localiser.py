@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from eit_skin.calibration.features import relative_change, split_features
-from eit_skin.calibration.kernel_ridge import COMPONENT_COUNTS, KernelRidge
+from eit_skin.calibration.kernel_ridge import KernelRidge
 from eit_skin.calibration.multi_touch import MultiTouchModel, electrode_pitch
 from eit_skin.calibration.physics_prior import (
     PRIOR_MODES,
@@ -43,6 +43,7 @@ from eit_skin.calibration.physics_prior import (
     PriorPosition,
     fit_prior_position,
 )
+from eit_skin.calibration.response_map import ResponseMap, fit_position
 from eit_skin.calibration.session import PressSession
 from eit_skin.io.npz import write_npz_atomic
 from eit_skin.patch.model import Layer
@@ -52,6 +53,16 @@ FORMAT_VERSION = 1
 
 PRIOR_FORMAT_VERSION = 2
 """Version of a file whose position model has a physics prior (readers of version 1 refuse it)."""
+
+RESPONSE_MAP_FORMAT_VERSION = 3
+"""Version of a file whose position model is a response map (older readers refuse it)."""
+
+POSITION_MODELS = {
+    FORMAT_VERSION: KernelRidge,
+    PRIOR_FORMAT_VERSION: PriorPosition,
+    RESPONSE_MAP_FORMAT_VERSION: ResponseMap,
+}
+"""The position model class a file of each format version stores."""
 
 
 class CalibrationError(ValueError):
@@ -81,7 +92,8 @@ class PressLocaliser:
         layer_name: the layer it was calibrated on.
         layer_hash: ``Layer.content_hash`` of that layer.
         scale: ``[M]`` per-channel spread of the relative change over the training presses.
-        position: position model (pattern -> ``[x, y]`` m), with a physics prior or without.
+        position: position model (pattern -> ``[x, y]`` m): inverse kernel ridge, with a
+            physics prior or without, or a response map (:mod:`~eit_skin.calibration.response_map`).
         depth_model: depth model (pattern, standardised log-magnitude -> depth m), or ``None``.
         magnitude_stats: ``[2]`` mean and std of the training log-magnitudes.
         n_presses: training presses.
@@ -92,7 +104,7 @@ class PressLocaliser:
     layer_name: str
     layer_hash: str
     scale: np.ndarray
-    position: KernelRidge | PriorPosition
+    position: KernelRidge | PriorPosition | ResponseMap
     depth_model: KernelRidge | None
     magnitude_stats: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0]))
     n_presses: int = 0
@@ -127,7 +139,7 @@ class PressLocaliser:
         pattern, magnitude = split_features(d / scale)
         stats = np.array([magnitude.mean(), max(float(magnitude.std()), 1e-12)])
         position = (
-            KernelRidge.fit(pattern, session.press_xy, components=COMPONENT_COUNTS)
+            fit_position(pattern, session.press_xy)
             if prior is None
             else fit_prior_position(pattern, session.press_xy, prior, prior_modes)
         )
@@ -219,9 +231,9 @@ class PressLocaliser:
 
     def save(self, path: str | Path) -> None:
         """Write the calibration file atomically (npz, no pickles)."""
-        with_prior = isinstance(self.position, PriorPosition)
+        version = next(v for v, kind in POSITION_MODELS.items() if type(self.position) is kind)
         arrays = {
-            "format_version": np.int64(PRIOR_FORMAT_VERSION if with_prior else FORMAT_VERSION),
+            "format_version": np.int64(version),
             "kind": np.str_("press_localiser"),
             "layer_name": np.str_(self.layer_name),
             "layer_hash": np.str_(self.layer_hash),
@@ -254,19 +266,17 @@ class PressLocaliser:
                 f"{source}: key 'format_version'/'kind': not a press calibration file "
                 "(write one with `eit-skin calibrate`)"
             )
-        if int(version) not in (FORMAT_VERSION, PRIOR_FORMAT_VERSION):
+        if int(version) not in POSITION_MODELS:
             raise CalibrationError(
                 f"{source}: key 'format_version': version {int(version)}, this eit_skin reads "
-                f"versions {FORMAT_VERSION} and {PRIOR_FORMAT_VERSION} (calibrate again)"
+                f"versions {sorted(POSITION_MODELS)} (calibrate again)"
             )
         try:
             model = cls(
                 str(arrays["layer_name"]),
                 str(arrays["layer_hash"]),
                 arrays["scale"],
-                PriorPosition.from_arrays(arrays, "position")
-                if int(version) == PRIOR_FORMAT_VERSION
-                else KernelRidge.from_arrays(arrays, "position"),
+                POSITION_MODELS[int(version)].from_arrays(arrays, "position"),
                 KernelRidge.from_arrays(arrays, "depth") if "depth_weights" in arrays else None,
                 arrays["magnitude_stats"],
                 int(arrays["n_presses"]),

@@ -35,11 +35,11 @@ import numpy as np
 
 from eit_skin.calibration.features import relative_change, split_features
 from eit_skin.calibration.kernel_ridge import (
-    COMPONENT_COUNTS,
     KernelRidge,
     clearly_better,
     squared_distances,
 )
+from eit_skin.calibration.response_map import ResponseMap, fit_position
 from eit_skin.calibration.session import PressSession
 from eit_skin.calibration.stored_fields import StoredFields, stored_fields
 
@@ -182,12 +182,13 @@ def fit_prior_position(
     xy: np.ndarray,
     prior: PhysicsPrior,
     modes: tuple[str, ...] = PRIOR_MODES,
-) -> KernelRidge | PriorPosition:
+) -> KernelRidge | ResponseMap | PriorPosition:
     """Position model of real patterns ``[N, M]`` and press centres ``[N, 2]`` m, with ``prior``.
 
     Tries every mode of ``modes`` and weight of its grid by leave-one-out error; returns the
-    plain :class:`KernelRidge` unless the best prior beats it by more than one standard error
-    of the paired leave-one-out differences (else selection noise would decide).
+    plain model (:func:`~eit_skin.calibration.response_map.fit_position`) unless the best
+    prior beats it by more than one standard error of the paired leave-one-out differences
+    (else selection noise would decide).
     """
     unknown = set(modes) - set(PRIOR_MODES)
     if not modes or unknown:
@@ -196,8 +197,8 @@ def fit_prior_position(
     offset = m.mean(axis=0)
     spread = median_distance(xy)  # metres on the sheet, not the prior's own spread: a prior
     gain = median_distance(pattern) / spread if spread > 0 else 0.0  # that collapses stays so
-    plain = KernelRidge.fit(pattern, xy, components=COMPONENT_COUNTS)  # as without a prior
-    best: KernelRidge | PriorPosition = plain
+    plain = fit_position(pattern, xy)  # as without a prior
+    best: KernelRidge | ResponseMap | PriorPosition = plain
     for mode in modes:
         for weight in MEAN_WEIGHTS if mode == "mean" else FEATURE_WEIGHTS:
             if weight == 0.0 or (mode == "features" and gain == 0.0):

@@ -130,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
 
     from eit_skin.calibration.localiser import PressLocaliser, cross_validate
     from eit_skin.calibration.physics_prior import PRIOR_MODES, PriorPosition
+    from eit_skin.calibration.response_map import ResponseMap
     from eit_skin.calibration.session import load_press_session
     from eit_skin.patch.model import PatchError
 
@@ -160,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(position, PriorPosition)
             else "  not kept: no better than without it by leave-one-out (one standard error)"
         )
+    if isinstance(model.position, ResponseMap):
+        k = model.position.projection.shape[1]
+        print(f"  position: response map on {k} principal components (leave-one-out)")
     print(
         f"{session.n_presses} presses, {args.folds}-fold: position error median "
         f"{np.median(e):.1f} mm, p90 {np.percentile(e, 90):.1f} mm"
