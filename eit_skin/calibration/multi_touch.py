@@ -41,7 +41,7 @@ from functools import cached_property
 
 import numpy as np
 
-from eit_skin.calibration.stored_fields import StoredFields, stored_fields
+from eit_skin.calibration.stored_fields import StoredFields, stored_dataclass
 from eit_skin.patch.model import Layer
 
 FALSE_SPLIT_RATE = 0.05
@@ -133,27 +133,11 @@ class MultiTouchModel:
         return PairBasis(self.responses, self.press_xy, self.min_separation_m)
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return stored_fields(
-            prefix,
-            responses=self.responses,
-            press_xy=self.press_xy,
-            min_separation_m=np.float64(self.min_separation_m),
-            threshold=np.float64(self.threshold),
-            false_split_rate=np.float64(self.false_split_rate),
-            residuals=self.residuals,
-        )
+        return stored_dataclass(prefix, self)
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> MultiTouchModel:
-        fields = StoredFields(arrays, prefix)
-        return cls(
-            fields["responses"],
-            fields["press_xy"],
-            fields.value("min_separation_m"),
-            fields.value("threshold"),
-            fields.value("false_split_rate"),
-            fields["residuals"],
-        )
+        return StoredFields(arrays, prefix).dataclass(cls)
 
     def decompose(self, x: np.ndarray, max_touches: int) -> TouchSplit | None:
         """Split one frame's response ``x`` [M] into 2..max_touches touches; None: one touch."""

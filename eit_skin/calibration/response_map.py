@@ -33,7 +33,7 @@ from eit_skin.calibration.kernel_ridge import (
     nearest_share,
     squared_distances,
 )
-from eit_skin.calibration.stored_fields import StoredFields, stored_fields
+from eit_skin.calibration.stored_fields import StoredFields, stored_dataclass
 
 GRID_STEPS = 64
 """Grid steps across the larger side of the training presses' bounding box."""
@@ -102,31 +102,11 @@ class ResponseMap:
         return xy, nearest_share(np.sqrt(nearest), self.spacing)
 
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return stored_fields(
-            prefix,
-            centre=self.centre,
-            projection=self.projection,
-            grid=self.grid,
-            grid_responses=self.grid_responses,
-            variance=np.float64(self.variance),
-            responses=self.responses,
-            spacing=self.spacing,
-            loo_error=np.float64(self.loo_error),
-        )
+        return stored_dataclass(prefix, self, skip=("loo_errors",))
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> ResponseMap:
-        fields = StoredFields(arrays, prefix)
-        return cls(
-            fields["centre"],
-            fields["projection"],
-            fields["grid"],
-            fields["grid_responses"],
-            fields.value("variance"),
-            fields["responses"],
-            fields["spacing"],
-            fields.value("loo_error"),
-        )
+        return StoredFields(arrays, prefix).dataclass(cls, skip=("loo_errors",))
 
 
 def fit_response_map(

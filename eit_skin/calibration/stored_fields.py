@@ -9,7 +9,7 @@ Scalars are stored as 0-d arrays.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -17,6 +17,14 @@ import numpy as np
 def stored_fields(prefix: str, **fields: object) -> dict[str, np.ndarray]:
     """``fields`` as the file keeps them: ``{"<prefix>_<name>": array}`` (scalars 0-d)."""
     return {f"{prefix}_{name}": np.asarray(value) for name, value in fields.items()}
+
+
+def stored_dataclass(
+    prefix: str, model: object, skip: tuple[str, ...] = ()
+) -> dict[str, np.ndarray]:
+    """:func:`stored_fields` of every field of the dataclass instance ``model`` but ``skip``."""
+    kept = {f.name: getattr(model, f.name) for f in fields(model) if f.name not in skip}
+    return stored_fields(prefix, **kept)
 
 
 @dataclass(frozen=True)
@@ -41,3 +49,15 @@ class StoredFields:
 
     def get(self, name: str) -> np.ndarray | None:
         return self.arrays.get(self.key(name))
+
+    def dataclass(self, cls: type, skip: tuple[str, ...] = ()):
+        """An instance of the dataclass ``cls`` from its stored fields.
+
+        Fields annotated ``float`` are read as floats; ``skip``: fields left to their defaults.
+        """
+        kwargs = {
+            f.name: self.value(f.name) if f.type in ("float", float) else self[f.name]
+            for f in fields(cls)
+            if f.name not in skip
+        }
+        return cls(**kwargs)
