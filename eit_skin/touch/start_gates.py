@@ -22,7 +22,12 @@ import numpy as np
 from eit_skin.touch.background import running_mean
 from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import PooledDetector
-from eit_skin.touch.frame_evidence import FrameEvidence, TouchFilter, electrode_roughness
+from eit_skin.touch.frame_evidence import (
+    FrameEvidence,
+    TouchFilter,
+    electrode_roughness,
+    whiteness,
+)
 
 FLICKER = 2.0
 """The sheet flickers when the median over its pixels of the raw image's second difference in
@@ -37,6 +42,14 @@ ratio of median squared second differences: sqrt(10) = 3.2 in amplitude, the pip
 for a noisy electrode), whatever the image's flicker (how far a fault's noise spreads over
 the image depends on the reconstruction); otherwise the flicker is the touch's own and delays
 nothing."""
+
+
+WHITE = 2.0
+"""With raw frames, a fault's flicker must also be white in time on its electrode's channels:
+their second difference in time, squared, at least this many times their first
+(:func:`~eit_skin.touch.frame_evidence.whiteness`; white noise 3, its second frame 2.5, a
+ramp's corner 1, a ramp 0): a failing electrode's noise is white, the onset of a press next
+to an electrode, which can bend its channels as much, is a ramp."""
 
 
 class StartGates:
@@ -85,7 +98,6 @@ class StartGates:
         self.flicker = 0.0
         self.faulty: tuple[int, ...] = ()
         self.relearning = False
-        self._fault_before = False  # the raw frames flickered like a fault the frame before
 
     def learn(
         self,
@@ -195,11 +207,9 @@ class StartGates:
             # spreads a failing electrode's noise over the sheet (flicker 2-8), a one-step
             # Tikhonov image keeps it near the electrode (1.7, face), Gauss-Newton's image
             # of the idle small disc reads 0.99: no image flicker is a fault's bar. A fault
-            # is white in time, so it bends its channels in two frames running; a press's
-            # onset next to an electrode bends them once (face STARTs max 108 -> 99 ms)
-            fault = self.fault_like()
-            flicker = max(flicker, FLICKER) if fault and self._fault_before else 0.0
-            self._fault_before = fault
+            # is white in time, a press's onset next to an electrode a ramp (:data:`WHITE`)
+            fault = self.fault_like() and self.white_in_time()
+            flicker = max(flicker, FLICKER) if fault else 0.0
         elif flicker >= FLICKER and not self.fault_like():
             flicker = 0.0  # the raw frames name no electrode: the touch's own onset
         self.flicker = flicker
@@ -235,6 +245,17 @@ class StartGates:
         bend = w[-1] - 2.0 * w[-2] + w[-3]
         bend[~self.evidence.usable(self.faulty)] = np.nan
         return not electrode_roughness(bend, channels) < ELECTRODE_FLICKER
+
+    def white_in_time(self) -> bool:
+        """Whether the roughest electrode's channels are white in time (:data:`WHITE`).
+
+        Needs three raw frames and the channel map (:attr:`raw_fault_test`).
+        """
+        w = self._whites
+        usable = self.evidence.usable(self.faulty)
+        bend = np.where(usable, w[-1] - 2.0 * w[-2] + w[-3], np.nan)
+        step = np.where(usable, w[-1] - w[-2], np.nan)
+        return not whiteness(bend, step, self.evidence.channel_electrodes) < WHITE
 
     def smooth_enough(self) -> bool:
         """No START while the sheet flickers and the candidate is as rough as noise."""
