@@ -212,6 +212,7 @@ class TouchClassifier:
         #: why the latest touch was withdrawn, until the sheet is still again; else None
         self.sheet_changed: str | None = None
         self._stillness: StillnessWindow | None = None  # after a sheet change
+        self._relearn_s = 0.0  # no-touch time left to learn the maps of changed images, s
 
     @property
     def segmenter(self):
@@ -240,7 +241,9 @@ class TouchClassifier:
         Events whose centroid lies within ``fault_radius`` single-finger spreads of a faulty
         electrode carry ``fault_confidence`` times their confidence, the START gates leave
         its raw channels out, and the image's noise maps, now of other images, are learnt
-        again (:meth:`~eit_skin.touch.noise_count.NoiseCount.restart`); nothing else changes
+        again (:meth:`~eit_skin.touch.noise_count.NoiseCount.restart`) from every frame of the
+        next ``calibration_s`` without a touch, in which only the raw frames' filter STARTs;
+        nothing else changes
         (why: docs/classifier.md, "Faulty electrodes").
 
         Raises:
@@ -257,6 +260,10 @@ class TouchClassifier:
             self.background.count.restart()
             if self.gates.detector is not None:
                 self.gates.detector.count.restart()
+            # and the images START nothing until the maps have learnt them: a map of the old
+            # images cannot tell which frames are quiet (Gauss-Newton's images without the
+            # electrode never were, and the pooled image STARTed a false push every 0.3 s)
+            self._relearn_s = self.config.calibration_s
         self.gates.faulty = faulty
 
     def near_fault(self, point_m) -> bool:
@@ -418,6 +425,8 @@ class TouchClassifier:
         self.events.signal = signal
         self.gates.push_image(pressure)
         self._times = [*self._times[-self.config.lookback_frames :], t_s]
+        # the images changed (set_faulty_electrodes): only the raw frames' filter may START
+        relearning = self.gates.relearning = self._relearn_s > 0 and not self.events.active
         detected = self.gates.detect(signal, self._times)  # first frame of a pooled detection
         contacts, parts = bg.segmenter.segment_with_labels(signal)
         self.last_contacts = contacts
@@ -428,24 +437,41 @@ class TouchClassifier:
             candidate = mask if contacts else None
             self.gates.follow_roughness(pressure, bg.baseline, offset, noise, candidate)
         bg.note_contacts(mask, bool(contacts))
-        stretch_peak = None
-        if stretch is not None and bg.stretch_baseline is not None:
-            s = stretch - bg.stretch_baseline
-            stretch_peak = float(np.nanmax(s)) if np.isfinite(s).any() else None
+        stretch_peak = self._stretch_peak(stretch)
         shape = None
         if contacts:
             shape = self.events.shape(t_s, signal, mask)
         # contacts below the START bar are noise, not a touch: the baseline (and the raw
         # frames' reference) keep following a drifting sheet through them; before, they
         # froze it and a slow drift grew into a touch (data/real/hydrogel_ohmc16)
+        if relearning:  # learn the changed images' noise from every frame: no contact counts
+            contacts = self._relearn(dt, signal)
         if not self.events.active and not (contacts and self.events.strong):
             bg.follow(dt, pressure, stretch)
-            if not contacts:
+            if not contacts and not relearning:
                 self._follow_noise(dt, signal)
             if volts is not None:
                 self.evidence.follow(1.0 - math.exp(-dt / self.config.baseline_tau_s), volts)
         events = self.events.advance(t_s, contacts, stretch_peak, shape, detected)
         return events + self._withdraw_stuck_touch(t_s)
+
+    def _stretch_peak(self, stretch: np.ndarray | None) -> float | None:
+        """The largest stretch above its baseline in ``stretch`` ``[H, W]``, or None."""
+        bg = self.background
+        if stretch is None or bg.stretch_baseline is None:
+            return None
+        s = stretch - bg.stretch_baseline
+        return float(np.nanmax(s)) if np.isfinite(s).any() else None
+
+    def _relearn(self, dt: float, signal: np.ndarray) -> list[Contact]:
+        """Teach the image maps a frame of changed images, whatever they make of it.
+
+        Called for ``calibration_s`` of frames without a touch after a new faulty set; the
+        frame's contacts: none (the maps cannot tell them from noise yet).
+        """
+        self._relearn_s -= dt
+        self._follow_noise(dt, signal, every_frame=True)
+        return []
 
     def _withdraw_stuck_touch(self, t_s: float) -> list[TouchEvent]:
         """Withdraw a touch going on for longer than ``sheet_change_taus`` baseline constants.
@@ -480,14 +506,17 @@ class TouchClassifier:
         """End a touch still going on at the end of a stream (END at its last contact)."""
         return self.events.finish(t_s)
 
-    def _follow_noise(self, dt: float, signal: np.ndarray) -> None:
-        """Teach the noise maps a no-touch frame ``signal`` ``[H, W]`` (time ``noise_tau_s``)."""
+    def _follow_noise(self, dt: float, signal: np.ndarray, every_frame: bool = False) -> None:
+        """Teach the noise maps a no-touch frame ``signal`` ``[H, W]`` (time ``noise_tau_s``).
+
+        ``every_frame``: even one the maps do not find quiet (they are of other images).
+        """
         if self.config.noise_tau_s <= 0:
             return
         alpha = 1.0 - math.exp(-dt / self.config.noise_tau_s)
         if alpha <= 0.0:  # no time passed (two boards' images with one stamp): nothing to learn
             return
-        if self.gates.follow_noise(alpha):
+        if self.gates.follow_noise(alpha, every_frame):
             self.background.follow_noise(alpha, signal)
 
 

@@ -112,6 +112,22 @@ class FrameEvidence:
         return ok
 
 
+def _electrode_ratios(b2: np.ndarray, channel_electrodes: np.ndarray) -> np.ndarray:
+    """``[E]`` median ``b2`` over each electrode's channels over the median over the others.
+
+    ``b2`` ``[M]`` (NaN: left out); NaN for an electrode without channels on either side.
+    """
+    ok = np.isfinite(b2)
+    table = np.asarray(channel_electrodes, dtype=bool).T  # [E, M]
+    touch, rest = table & ok, ~table & ok  # row_medians reads only these entries
+    keep = touch.any(axis=1) & rest.any(axis=1)
+    ratios = np.full(len(table), np.nan)
+    if keep.any():
+        own, others = row_medians(b2, touch)[keep], row_medians(b2, rest)[keep]
+        ratios[keep] = own / np.maximum(others, np.finfo(float).tiny)
+    return ratios
+
+
 def electrode_roughness(bend: np.ndarray, channel_electrodes: np.ndarray) -> float:
     """How much rougher one electrode's channels are than the rest, in one frame.
 
@@ -121,15 +137,27 @@ def electrode_roughness(bend: np.ndarray, channel_electrodes: np.ndarray) -> flo
     for noise, a smooth touch or a touch's onset spread over the sheet, ``g**2`` for an
     electrode whose channels have ``g`` times their noise. NaN without enough channels.
     """
-    b2 = np.asarray(bend, dtype=np.float64) ** 2
-    ok = np.isfinite(b2)
-    table = np.asarray(channel_electrodes, dtype=bool).T  # [E, M]
-    touch, rest = table & ok, ~table & ok  # row_medians reads only these entries
-    keep = touch.any(axis=1) & rest.any(axis=1)
-    if not keep.any():
+    ratios = _electrode_ratios(np.asarray(bend, dtype=np.float64) ** 2, channel_electrodes)
+    return float(np.nanmax(ratios)) if np.isfinite(ratios).any() else float("nan")
+
+
+def whiteness(bend: np.ndarray, step: np.ndarray, channel_electrodes: np.ndarray) -> float:
+    """How white in time the roughest electrode's channels are, in one frame.
+
+    ``bend`` ``[M]``: a whitened frame's second difference in time, ``step`` ``[M]``: its
+    first (NaN: left out), ``channel_electrodes`` ``[M, E]``. On the channels of the
+    electrode of :func:`electrode_roughness`, the median ``bend**2`` over the median
+    ``step**2``: 3 for white noise (2.5 in the second frame of a noise that starts), 1 at
+    the corner of a ramp, 0 on a ramp. NaN without enough channels.
+    """
+    bend, step = np.asarray(bend, dtype=np.float64), np.asarray(step, dtype=np.float64)
+    b2 = np.where(np.isfinite(step), bend**2, np.nan)
+    ratios = _electrode_ratios(b2, channel_electrodes)
+    if not np.isfinite(ratios).any():
         return float("nan")
-    own, others = row_medians(b2, touch)[keep], row_medians(b2, rest)[keep]
-    return float(np.max(own / np.maximum(others, np.finfo(float).tiny)))
+    own = np.asarray(channel_electrodes, dtype=bool)[:, int(np.nanargmax(ratios))]
+    own = own & np.isfinite(b2)
+    return float(np.median(b2[own]) / max(float(np.median(step[own] ** 2)), np.finfo(float).tiny))
 
 
 def channel_electrodes(protocol: Protocol) -> np.ndarray:

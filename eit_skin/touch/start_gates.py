@@ -7,9 +7,9 @@
 * the **matched filter** of the raw frames (with the pressure layer's raw frames and the
   fingertip patterns ``disc_rel``: :class:`~eit_skin.touch.frame_evidence.TouchFilter`, in
   its own pooled detector);
-* **flicker and roughness**: while the whole sheet flickers like a failing electrode
-  (:data:`FLICKER`, named by the raw frames: :data:`ELECTRODE_FLICKER`), a candidate STARTs
-  only if it is smoother than noise (``start_roughness``).
+* **flicker and roughness**: while the raw frames flicker like a failing electrode
+  (:data:`ELECTRODE_FLICKER`; images alone: the whole sheet, :data:`FLICKER`), a candidate
+  STARTs only if it is smoother than noise (``start_roughness``).
 
 After an END each detector waits for a silent image before it can START again. Why each rule
 exists: docs/classifier.md.
@@ -22,7 +22,12 @@ import numpy as np
 from eit_skin.touch.background import running_mean
 from eit_skin.touch.config import ClassifierConfig
 from eit_skin.touch.contacts import PooledDetector
-from eit_skin.touch.frame_evidence import FrameEvidence, TouchFilter, electrode_roughness
+from eit_skin.touch.frame_evidence import (
+    FrameEvidence,
+    TouchFilter,
+    electrode_roughness,
+    whiteness,
+)
 
 FLICKER = 2.0
 """The sheet flickers when the median over its pixels of the raw image's second difference in
@@ -31,10 +36,20 @@ variance ``v``): noise alone gives about 0.45 (the median of a chi-square with o
 freedom), smooth touches 0.4-1, a degrading electrode 2-8."""
 
 ELECTRODE_FLICKER = 10.0
-"""With raw frames, a flicker counts as a fault's only if one electrode's channels are this
+"""With raw frames, the sheet flickers like a fault when one electrode's channels are this
 much rougher than the others (:func:`~eit_skin.touch.frame_evidence.electrode_roughness`, a
 ratio of median squared second differences: sqrt(10) = 3.2 in amplitude, the pipeline's rule
-for a noisy electrode); otherwise the flicker is the touch's own and delays nothing."""
+for a noisy electrode), whatever the image's flicker (how far a fault's noise spreads over
+the image depends on the reconstruction); otherwise the flicker is the touch's own and delays
+nothing."""
+
+
+WHITE = 2.0
+"""With raw frames, a fault's flicker must also be white in time on its electrode's channels:
+their second difference in time, squared, at least this many times their first
+(:func:`~eit_skin.touch.frame_evidence.whiteness`; white noise 3, its second frame 2.5, a
+ramp's corner 1, a ramp 0): a failing electrode's noise is white, the onset of a press next
+to an electrode, which can bend its channels as much, is a ramp."""
 
 
 class StartGates:
@@ -53,6 +68,8 @@ class StartGates:
         start_detector: the matched filter's detector (None without raw frames).
         flicker: the sheet's flicker in the latest frame it was computed for.
         faulty: electrodes the imaging leaves out (sorted; their channels are left out).
+        relearning: the image maps are learning images changed by a new faulty set: the
+            pooled image STARTs nothing (set by the classifier each frame).
         filter_change: ``[M]`` the whitened change the matched filter read this frame (its
             running mean; NaN: channel left out), or None (no filter map this frame).
     """
@@ -80,6 +97,7 @@ class StartGates:
         self._rough: list[tuple[float, float, float]] = []  # per candidate frame
         self.flicker = 0.0
         self.faulty: tuple[int, ...] = ()
+        self.relearning = False
 
     def learn(
         self,
@@ -136,6 +154,7 @@ class StartGates:
         run = self.detector.update(signal)
         self._armed = self._armed or not self.detector.hit
         run = run if self._armed else 0  # after an END, until the image fell silent
+        run = 0 if self.relearning else run  # a map of other images: no evidence
         start = self.start_detector
         n = 0 if start is None else start.frames_per_sample
         # a running mean of n raw frames, as calibrated (none yet: the image decides)
@@ -184,13 +203,13 @@ class StartGates:
         ok = np.isfinite(bend)
         flicker = float(np.median(bend[ok] ** 2 / (6.0 * var[ok]))) if ok.any() else 0.0
         if self.raw_fault_test:
-            # the raw frames decide, whatever the reconstruction makes of the fault: a
-            # one-step Tikhonov image keeps a failing electrode's noise near it (sheet
-            # flicker 1.7, face) where GREIT spreads it over the sheet (2-8); an image
-            # flickering at half the bar (twice noise's) counts when they name an electrode
-            fault = self.fault_like()
-            flicker = max(flicker, FLICKER) if fault and flicker >= FLICKER / 2 else flicker
-            flicker = flicker if fault else 0.0
+            # the raw frames decide, whatever the reconstruction makes of the fault: GREIT
+            # spreads a failing electrode's noise over the sheet (flicker 2-8), a one-step
+            # Tikhonov image keeps it near the electrode (1.7, face), Gauss-Newton's image
+            # of the idle small disc reads 0.99: no image flicker is a fault's bar. A fault
+            # is white in time, a press's onset next to an electrode a ramp (:data:`WHITE`)
+            fault = self.fault_like() and self.white_in_time()
+            flicker = max(flicker, FLICKER) if fault else 0.0
         elif flicker >= FLICKER and not self.fault_like():
             flicker = 0.0  # the raw frames name no electrode: the touch's own onset
         self.flicker = flicker
@@ -227,6 +246,17 @@ class StartGates:
         bend[~self.evidence.usable(self.faulty)] = np.nan
         return not electrode_roughness(bend, channels) < ELECTRODE_FLICKER
 
+    def white_in_time(self) -> bool:
+        """Whether the roughest electrode's channels are white in time (:data:`WHITE`).
+
+        Needs three raw frames and the channel map (:attr:`raw_fault_test`).
+        """
+        w = self._whites
+        usable = self.evidence.usable(self.faulty)
+        bend = np.where(usable, w[-1] - 2.0 * w[-2] + w[-3], np.nan)
+        step = np.where(usable, w[-1] - w[-2], np.nan)
+        return not whiteness(bend, step, self.evidence.channel_electrodes) < WHITE
+
     def smooth_enough(self) -> bool:
         """No START while the sheet flickers and the candidate is as rough as noise."""
         limit = self.config.start_roughness
@@ -247,15 +277,16 @@ class StartGates:
         start = self.start_detector
         return start if start is not None and start.hit else self.detector
 
-    def follow_noise(self, alpha: float) -> bool:
+    def follow_noise(self, alpha: float, every_frame: bool = False) -> bool:
         """Teach the detectors' noise (weight ``alpha``).
 
         False while the pooled image is not quiet: a weak touch may be building up, and no
-        noise map learns then.
+        noise map learns then; ``every_frame``: the pooled map learns even so (its images
+        changed, so its quiet means nothing).
         """
         if self.detector is None:
             return True
-        if not self.detector.quiet:
+        if not (self.detector.quiet or every_frame):
             return False
         self.detector.follow_noise(alpha)
         start = self.start_detector

@@ -85,17 +85,7 @@ def _starts(imaged, t, frames, first: int, last: int) -> list:
     return out
 
 
-def test_drift_and_a_degrading_electrode_start_nothing(imaged, idle_frames, request) -> None:
-    if request.node.callspec.id == "Gauss-Newton":
-        request.applymarker(
-            pytest.mark.xfail(
-                strict=True,
-                reason="known, not fixed: Gauss-Newton keeps the failing electrode's noise so "
-                "close to it that the sheet's flicker reads 0.99, under the half bar (1) that "
-                "counts when the raw frames name an electrode; 6 strong contacts START a grab "
-                "in the fault's second frame",
-            )
-        )
+def test_drift_and_a_degrading_electrode_start_nothing(imaged, idle_frames) -> None:
     t, frames, _ = idle_frames
     faulty = imaged[1]
     assert any(5 in f for f in faulty)  # the pipeline names the electrode in the end

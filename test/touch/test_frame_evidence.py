@@ -22,9 +22,10 @@ from eit_skin.touch.frame_evidence import (
     channel_electrodes,
     electrode_roughness,
     shape_change_z,
+    whiteness,
 )
 from eit_skin.touch.shapes import fingertip_discs, raw_patterns
-from eit_skin.touch.start_gates import ELECTRODE_FLICKER
+from eit_skin.touch.start_gates import ELECTRODE_FLICKER, WHITE
 from test.support.synthetic_touches import INSIDE, X, Y, envelope, sequence
 
 M = 208
@@ -161,6 +162,37 @@ def test_electrode_roughness_names_one_rough_electrode_and_nothing_spread() -> N
     left_out[table[:, 7]] = np.nan  # that electrode's channels out (faulty): nothing left
     assert electrode_roughness(left_out, table) < 5.0
     assert math.isnan(electrode_roughness(np.full(M, np.nan), table))
+
+
+def test_whiteness_tells_a_failing_electrodes_noise_from_a_press_onset_on_its_channels() -> None:
+    """10x white noise on one electrode's channels: second over first difference energy
+    about 3 (2.5 in the noise's second frame), at least :data:`WHITE` in most frames; those
+    channels bending as a press's onset next to that electrode does (the corner of a ramp,
+    an accelerating rise), as rough as the noise to :func:`electrode_roughness`: about 1
+    and 0.4, always under it."""
+    protocol = build_protocol(load_patch(config_path("arm")).layers[0].protocol, 16)
+    table = channel_electrodes(protocol)
+    rng = np.random.default_rng(4)
+    own = table[:, 7]
+
+    def white(extra):  # three whitened frames [3, M]: unit noise plus ``extra``
+        w = rng.normal(size=(3, M)) + extra
+        return whiteness(w[2] - 2.0 * w[1] + w[0], w[2] - w[1], table)
+
+    def fault(frames):  # 10x noise on electrode 7's channels in the last ``frames`` frames
+        return 10.0 * rng.normal(size=(3, M)) * own * (np.arange(3) >= 3 - frames)[:, None]
+
+    noisy = np.array([white(fault(3)) for _ in range(200)])
+    started = np.array([white(fault(2)) for _ in range(200)])
+    assert 2.5 < np.median(noisy) < 3.5 and np.mean(noisy >= WHITE) > 0.8
+    assert 2.0 < np.median(started) < 3.0 and np.mean(started >= WHITE) > 0.7
+    corner = 30.0 * np.array([0.0, 0.0, 1.0])[:, None] * own
+    rising = 30.0 * np.array([0.0, 1.0, 4.0])[:, None] * own
+    for onset in (corner, rising):
+        bend = onset[2] - 2.0 * onset[1] + onset[0] + np.sqrt(6.0) * rng.normal(size=M)
+        assert electrode_roughness(bend, table) > ELECTRODE_FLICKER
+        assert max(white(onset) for _ in range(200)) < 1.5
+    assert math.isnan(whiteness(np.full(M, np.nan), np.zeros(M), table))
 
 
 def test_electrode_roughness_stays_low_on_a_real_devices_frames() -> None:
