@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from eit_skin.cli.main import main
-from eit_skin.fem.forward import ForwardModel
 from eit_skin.inverse.channel_noise import (
     MAX_BAD_FRACTION,
     UnusableReferenceError,
@@ -18,33 +17,22 @@ from eit_skin.inverse.channel_noise import (
 )
 from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.one_step import ReconstructionMatrix
-from eit_skin.patch.loading import load_patch
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
-from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
-from test.support.patch_copies import small_disc_patch
+from test.support.pressed_disc import PRESS_M, pressed_disc
 
-SMALL = small_disc_patch(
+SOLVER = (
     "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20}"
 )
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
-PRESS = np.array([0.015, 0.01])
+PRESS = np.array(PRESS_M)
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     """(patch path, imager, no-load [M] V, pressed [M] V) of a 16-electrode disc."""
-    path = tmp_path_factory.mktemp("small") / "small.yaml"
-    path.write_text(SMALL)
-    layer = load_patch(path).layers[0]
-    imager = LayerImager.build(layer, cache_dir=None)
-    forward = ForwardModel(
-        imager.mesh, imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
-    )
-    s0 = layer.material.sheet_conductance_s
-    sigma = np.full(imager.mesh.n_triangles, s0)
-    sigma[np.linalg.norm(imager.mesh.centroids - PRESS, axis=1) < 0.008] *= 0.5
-    return path, imager, forward.voltages(s0), forward.voltages(sigma)
+    disc = pressed_disc(tmp_path_factory.mktemp("small"), SOLVER, factor=0.5)
+    return disc.path, disc.imager, disc.unloaded_v, disc.pressed_v
 
 
 # --- noise estimates against a known simulated noise ------------------------------------------

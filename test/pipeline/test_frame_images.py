@@ -10,13 +10,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import proportional_columns
 from eit_skin.inverse.one_step import ReconstructionMatrix, relative_difference
-from eit_skin.patch.loading import load_patch
-from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.frame_plan import FrameChecks, reference_step
-from test.support.patch_copies import small_disc_patch
+from test.support.pressed_disc import pressed_disc
 from test.support.reconstruction_phantoms import RADIUS_M, phantom, setup
 
 R = RADIUS_M
@@ -118,23 +115,11 @@ def test_reciprocal_channels_share_a_column_weighted_or_not(s, matrix):
         _ = matrix.without_channels(s.coarse.protocol.touching([2])).merged
 
 
-SMALL = small_disc_patch(
-    "{method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16}"
-)
-
-
 def test_layer_frame_images_match_the_three_steps(tmp_path):
-    path = tmp_path / "small.yaml"
-    path.write_text(SMALL)
-    layer = load_patch(path).layers[0]
-    imager = LayerImager.build(layer, cache_dir=None)
-    forward = ForwardModel(
-        imager.mesh, imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
+    disc = pressed_disc(
+        tmp_path, "{method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16}", 1.5
     )
-    s0 = layer.material.sheet_conductance_s
-    sigma = np.full(imager.mesh.n_triangles, s0)
-    sigma[np.linalg.norm(imager.mesh.centroids - [0.015, 0.01], axis=1) < 0.008] *= 1.5
-    v0, v = forward.voltages(s0), forward.voltages(sigma)
+    layer, imager, v0, v = disc.layer, disc.imager, disc.unloaded_v, disc.pressed_v
     imager.use_reference(v0)
     steps = imager.images(imager.physical(imager.relative_change(v, v0)))
     got = imager.frame_images(v, v0)

@@ -9,36 +9,24 @@ import sys
 import numpy as np
 import pytest
 
-from eit_skin.fem.forward import ForwardModel
 from eit_skin.frames import FLAG_INVALID, FLAG_SATURATED
-from eit_skin.patch.loading import load_patch
-from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor, fault_check_phase, stamp_to_s
 from eit_skin.pipeline.reference import PostureReferences
-from test.support.patch_copies import small_disc_patch
+from test.support.pressed_disc import PRESS_M, pressed_disc
 
-SMALL = small_disc_patch(
+SOLVER = (
     "{method: one_step, prior: laplace, hyperparameter: 0.05, image_pixels: 16, "
     "reference_frames: 4}"
 )
-PRESS = np.array([0.015, 0.01])  # m, centre of the pressed disc
+PRESS = np.array(PRESS_M)  # m, centre of the pressed disc
 NOISE = 1e-4  # relative to the rms frame
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     """(imager, no-load frame [M] V, pressed frame [M] V) of a 16-electrode disc."""
-    path = tmp_path_factory.mktemp("small") / "small.yaml"
-    path.write_text(SMALL)
-    layer = load_patch(path).layers[0]
-    imager = LayerImager.build(layer, cache_dir=None)
-    forward = ForwardModel(
-        imager.mesh, imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
-    )
-    s0 = layer.material.sheet_conductance_s
-    sigma = np.full(imager.mesh.n_triangles, s0)
-    sigma[np.linalg.norm(imager.mesh.centroids - PRESS, axis=1) < 0.008] *= 1.5
-    return imager, forward.voltages(s0), forward.voltages(sigma)
+    disc = pressed_disc(tmp_path_factory.mktemp("small"), SOLVER, factor=1.5)
+    return disc.imager, disc.unloaded_v, disc.pressed_v
 
 
 def noisy(v: np.ndarray, n: int, seed: int) -> np.ndarray:
