@@ -16,10 +16,10 @@ from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
 from eit_skin.resources import config_path
-from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
+from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.press_session import PressDraw, simulate_press_session
-from test.support.calibrated_node import reference_ready, wait_linked
+from test.support.calibrated_node import CalibratedFeed, wait_linked
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -74,26 +74,9 @@ def test_calibrated_contacts_put_presses_where_they_were(tmp_path, calibrated) -
     try:
         wait_linked(probe, node, publisher, topics.calibrated_contacts, log)
         # the no-load reference: the presses' own unloaded frames, again until it is taken
-        k = 0
-        while not reference_ready(probe):
-            assert k < 50 * TEST_PRESSES, log.read_text()
-            publisher.publish(frame_msg(layer, k, presses.references[k % TEST_PRESSES]))
-            k += 1
-            probe.spin_until(lambda: reference_ready(probe), 0.1 if k % TEST_PRESSES else 5)
-        got = probe.messages[topics.calibrated_contacts]
-
-        def send(voltages: np.ndarray) -> ContactArray:
-            """Publish a frame, wait for its calibrated array (best effort: resend if lost)."""
-            nonlocal k
-            for _attempt in range(5):
-                msg = frame_msg(layer, k, voltages)
-                k += 1
-                stamp = stamp_ns(msg)
-                publisher.publish(msg)
-                if probe.spin_until(lambda s=stamp: any(stamp_ns(m) == s for _, m in got), 30):
-                    return next(m for _, m in got if stamp_ns(m) == stamp)
-            raise AssertionError(log.read_text())
-
+        feed = CalibratedFeed(probe, publisher, layer, topics.calibrated_contacts, log)
+        feed.take_reference(presses.references[:TEST_PRESSES], 50 * TEST_PRESSES)
+        send = feed.send
         unloaded = [send(presses.references[i]) for i in range(3)]
         located = [send(presses.frames[i]) for i in range(TEST_PRESSES)]
     finally:

@@ -20,11 +20,11 @@ from eit_skin.calibration.localiser import PressLocaliser
 from eit_skin.cli.main import main
 from eit_skin.patch.loading import load_patch
 from eit_skin.pipeline.builder import LayerImager
-from eit_skin.ros.probe import Probe, frame_msg, stamp_ns, start_node, stop_node
+from eit_skin.ros.probe import Probe, start_node, stop_node
 from eit_skin.ros.topics import DIAGNOSTICS, patch_topics
 from eit_skin.sim.multi_press import simulate_simultaneous_presses
 from eit_skin.sim.press_session import PressDraw, simulate_press_session
-from test.support.calibrated_node import reference_ready, wait_linked
+from test.support.calibrated_node import CalibratedFeed, wait_linked
 from test.support.patience import EVENT_S
 
 pytestmark = pytest.mark.ros
@@ -87,26 +87,9 @@ def test_two_probe_presses_give_two_calibrated_contacts(tmp_path, calibrated) ->
     node = start_node("eit_reconstruction", NAMESPACE, params, log)
     try:
         wait_linked(probe, node, publisher, topics.calibrated_contacts, log)
-        k = 0
-        while not reference_ready(probe):
-            assert k < 150, log.read_text()
-            publisher.publish(frame_msg(layer, k, baselines[k % len(baselines)]))
-            k += 1
-            probe.spin_until(lambda: reference_ready(probe), 0.1 if k % 3 else 5)
-        got = probe.messages[topics.calibrated_contacts]
-
-        def send(voltages: np.ndarray) -> ContactArray:
-            """Publish a frame, wait for its calibrated array (best effort: resend if lost)."""
-            nonlocal k
-            for _attempt in range(5):
-                msg = frame_msg(layer, k, voltages)
-                k += 1
-                stamp = stamp_ns(msg)
-                publisher.publish(msg)
-                if probe.spin_until(lambda s=stamp: any(stamp_ns(m) == s for _, m in got), 30):
-                    return next(m for _, m in got if stamp_ns(m) == stamp)
-            raise AssertionError(log.read_text())
-
+        feed = CalibratedFeed(probe, publisher, layer, topics.calibrated_contacts, log)
+        feed.take_reference(baselines, 150)
+        send = feed.send
         pairs = [send(f) for f in frames]
         singles = [send(f) for f in single]
         # held for longer than the drift time constant (0.5 s of frame time): the sheet
