@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import re
+import subprocess
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -71,6 +73,14 @@ def _first_status(probe: Probe, since: int, condition, timeout: float = STARTUP_
     return found[0] if found else None
 
 
+def _arm_driver(link: Path, log: Path, **parameters) -> subprocess.Popen:
+    """The arm's pressure-layer driver on the serial port ``link`` (its log to ``log``)."""
+    params = {"patch_config": "arm", "layer": "pressure", "port": str(link)}
+    return start_node(
+        "eit_driver", "/arm", params | {"diagnostics_period_s": 0.2} | parameters, log
+    )
+
+
 def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) -> None:
     frames = pattern_frames()
     device = FakeDevice(lambda i: frames[i % len(frames)], rate_hz=100.0)
@@ -79,18 +89,7 @@ def test_pty_frames_arrive_bit_exact_and_survive_unplug(probe: Probe, tmp_path) 
     device.link(link)
     device.start()
     record = tmp_path / "rec.mcap"
-    node = start_node(
-        "eit_driver",
-        "/arm",
-        {
-            "patch_config": "arm",
-            "port": str(link),
-            "layer": "pressure",
-            "record_path": str(record),
-            "diagnostics_period_s": 0.2,
-        },
-        tmp_path / "driver.log",
-    )
+    node = _arm_driver(link, tmp_path / "driver.log", record_path=str(record))
     try:
         assert probe.spin_until(lambda: len(probe.messages[TOPIC]) >= 20, STARTUP_S), (
             tmp_path / "driver.log"
@@ -160,17 +159,7 @@ DiagnosticStatus_ERROR = b"\x02"
 
 def test_absent_port_at_start_keeps_node_alive(probe: Probe, tmp_path) -> None:
     link = tmp_path / "eit_skin_missing"
-    node = start_node(
-        "eit_driver",
-        "/arm",
-        {
-            "patch_config": "arm",
-            "layer": "pressure",
-            "port": str(link),
-            "diagnostics_period_s": 0.2,
-        },
-        tmp_path / "driver.log",
-    )
+    node = _arm_driver(link, tmp_path / "driver.log")
     try:
         assert probe.spin_until(lambda: len(_driver_status(probe)) >= 2, STARTUP_S)
         status = _driver_status(probe)[-1]
@@ -215,17 +204,7 @@ def test_frames_not_of_the_layer_are_counted_per_reason_never_published(
     link = tmp_path / "eit_skin_arm"
     device.link(link)
     device.start()
-    node = start_node(
-        "eit_driver",
-        "/arm",
-        {
-            "patch_config": "arm",
-            "layer": "pressure",
-            "port": str(link),
-            "diagnostics_period_s": 0.2,
-        },
-        tmp_path / "driver.log",
-    )
+    node = _arm_driver(link, tmp_path / "driver.log")
     expected = {"values": 3, "electrodes": 3, "pattern": 3, "current": 6, "published": 6}
 
     def counts(status) -> dict[str, int]:
