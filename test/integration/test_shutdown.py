@@ -14,6 +14,7 @@ import select
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -90,6 +91,24 @@ def _start_face_run(out: Path, probe: Probe, output: int) -> tuple[subprocess.Po
     return run, topic
 
 
+def _exit_code(node: RunningNode) -> int:
+    """The signalled node's exit code; a node still running after :data:`EXIT_S` fails the
+    test with what it was doing: each thread's kernel state and, from its faulthandler
+    (SIGUSR1, which needs no GIL), every Python thread's stack, read from its log."""
+    try:
+        return node.process.wait(EXIT_S)
+    except subprocess.TimeoutExpired:
+        threads = _threads_of(node.process.pid)
+        node.process.send_signal(signal.SIGUSR1)
+        deadline = time.monotonic() + 5.0  # until the dump is in the log (or 5 s)
+        while "Thread 0x" not in node.log_path.read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        pytest.fail(
+            f"{node.label} still running {EXIT_S:.0f} s after its signal:\n{threads}\n"
+            f"{node.log_path.read_text()[-6000:]}"
+        )
+
+
 def _children(pid: int) -> list[int]:
     """Process ids whose parent is ``pid``."""
     found = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
@@ -127,9 +146,7 @@ def test_every_node_ends_cleanly_on_sigint_and_sigterm(tmp_path: Path, env_cache
                         for node in graphs[run]:
                             node.process.send_signal(sig)
                 codes = {
-                    node.label: node.process.wait(EXIT_S)
-                    for nodes in graphs.values()
-                    for node in nodes
+                    node.label: _exit_code(node) for nodes in graphs.values() for node in nodes
                 }
             finally:
                 for nodes in graphs.values():
