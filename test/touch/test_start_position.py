@@ -86,16 +86,28 @@ def test_a_simulated_push_starts_where_it_is_and_updates_follow_until_its_end(fa
     assert start.n_contacts == 0  # the raw frames' filter fired it, before any contact
 
 
-def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face):
-    _, imager, disc, contact, _ = face
+def disc_scene(face):
+    """``(inside [H, W], xx, yy [H, W] m, reference [M] V, sigma [M] V)`` for synthetic changes."""
+    _, imager, disc, _, _ = face
     inside = np.isfinite(disc).all(axis=2)
     xx, yy = np.meshgrid(imager.grid.x, imager.grid.y)
     rng = np.random.default_rng(5)
     reference = 0.01 + 0.05 * rng.random(disc.shape[2])  # V
-    sigma = 1e-5 * reference  # V
-    noise = np.ones(inside.shape)  # the map's noise (a noiseless change: k passes)
+    return inside, xx, yy, reference, 1e-5 * reference
+
+
+def nearest_pixel(inside, xx, yy, point) -> tuple[int, int]:
+    """(row, column) of the pixel inside the sheet nearest ``point`` ``(x, y)`` m."""
+    d = np.where(inside, np.hypot(xx - point[0], yy - point[1]), np.inf)
+    return np.unravel_index(int(np.argmin(d)), xx.shape)
+
+
+def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face):
+    _, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
+    noise = np.ones(inside.shape)  # the map's noise (a noiseless change: the penalty's unit)
     fingers = [(0.03, 0.04), (-0.03, -0.04)]  # m, 100 mm apart: a wide grab's two fingers
-    pixels = [np.unravel_index(np.argmin(np.hypot(xx - x, yy - y)), xx.shape) for x, y in fingers]
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in fingers]
 
     def fit(amplitudes, fraction=0.3):
         rel = sum(a * disc[p] for a, p in zip(amplitudes, pixels, strict=True))
@@ -162,21 +174,14 @@ def test_equal_forces_by_an_electrode_and_in_the_middle_weigh_alike(face):
     middle; weighed by the filter's match (what the map reads) their centre would lie by the
     electrode, weighed by the fitted amplitudes (coefficient over pattern norm) halfway.
     """
-    patch, imager, disc, contact, _ = face
-    inside = np.isfinite(disc).all(axis=2)
-    xx, yy = np.meshgrid(imager.grid.x, imager.grid.y)
+    patch, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
     middle = np.array([np.median(xx[inside]), np.median(yy[inside])])
     electrode = patch.layers[0].electrodes[0].center
     near = electrode + 0.012 * (middle - electrode) / np.linalg.norm(middle - electrode)
-    pixels = [
-        np.unravel_index(np.argmin(np.where(inside, np.hypot(xx - x, yy - y), np.inf)), xx.shape)
-        for x, y in (near, middle)
-    ]
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in (near, middle)]
     at = np.array([[xx[p], yy[p]] for p in pixels])
     assert np.linalg.norm(at[0] - at[1]) > 0.05  # m: two fingers, far apart
-    rng = np.random.default_rng(7)
-    reference = 0.01 + 0.05 * rng.random(disc.shape[2])  # V
-    sigma = 1e-5 * reference  # V
     change = reference * 0.01 * (disc[pixels[0]] + disc[pixels[1]]) / sigma
     filt = TouchFilter(disc, inside, contact)
     match = filt.statistic(change, sigma, reference)
@@ -201,17 +206,10 @@ def test_a_further_disc_joins_when_the_polished_fit_explains_more_than_noise_wou
     onto the fingers explain well above the penalty, so both are found. Half as strong a
     change stays one disc between them.
     """
-    _, imager, disc, contact, _ = face
-    inside = np.isfinite(disc).all(axis=2)
-    xx, yy = np.meshgrid(imager.grid.x, imager.grid.y)
-    rng = np.random.default_rng(5)
-    reference = 0.01 + 0.05 * rng.random(disc.shape[2])  # V
-    sigma = 1e-5 * reference  # V
+    _, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
     unit = 0.02 * np.array([math.cos(0.3), math.sin(0.3)])  # m: the fingers at +-unit
-    pixels = [
-        np.unravel_index(np.argmin(np.where(inside, np.hypot(xx - x, yy - y), np.inf)), xx.shape)
-        for x, y in (unit, -unit)
-    ]
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in (unit, -unit)]
     at = np.array([[xx[p], yy[p]] for p in pixels])
     filt = TouchFilter(disc, inside, contact)
 
