@@ -293,26 +293,29 @@ class TouchFilter:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Fingertip discs that together explain one whitened change, by greedy pursuit.
 
-        The first disc is the best-matching pixel (the largest value of :meth:`statistic`).
-        Then, up to :data:`MOST_DISCS` discs: the chosen discs' patterns are fitted to the change by
-        least squares, and the pixel best matching what they leave is a candidate if its
-        match stands out of the map's noise: its value over ``noise`` above
-        ``sqrt(2 ln P)`` (``P`` pixels; the universal threshold of sparse estimation, about
-        the largest of ``P`` unit normals: the touch is already detected, the question is
-        only whether noise alone would match somewhere as well); every
-        disc is then moved in turn to the best match of what the others leave, until none
-        moves (:meth:`_polish`), and the candidate joins if every fitted coefficient stays
-        positive (a touch raises the conductivity) and every **amplitude** (coefficient
-        over its pattern's norm: the disc's relative conductivity change, whatever the
-        sensitivity there) is at least ``fraction`` of the largest. So a pinch's or grab's
-        other fingers join, while what one finger's pattern mismatch leaves (a few per cent
-        of its amplitude) and the noise do not.
+        The greedy path: the first disc is the best-matching pixel (the largest value of
+        :meth:`statistic`); each next one is the pixel best matching what the discs before
+        leave (their least-squares fit), and then every disc is moved in turn to the best
+        match of what the others leave, until none moves (:meth:`_polish`). The number of
+        discs is chosen by the risk inflation criterion: the fit's residual sum of squares
+        plus ``2 ln P s^2`` per disc (``P`` pixels, ``s`` the median of ``noise``; the
+        universal threshold ``sqrt(2 ln P)`` squared, about what the best of ``P`` places
+        explains of noise alone) is least. The path stops at :data:`MOST_DISCS` discs or
+        when a further disc, the others moved too, explains less than that penalty. The
+        whole polished fit is tested, not the further disc's match before the others move: a
+        wide grab's first disc sits between its fingers and leaves little to match until
+        they move. Only fits with every coefficient positive (a touch raises the
+        conductivity) and every **amplitude** at least ``fraction`` of the largest count
+        (what one finger's pattern mismatch leaves is a few per cent of its amplitude). An
+        amplitude is a coefficient over its pattern's norm: the disc's relative conductivity
+        change, so a finger's force whatever the sensitivity at its place.
 
         Args:
             change: ``[M]`` whitened change (NaN: channel left out).
             sigma: ``[M]`` channel noise, V.
             reference: ``[M]`` reference frame, V.
-            noise: ``[H, W]`` noise of the map of such changes (same unit as the map).
+            noise: ``[H, W]`` noise of the map of such changes (same unit as the map; no
+                positive value: one disc).
             fraction: smallest amplitude of a further disc, relative to the largest.
 
         Returns:
@@ -326,22 +329,26 @@ class TouchFilter:
         x = change[self._usable]
         rows, norms = self._rows, self._norms
         scale = np.asarray(noise, dtype=np.float64)[self.inside]
-        inverse = np.where(scale > 0, 1.0 / np.where(scale > 0, scale, 1.0), 0.0)
-        k = math.sqrt(2.0 * math.log(max(rows.shape[0], 2)))
+        scale = scale[np.isfinite(scale) & (scale > 0)]
+        penalty = math.inf
+        if scale.size:
+            penalty = 2.0 * math.log(max(rows.shape[0], 2)) * float(np.median(scale)) ** 2
         chosen = [self._best_match(x, [])]
         fit = rows[chosen] @ x
         if not fit[0] > 0:  # nothing matches a touch
             return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-        while len(chosen) < MOST_DISCS:
-            best = self._best_match(x, chosen)
-            if not (x - self._fitted(x, chosen)) @ rows[best] * inverse[best] > k:
+        path, left = chosen, self._residual(x, chosen)
+        least = left + penalty
+        while len(path) < MOST_DISCS:
+            path = self._polish(x, [*path, self._best_match(x, path)], MOST_DISCS)
+            before, left = left, self._residual(x, path)
+            if not before - left > penalty:  # no more than noise would explain
                 break
-            trial = self._polish(x, [*chosen, best], MOST_DISCS)
-            coef = np.linalg.lstsq(rows[trial].T, x, rcond=None)[0]
-            amplitude = coef / norms[trial]
-            if np.any(coef <= 0) or amplitude.min() < fraction * amplitude.max():
-                break
-            chosen, fit = trial, coef
+            coef = np.linalg.lstsq(rows[path].T, x, rcond=None)[0]
+            amplitude = coef / norms[path]
+            cost = left + penalty * len(path)
+            if np.all(coef > 0) and amplitude.min() >= fraction * amplitude.max() and cost < least:
+                chosen, fit, least = path, coef, cost
         places, amplitude = self._between_pixels(x, chosen, fit / norms[chosen])
         order = np.argsort(-amplitude)
         return places[order], amplitude[order]
@@ -384,6 +391,11 @@ class TouchFilter:
             return np.zeros_like(x)
         basis = self._rows[chosen].T  # [M', D]
         return basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+
+    def _residual(self, x: np.ndarray, chosen: list[int]) -> float:
+        """Residual sum of squares of the ``chosen`` rows' least-squares fit to ``x``."""
+        left = x - self._fitted(x, chosen)
+        return float(left @ left)
 
     def _best_match(self, x: np.ndarray, others: list[int]) -> int:
         """The row (not one of ``others``) best matching what the ``others`` leave of ``x``.

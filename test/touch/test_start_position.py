@@ -86,16 +86,28 @@ def test_a_simulated_push_starts_where_it_is_and_updates_follow_until_its_end(fa
     assert start.n_contacts == 0  # the raw frames' filter fired it, before any contact
 
 
-def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face):
-    _, imager, disc, contact, _ = face
+def disc_scene(face):
+    """``(inside [H, W], xx, yy [H, W] m, reference [M] V, sigma [M] V)`` for synthetic changes."""
+    _, imager, disc, _, _ = face
     inside = np.isfinite(disc).all(axis=2)
     xx, yy = np.meshgrid(imager.grid.x, imager.grid.y)
     rng = np.random.default_rng(5)
     reference = 0.01 + 0.05 * rng.random(disc.shape[2])  # V
-    sigma = 1e-5 * reference  # V
-    noise = np.ones(inside.shape)  # the map's noise (a noiseless change: k passes)
+    return inside, xx, yy, reference, 1e-5 * reference
+
+
+def nearest_pixel(inside, xx, yy, point) -> tuple[int, int]:
+    """(row, column) of the pixel inside the sheet nearest ``point`` ``(x, y)`` m."""
+    d = np.where(inside, np.hypot(xx - point[0], yy - point[1]), np.inf)
+    return np.unravel_index(int(np.argmin(d)), xx.shape)
+
+
+def test_fit_discs_finds_each_finger_of_a_pinch_and_weighs_them_by_strength(face):
+    _, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
+    noise = np.ones(inside.shape)  # the map's noise (a noiseless change: the penalty's unit)
     fingers = [(0.03, 0.04), (-0.03, -0.04)]  # m, 100 mm apart: a wide grab's two fingers
-    pixels = [np.unravel_index(np.argmin(np.hypot(xx - x, yy - y)), xx.shape) for x, y in fingers]
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in fingers]
 
     def fit(amplitudes, fraction=0.3):
         rel = sum(a * disc[p] for a, p in zip(amplitudes, pixels, strict=True))
@@ -153,3 +165,68 @@ def test_a_simulated_pinch_starts_at_the_centre_of_its_fingers_not_on_one(face):
     assert sum(e <= 0.008 for e in errors) >= 3
     # one finger's best match would lie half a gap (22 mm) from the centre
     assert all(e < b for e, b in zip(errors, beside, strict=True))
+
+
+def test_equal_forces_by_an_electrode_and_in_the_middle_weigh_alike(face):
+    """A disc's amplitude is its force, not its match: the centre lands between two equal fingers.
+
+    Beside an electrode a finger's pattern is several times stronger than in the face's
+    middle; weighed by the filter's match (what the map reads) their centre would lie by the
+    electrode, weighed by the fitted amplitudes (coefficient over pattern norm) halfway.
+    """
+    patch, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
+    middle = np.array([np.median(xx[inside]), np.median(yy[inside])])
+    electrode = patch.layers[0].electrodes[0].center
+    near = electrode + 0.012 * (middle - electrode) / np.linalg.norm(middle - electrode)
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in (near, middle)]
+    at = np.array([[xx[p], yy[p]] for p in pixels])
+    assert np.linalg.norm(at[0] - at[1]) > 0.05  # m: two fingers, far apart
+    change = reference * 0.01 * (disc[pixels[0]] + disc[pixels[1]]) / sigma
+    filt = TouchFilter(disc, inside, contact)
+    match = filt.statistic(change, sigma, reference)
+    assert match[pixels[0]] > 3 * match[pixels[1]]  # the map sees the electrode's finger
+    found, amplitude = filt.fit_discs(change, sigma, reference, np.ones(inside.shape), 0.3)
+    assert len(amplitude) == 2
+    np.testing.assert_allclose(amplitude, [0.01, 0.01], rtol=0.02)
+    centre = disc_centroid((found, amplitude), xx, yy)
+    np.testing.assert_allclose(centre, at.mean(axis=0), atol=5e-4)  # m
+    by_match = (match[pixels[0]] * at[0] + match[pixels[1]] * at[1]) / (
+        match[pixels[0]] + match[pixels[1]]
+    )
+    assert np.linalg.norm(by_match - at[0]) < 0.25 * np.linalg.norm(at[1] - at[0])
+
+
+def test_a_further_disc_joins_when_the_polished_fit_explains_more_than_noise_would(face):
+    """The number of discs: the whole polished fit against ``2 ln P`` noise units squared.
+
+    A pinch's two equal fingers 40 mm apart in the face's middle: the first disc lies
+    between them and leaves little for a second one to match where it stands (below
+    ``sqrt(2 ln P)`` here: the rule before 2026-11-27 kept one disc), but two discs moved
+    onto the fingers explain well above the penalty, so both are found. Half as strong a
+    change stays one disc between them.
+    """
+    _, _, disc, contact, _ = face
+    inside, xx, yy, reference, sigma = disc_scene(face)
+    unit = 0.02 * np.array([math.cos(0.3), math.sin(0.3)])  # m: the fingers at +-unit
+    pixels = [nearest_pixel(inside, xx, yy, p) for p in (unit, -unit)]
+    at = np.array([[xx[p], yy[p]] for p in pixels])
+    filt = TouchFilter(disc, inside, contact)
+
+    def fit(amplitude):
+        change = reference * amplitude * (disc[pixels[0]] + disc[pixels[1]]) / sigma
+        found = filt.fit_discs(change, sigma, reference, np.ones(inside.shape), 0.3)
+        return found, filt.statistic(change, sigma, reference)
+
+    (found, amplitude), match = fit(8e-4)
+    k = math.sqrt(2 * math.log(np.count_nonzero(inside)))
+    assert np.nanmax(match) < 4 * k  # a weak pinch: a few noise units per finger
+    assert len(amplitude) == 2
+    order = np.argsort(found[:, 1])  # by column: match the fingers' order
+    expected = np.argsort([p[1] for p in pixels])
+    # each on its finger (12 pixels apart), within the 2 pixels a coordinate-wise polish leaves
+    np.testing.assert_allclose(found[order], np.array(pixels, float)[expected], atol=2.0)
+    np.testing.assert_allclose(disc_centroid((found, amplitude), xx, yy), at.mean(0), atol=1e-3)
+    (found, amplitude), _ = fit(4e-4)  # two discs would explain less than the penalty
+    assert len(amplitude) == 1
+    assert np.linalg.norm(disc_centroid((found, amplitude), xx, yy) - at.mean(0)) < 0.01
