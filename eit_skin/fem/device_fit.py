@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from eit_skin.fem.elements import TankDepth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import Mesh
 from eit_skin.patch.protocol import Protocol
@@ -153,6 +154,7 @@ def fit_device(
     per_electrode: bool | None = None,
     fit_input_gain: bool = False,
     max_iterations: int = 40,
+    depth: TankDepth | None = None,
 ) -> DeviceFit:
     """Fit ``sigma`` and ``z`` to a no-load frame (see the module docstring).
 
@@ -169,6 +171,7 @@ def fit_device(
         fit_input_gain: fit the board's ``negative_input_gain`` too (starting from the
             protocol's; pair drives only).
         max_iterations: Levenberg-Marquardt iterations at most.
+        depth: a tank's depth and electrode height (None: a 2-D sheet), held fixed.
 
     Raises:
         ValueError: a frame of the wrong shape, too few usable channels, or a frame whose
@@ -185,7 +188,17 @@ def fit_device(
         z[:] = np.exp(np.mean(np.log(z)))
     rms = float(np.sqrt(np.mean(v[used] ** 2)))
     frame = _FrameResidual(
-        mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode, fit_input_gain
+        mesh,
+        protocol,
+        current_a,
+        v,
+        used,
+        rms,
+        gain,
+        magnitude,
+        per_electrode,
+        fit_input_gain,
+        depth,
     )
     start, initial = frame.start(float(sheet_conductance_s), z, protocol.negative_input_gain)
     free = np.ones(n_par, dtype=bool)
@@ -239,6 +252,7 @@ class _FrameResidual:
     magnitude: bool
     per_electrode: bool
     fit_input_gain: bool = False
+    depth: TankDepth | None = None
 
     def __post_init__(self) -> None:
         if self.fit_input_gain and not self.protocol.pair_drive:
@@ -247,7 +261,11 @@ class _FrameResidual:
     def model(self, z: np.ndarray, g: float) -> ForwardModel:
         """The forward model at contact impedance ``z`` and negative input gain ``g``."""
         return ForwardModel(
-            self.mesh, replace(self.protocol, negative_input_gain=g), z, self.current_a
+            self.mesh,
+            replace(self.protocol, negative_input_gain=g),
+            z,
+            self.current_a,
+            self.depth,
         )
 
     def evaluate(
