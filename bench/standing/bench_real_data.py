@@ -55,6 +55,7 @@ import numpy as np
 from bench.header import run_header
 from bench.standing import real_data_scoring as scoring
 from eit_skin.fem.device_fit import DeviceFit, fit_device
+from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
@@ -170,7 +171,11 @@ def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
     images = imager.images(imager.relative_change(data.frames, data.reference))
     frame_ms = median_frame_ms(lambda v: imager.frame_images(v, data.reference), data.frames)
     forward = ForwardModel(
-        build_mesh(layer), imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
+        build_mesh(layer),
+        imager.protocol,
+        layer.contact_impedance_ohm_m,
+        layer.current_a,
+        layer_depth(layer),
     )
     model_v = forward.voltages(layer.material.sheet_conductance_s)
     return Run("eit_skin", images, imager.grid, build_s, frame_ms, model_v, tuple(report.lines()))
@@ -196,6 +201,7 @@ def calibrate(layer: Layer, protocol, data: scoring.RealSet, radius: float) -> d
         layer.contact_impedance_ohm_m,
         layer.current_a,
         magnitude=protocol.magnitude,
+        depth=layer_depth(layer),
     )
     z = fit.contact_impedance_ohm_m
     calibrated = replace(

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from eit_skin.fem.mesh import Mesh
+from eit_skin.patch.model import Layer
 
 #: Layers of the half electrode height (uniform), then each layer this factor thicker.
 ELECTRODE_LAYERS = 2
@@ -78,6 +79,13 @@ class TankDepth:
         if len(z) > ELECTRODE_LAYERS + 2 and z[-1] - z[-2] < 0.1 * (z[-2] - z[-3]):
             del z[-2]
         return np.array(z)
+
+
+def layer_depth(layer: Layer) -> TankDepth | None:
+    """The layer's tank depth (``layers[].depth``; electrodes as high as wide), or None."""
+    if layer.depth_m is None:
+        return None
+    return TankDepth(layer.depth_m, layer.electrodes[0].width_m, layer.material.sheet_conductance_s)
 
 
 @dataclass(frozen=True, eq=False)

@@ -245,6 +245,25 @@ class ForwardModel:
         return self._n_el
 
     @property
+    def n_nodes(self) -> int:
+        """Node potentials solved for (a tank: the mesh's nodes at every level)."""
+        return self._n_nodes
+
+    @property
+    def depth(self) -> TankDepth | None:
+        """The tank's depth, or None for a sheet."""
+        return self._depth
+
+    def nodes_of(self, changed: np.ndarray) -> np.ndarray:
+        """Sorted node indices whose stiffness a change of the ``changed`` triangles touches.
+
+        ``changed``: bool ``[n_triangles]``; a tank: the nodes of those columns' slab elements.
+        """
+        el = self._elements
+        sensed = np.flatnonzero(np.tile(np.asarray(changed, dtype=bool), el.sensed // el.columns))
+        return np.unique(el.nodes[sensed])
+
+    @property
     def current_a(self) -> float:
         return self._current_a
 

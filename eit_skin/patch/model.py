@@ -236,6 +236,8 @@ class Layer:
         full_scale_v: the board's full scale, V: a value with ``|v|`` above it is no
             measurement of the sheet (flagged ``FLAG_OUT_OF_RANGE``, left out of the image;
             the simulator's ADC gets this full scale); None: not stated, not checked.
+        depth_m: a tank's depth, m (the electrodes a ring at mid-depth, as high as they are
+            wide; :class:`~eit_skin.fem.elements.TankDepth`); None: a 2-D sheet.
     """
 
     name: str
@@ -251,11 +253,12 @@ class Layer:
     solver: SolverSpec
     device: DeviceSpec = DEFAULT_DEVICE
     full_scale_v: float | None = None
+    depth_m: float | None = None
 
     #: Fields that do not change the model: left out of the content hash.
     HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("device",)
     #: Keys added after patches were hashed: left out of the content hash at their default.
-    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v",)
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v", "depth_m")
 
     @property
     def n_electrodes(self) -> int:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
@@ -80,6 +81,7 @@ def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
         layer.measured_protocol,
         layer.contact_impedance_ohm_m,
         layer.current_a,
+        layer_depth(layer),
     )
 
 

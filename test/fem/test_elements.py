@@ -9,6 +9,7 @@ shrinks to the electrode height; the grading of the layers.
 import numpy as np
 import pytest
 
+from eit_skin.fem.device_fit import fit_depth
 from eit_skin.fem.disk import disk_mesh
 from eit_skin.fem.elements import TankDepth
 from eit_skin.fem.forward import ForwardModel
@@ -108,3 +109,23 @@ def test_levels_are_graded_from_the_ring():
 def test_bad_depth_is_refused_naming_the_field(depth, height, outside, field):
     with pytest.raises(ValueError, match=field):
         TankDepth(depth, height, outside)
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    return disk_mesh(R, electrode_width_rad=0.2, h_m=0.012)  # 10 mm electrodes
+
+
+@pytest.mark.parametrize("depth", [0.06])
+def test_fit_depth_finds_the_tank_of_a_no_load_frame(coarse, depth):
+    """A no-load frame of a tank (or a sheet) plus 0.1 % noise: its depth comes back."""
+    tank = None if depth is None else TankDepth(depth, H, 2.0)
+    frame = ForwardModel(coarse, ADJ16, 5e-3, 1e-3, depth=tank).voltages(2.0)
+    frame = frame * (1 + 1e-3 * np.random.default_rng(5).standard_normal(frame.size))
+    start = {"sheet_conductance_s": 1.0, "contact_impedance_ohm_m": Z, "current_a": 1e-3}
+    fitted, fit = fit_depth(coarse, ADJ16, frame, H, **start)
+    if depth is None:
+        assert fitted is None or fitted < 1.5 * H
+    else:
+        assert fitted == pytest.approx(depth, rel=0.1)
+    assert fit.residual < 3e-3
