@@ -417,7 +417,9 @@ def simulated_set(layer: Layer) -> scoring.RealSet:
     """
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     mesh = build_mesh(layer, 0.5 * layer.mesh.max_edge_m)
-    forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+    forward = ForwardModel(
+        mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a, layer_depth(layer)
+    )  # the layer's own physics: a tank's depth too
     sigma0 = layer.material.sheet_conductance_s
     v0 = forward.voltages(np.full(mesh.n_triangles, sigma0))
     radius = sheet_radius(layer)
@@ -492,8 +494,11 @@ def candidate_scores(layer: Layer, data: scoring.RealSet, repeated, radius: floa
 
 
 def simulator_entry() -> dict:
-    """The simulated set (on :data:`SIM_PATCH`'s sheet): both tools and every candidate."""
-    layer = load_patch(DATA / f"{SIM_PATCH}.yaml").layers[0]
+    """The simulated set (on :data:`SIM_PATCH`'s sheet): both tools and every candidate.
+
+    A 2-D sheet, as the product's skins: the patch's tank depth, if any, left out.
+    """
+    layer = replace(load_patch(DATA / f"{SIM_PATCH}.yaml").layers[0], depth_m=None)
     data = simulated_set(layer)
     radius = sheet_radius(layer)
     grid = candidate_images(layer, data, None)[1]
