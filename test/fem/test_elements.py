@@ -129,3 +129,15 @@ def test_fit_depth_finds_the_tank_of_a_no_load_frame(coarse, depth):
     else:
         assert fitted == pytest.approx(depth, rel=0.1)
     assert fit.residual < 3e-3
+
+
+def test_local_update_of_a_tank_equals_its_direct_solve(mesh, tall):
+    """The simulator's Woodbury update (the changed columns' slab nodes) on a tank."""
+    from eit_skin.fem.forward_update import LocalForwardUpdate
+
+    base = np.full(mesh.n_triangles, 1.2)
+    update = LocalForwardUpdate(tall, base)
+    press = base.copy()
+    press[np.linalg.norm(mesh.centroids - [0.02, 0.01], axis=1) < 0.008] = 3.0
+    np.testing.assert_allclose(update.voltages(press), tall.voltages(press), rtol=1e-9, atol=0)
+    assert update.update_solves == 1
