@@ -59,10 +59,10 @@ from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
-from eit_skin.inverse.hyperparameter import MODEL_ERROR_SHARE, choose_for_model_error
+from eit_skin.inverse.hyperparameter import MODEL_ERROR_SHARE
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.patch.loading import load_patch
-from eit_skin.patch.model import Layer, SolverSpec
+from eit_skin.patch.model import CHANNEL_WEIGHTS, Layer, SolverSpec
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 
@@ -95,10 +95,10 @@ CANDIDATE_NOISE_FIGURES = (0.13, 0.2, 0.3, 0.5, 0.7, 1.0, 2.0)
 #: shares, on top of the noise figures in :data:`RULE_NOISE_FIGURES`.
 CANDIDATE_SHARES = (1 / 2, 1 / 4, 1 / 8, 1 / 16, 1 / 32)
 RULE_NOISE_FIGURES = (0.13, 0.3)
-#: Channel weights of a candidate: ``measured`` (the node's chain: by the measured channel
-#: noise) or ``equal`` (none, as EIDORS and pyEIT JAC by default; ``h`` by the same rules on
-#: the unweighted matrix: :func:`equal_weights`), the latter for the priors named here.
-CANDIDATE_WEIGHTS = ("measured", "equal")
+#: Channel weights of a candidate (the layer's ``solver.channel_weights``): ``measured`` (by
+#: the measured channel noise) or ``equal`` (as EIDORS and pyEIT JAC; ``h`` by the same
+#: rules on the unweighted matrix), the latter for the priors named here.
+CANDIDATE_WEIGHTS = CHANNEL_WEIGHTS
 EQUAL_WEIGHT_PRIORS = ("noser",)
 #: The simulated set of the choice: targets (radius fraction of R, conductivity ratio) at
 #: these fractions of R and angles, 1 % noise (of the RMS difference signal), one seed.
@@ -114,7 +114,7 @@ PACKAGE_DEFAULT = (
     SolverSpec().prior,
     DEFAULT_NOISE_FIGURE[SolverSpec().method],
     MODEL_ERROR_SHARE,
-    "measured",
+    SolverSpec().channel_weights,
 )
 #: What the real-device patch files shipped before issue 35 (in the figures and tables).
 PREVIOUS_DEFAULT = ("greit", None, 0.13, 0.0, "measured")
@@ -359,11 +359,21 @@ def kept_analysis() -> str:
     return "(not written yet: look at the figures and the tables, then write it here)\n"
 
 
-def candidate_layer(layer: Layer, method: str, prior: str | None, noise_figure: float) -> Layer:
-    """``layer`` with the solver candidate (``prior`` None: the layer's), ``h`` not fixed."""
+def candidate_layer(
+    layer: Layer, method: str, prior: str | None, noise_figure: float, weights: str
+) -> Layer:
+    """``layer`` with the solver candidate (``prior`` None: the layer's), ``h`` not fixed.
+
+    ``weights``: ``solver.channel_weights``, one of :data:`CANDIDATE_WEIGHTS`.
+    """
     prior = prior or layer.solver.prior
     solver = replace(
-        layer.solver, method=method, prior=prior, noise_figure=noise_figure, hyperparameter=None
+        layer.solver,
+        method=method,
+        prior=prior,
+        noise_figure=noise_figure,
+        hyperparameter=None,
+        channel_weights=weights,
     )
     return replace(layer, solver=solver)
 
@@ -373,40 +383,14 @@ def candidate_images(
     data: scoring.RealSet,
     repeated: np.ndarray | None,
     share: float = MODEL_ERROR_SHARE,
-    weights: str = "measured",
 ) -> tuple[np.ndarray, ImageGrid]:
     """The node's chain on ``layer`` (cached build): images ``[T, H, W]`` of the set's frames.
 
-    ``share``: ``use_reference``'s ``model_error_share`` (0: the noise figure alone);
-    ``weights``: one of :data:`CANDIDATE_WEIGHTS`.
+    ``share``: ``use_reference``'s ``model_error_share`` (0: the noise figure alone).
     """
     imager = LayerImager.build(layer)
-    if weights == "equal":
-        equal_weights(imager, data.reference, repeated, data.frames, share)
-    else:
-        imager.use_reference(data.reference, repeated, data.frames, model_error_share=share)
+    imager.use_reference(data.reference, repeated, data.frames, model_error_share=share)
     return imager.images(imager.relative_change(data.frames, data.reference)), imager.grid
-
-
-def equal_weights(
-    imager: LayerImager,
-    reference: np.ndarray,
-    repeated: np.ndarray | None,
-    frames: np.ndarray,
-    share: float = MODEL_ERROR_SHARE,
-) -> None:
-    """``imager.use_reference`` with every channel weighted equally (a freshly built imager).
-
-    The reference check and the model-error rule as in the node's chain; ``h`` is the larger
-    of the build's (the layer's noise figure on white noise) and the one leaving ``share``
-    of the reference's misfit unexplained, both on the unweighted matrix.
-    """
-    unweighted = imager.matrix
-    report = imager.use_reference(reference, repeated, frames, model_error_share=share)
-    h = unweighted.hyperparameter
-    if share > 0 and np.isfinite(report.model_misfit):
-        h = max(h, choose_for_model_error(unweighted.gram[0], share * report.model_misfit))
-    imager.matrix = imager.reconstructor = unweighted.with_hyperparameter(h)
 
 
 def simulated_set(layer: Layer) -> scoring.RealSet:
@@ -484,8 +468,8 @@ def candidate_scores(layer: Layer, data: scoring.RealSet, repeated, radius: floa
         cands += [(method, prior, nf, sh) for nf in RULE_NOISE_FIGURES for sh in CANDIDATE_SHARES]
         weights = CANDIDATE_WEIGHTS if prior in EQUAL_WEIGHT_PRIORS else CANDIDATE_WEIGHTS[:1]
         for cand in [(*c, w) for w in weights for c in cands]:
-            layer_c = candidate_layer(layer, *cand[:3])
-            images, grid = candidate_images(layer_c, data, repeated, *cand[3:])
+            layer_c = candidate_layer(layer, *cand[:3], cand[4])
+            images, grid = candidate_images(layer_c, data, repeated, cand[3])
             sc = scoring.score(data, images, grid.x, grid.y, grid.inside, radius)
             if data.name == "simulator":
                 sc["max_m"] = max_position_error(images, grid, data)
@@ -701,10 +685,10 @@ def main() -> None:
                 ]
         calibration = calibrate(layer, protocol, data, radius)
         before_images, before_grid = candidate_images(
-            candidate_layer(layer, *PREVIOUS_DEFAULT[:3]),
+            candidate_layer(layer, *PREVIOUS_DEFAULT[:3], PREVIOUS_DEFAULT[4]),
             data,
             repeated_frames(data),
-            *PREVIOUS_DEFAULT[3:],
+            PREVIOUS_DEFAULT[3],
         )
         before = Run("before", before_images, before_grid, 0, 0, ours.model_v)
         save_figure(data, [runs[0], runs[1], before], radius, FIGURES / f"{name}.png")

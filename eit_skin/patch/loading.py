@@ -31,6 +31,7 @@ from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, RESPONSES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
+    CHANNEL_WEIGHTS,
     METHODS,
     PRIOR_KINDS,
     AccuracyTarget,
@@ -385,6 +386,13 @@ def _solver_spec(r: Reader, data: Any, path: str) -> SolverSpec:
         ),
         "reference_frames": r.integer(
             d, "reference_frames", path, default=defaults.reference_frames, minimum=1
+        ),
+        "channel_weights": r.string(
+            d,
+            "channel_weights",
+            path,
+            default=defaults.channel_weights,
+            choices=CHANNEL_WEIGHTS,
         ),
         "accuracy_target": None
         if d.get("accuracy_target") is None

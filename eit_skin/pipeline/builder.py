@@ -327,7 +327,8 @@ class LayerImager:
         with an unusable reference value are left out of every later image; the noise of
         ``reference_frames`` ``[K, M]`` V (else of ``frames`` ``[T, M]`` V, else of the
         reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
-        not weighted) and the hyperparameter is re-chosen, unless ``solver.hyperparameter``
+        not weighted; ``solver.channel_weights: equal`` weights every channel alike, as
+        EIDORS and pyEIT) and the hyperparameter is re-chosen, unless ``solver.hyperparameter``
         fixes it, as the larger of the one for the layer's noise figure on that measured
         noise and the one for the model error (``model_error_share`` of the reference's
         misfit to the homogeneous model: :mod:`eit_skin.inverse.hyperparameter`; 0 turns
@@ -352,7 +353,10 @@ class LayerImager:
             return ReferenceReport(check, None, float("nan"), 0, base.hyperparameter, False)
         relative = noise.relative(reference)
         usable = ~check.excluded & np.isfinite(relative)
-        scale = channel_scale(relative, usable)
+        if self.layer.solver.channel_weights == "equal":
+            scale = np.ones_like(relative)
+        else:
+            scale = channel_scale(relative, usable)
         fixed = self.layer.solver.hyperparameter
         target = None
         if fixed is None:
