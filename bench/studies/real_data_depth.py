@@ -2,7 +2,8 @@
 
 Run: ``OPENBLAS_NUM_THREADS=1 .venv/bin/python -m bench.studies.real_data_depth [PART ...]``
 with parts ``sim`` (a ball in a simulated 3-D tank, about 5 min), ``real`` (the four real
-tank sets, about 8 min) and ``cost`` (build and per-frame cost, 1 min); all three by default.
+tank sets, about 8 min), ``cost`` (build and per-frame cost, 1 min) and ``nodepth`` (1 min);
+the first three by default.
 Numbers and conclusions: ``real_data_depth.md`` beside this file.
 
 * ``sim``: the 3-D check's tetrahedral cylinder (:mod:`bench.studies.real_data_3d_check`:
@@ -14,6 +15,9 @@ Numbers and conclusions: ``real_data_depth.md`` beside this file.
   targets), then the reconstruction node's chain (``bench_real_data.run_eit_skin``) with and
   without it, scored as ``bench_real_data.py`` scores (positions, blobs, artefact energy,
   tracks) beside pyEIT JAC.
+* ``nodepth``: what a tank patch without a depth gets: the four tank sets imaged as 2-D
+  sheets (their ``depth`` removed) by the package default and by the default it replaced
+  (:data:`OLD_DEFAULT`), scored against pyEIT JAC with ``bench_real_data``'s goals.
 * ``cost``: forward model build, one factorisation, Jacobian and the imager's build for the
   Ottawa patch, 2-D against the fitted depth; the per-frame cost of the one-step image.
 """
@@ -27,7 +31,16 @@ from dataclasses import replace
 import numpy as np
 
 from bench.standing import real_data_scoring as scoring
-from bench.standing.bench_real_data import DATA, run_eit_skin, run_pyeit, sheet_radius
+from bench.standing.bench_real_data import (
+    DATA,
+    candidate_images,
+    candidate_layer,
+    goal_failures,
+    repeated_frames,
+    run_eit_skin,
+    run_pyeit,
+    sheet_radius,
+)
 from bench.studies.real_data_3d_check import PITCH, Tank3d, blob_text, cylinder_mesh
 from eit_skin.fem.device_fit import fit_depth, fit_device
 from eit_skin.fem.elements import layer_depth
@@ -38,6 +51,9 @@ from eit_skin.patch.model import Layer
 from eit_skin.pipeline.builder import LayerImager
 
 TANKS = ("ottawa_ph1", "ottawa_ph3", "iirc_rotate", "sciospec_adjacent")
+#: The package default before the depths were shipped: (method, prior, noise figure, weights),
+#: model-error share.
+OLD_DEFAULT = (("one_step", "noser", 0.13, "measured"), 1 / 4)
 KEYS = ("median_m", "p90_m", "spurious", "artefact_energy", "consistency", "fit_residual_m")
 
 
@@ -124,6 +140,29 @@ def part_real() -> None:
         print(f"  pyEIT: {score_text(data, peer, radius)}", flush=True)
 
 
+def part_nodepth() -> None:
+    for name in TANKS:
+        layer = load_patch(DATA / f"{name}.yaml").layers[0]
+        flat = replace(layer, depth_m=None)
+        data = scoring.load_set(DATA / f"{name}.npz")
+        radius = sheet_radius(layer)
+        new = run_eit_skin(flat, data)
+        peer = run_pyeit(flat, data, new.grid)
+        pyeit = scoring.score(data, peer.images, peer.grid.x, peer.grid.y, peer.grid.inside, radius)
+        old_layer = candidate_layer(flat, *OLD_DEFAULT[0])
+        old = replace(
+            new, images=candidate_images(old_layer, data, repeated_frames(data), OLD_DEFAULT[1])[0]
+        )
+        for tag, run in (("new default", new), ("old default", old)):
+            s = scoring.score(data, run.images, run.grid.x, run.grid.y, run.grid.inside, radius)
+            print(
+                f"{name} 2-D, {tag}: {score_text(data, run, radius)}; "
+                f"goals missed {goal_failures(s, pyeit)[0]}",
+                flush=True,
+            )
+        print(f"{name} pyEIT: {score_text(data, peer, radius)}", flush=True)
+
+
 def part_cost() -> None:
     layer = load_patch(DATA / "ottawa_ph1.yaml").layers[0]
     data = scoring.load_set(DATA / "ottawa_ph1.npz")
@@ -166,7 +205,7 @@ def part_cost() -> None:
 def main() -> None:
     parts = sys.argv[1:] or ["sim", "real", "cost"]
     for part in parts:
-        {"sim": part_sim, "real": part_real, "cost": part_cost}[part]()
+        {"sim": part_sim, "real": part_real, "cost": part_cost, "nodepth": part_nodepth}[part]()
 
 
 if __name__ == "__main__":

@@ -157,8 +157,10 @@ PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
 CHANNEL_WEIGHTS: tuple[str, ...] = ("measured", "equal")
 """Names ``solver.channel_weights`` may take (``LayerImager.use_reference`` honours it)."""
 
-DEFAULT_CHANNEL_WEIGHTS = "measured"
-"""``solver.channel_weights`` when not given."""
+DEFAULT_CHANNEL_WEIGHTS = "equal"
+"""``solver.channel_weights`` when not given: chosen with the prior, noise figure and model-error
+share by leaving one set out over the real recordings (tanks at their fitted depths) and the
+simulator (``bench/standing/real_data.md``); EIDORS's and pyEIT's default too."""
 
 DEFAULT_PRIOR = "noser"
 """``solver.prior`` when not given: chosen with the one-step default noise figure and the

@@ -25,7 +25,8 @@ from eit_skin.pipeline.processor import LayerProcessor
 from test.support.pressed_disc import PRESS_M, pressed_disc
 
 SOLVER = (
-    "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20}"
+    "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20, "
+    "channel_weights: measured}"
 )
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
 PRESS = np.array(PRESS_M)
