@@ -211,7 +211,8 @@ def calibrate(layer: Layer, protocol, data: scoring.RealSet, radius: float) -> d
     )
     run = run_eit_skin(calibrated, data)
     score = scoring.score(data, run.images, run.grid.x, run.grid.y, run.grid.inside, radius)
-    return {"fit": fit, "score": score, "model_r": correlation(data.reference, run.model_v)}
+    model_v = set_oriented(run.model_v, protocol, data)
+    return {"fit": fit, "score": score, "model_r": correlation(data.reference, model_v)}
 
 
 def pyeit_protocol(data: scoring.RealSet):
@@ -261,6 +262,15 @@ def run_pyeit(layer: Layer, data: scoring.RealSet, like: ImageGrid, own_mesh: bo
     )
     tool = "pyEIT" if own_mesh else "pyEIT, eit_skin mesh"
     return Run(tool, grid.to_image(ds), grid, build_s, frame_ms, np.real(solver.v0))
+
+
+def set_oriented(model_v: np.ndarray, protocol, data: scoring.RealSet) -> np.ndarray:
+    """``[M]`` model voltages read with the set's ``meas_mat`` pair orientation.
+
+    A magnitude protocol may write a pair the other way round (``same_numbers``: its
+    orientation is immaterial); pyEIT and the set's reference read the set's way.
+    """
+    return model_v * np.where(protocol.measurements[:, 1] == data.meas_mat[:, 1], 1, -1)
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:
@@ -662,12 +672,7 @@ def main() -> None:
         for run in runs[1:]:
             if not (np.allclose(run.grid.x, ours.grid.x) and np.allclose(run.grid.y, ours.grid.y)):
                 raise AssertionError(f"{name}: the tools' pixel grids differ")
-        # pyEIT reads the set's meas_mat pairs; a magnitude protocol may write a pair the
-        # other way round (same_numbers: its orientation is immaterial), so ours is read the
-        # set's way before the sign conventions are compared
-        ours_v = runs[0].model_v * np.where(
-            protocol.measurements[:, 1] == data.meas_mat[:, 1], 1, -1
-        )
+        ours_v = set_oriented(runs[0].model_v, protocol, data)  # as pyEIT reads the set
         for run in runs[1:]:
             r = correlation(run.model_v, ours_v)
             if r < 0.95:
@@ -699,7 +704,7 @@ def main() -> None:
             "runs": runs,
             "scores": scores,
             "sensitivity": sensitivity,
-            "model_r": correlation(data.reference, runs[0].model_v),
+            "model_r": correlation(data.reference, ours_v),
             "calibration": calibration,
             "step_noise": step_noise(layer, protocol, data),
             "candidates": candidate_scores(layer, data, repeated_frames(data), radius),
