@@ -230,6 +230,8 @@ class ReferenceReport:
         model_misfit: the reference's relative misfit to the homogeneous model
             (:func:`~eit_skin.inverse.hyperparameter.reference_misfit`); NaN: not measured.
         for_model_error: whether the model-error rule, not the noise figure, set ``h``.
+        equal_weights: whether ``solver.channel_weights: equal`` weighted every channel alike
+            (``weighted`` is then 0).
     """
 
     check: ReferenceCheck
@@ -240,6 +242,7 @@ class ReferenceReport:
     chosen: bool
     model_misfit: float = float("nan")
     for_model_error: bool = False
+    equal_weights: bool = False
 
     def lines(self) -> list[str]:
         """Human-readable summary, one fact per line."""
@@ -247,9 +250,14 @@ class ReferenceReport:
         if self.noise_source is None:
             out.append("channel noise: not measured (channels weighted equally)")
         else:
+            weights = (
+                "channels weighted equally (solver.channel_weights)"
+                if self.equal_weights
+                else f"{self.weighted} channels noisier (down-weighted)"
+            )
             out.append(
                 f"channel noise: {self.noise_source}; median {self.median_noise:.3g} of the "
-                f"reference per frame, {self.weighted} channels noisier (down-weighted)"
+                f"reference per frame, {weights}"
             )
         if np.isfinite(self.model_misfit):
             out.append(f"reference misfit to the model {self.model_misfit:.1%}")
@@ -353,10 +361,8 @@ class LayerImager:
             return ReferenceReport(check, None, float("nan"), 0, base.hyperparameter, False)
         relative = noise.relative(reference)
         usable = ~check.excluded & np.isfinite(relative)
-        if self.layer.solver.channel_weights == "equal":
-            scale = np.ones_like(relative)
-        else:
-            scale = channel_scale(relative, usable)
+        equal = self.layer.solver.channel_weights == "equal"
+        scale = np.ones_like(relative) if equal else channel_scale(relative, usable)
         fixed = self.layer.solver.hyperparameter
         target = None
         if fixed is None:
@@ -383,6 +389,7 @@ class LayerImager:
             fixed is None,
             misfit,
             for_model_error,
+            equal,
         )
 
     @classmethod

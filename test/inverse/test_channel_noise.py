@@ -149,6 +149,7 @@ def test_equal_channel_weights_are_the_measured_rule_fed_a_flat_noise(small):
     uneven = reference + rng.normal(size=(30, v0.size)) * 1e-3 * abs(reference).max()
     equal = built["equal"].use_reference(reference, uneven)
     assert equal.for_model_error and equal.weighted == 0
+    assert "channels weighted equally" in "\n".join(equal.lines())
     equal_matrix = built["equal"].matrix.matrix
     measured = built["measured"].use_reference(reference, flat)
     assert measured.hyperparameter == pytest.approx(equal.hyperparameter, rel=1e-9)
