@@ -55,13 +55,14 @@ import numpy as np
 from bench.header import run_header
 from bench.standing import real_data_scoring as scoring
 from eit_skin.fem.device_fit import DeviceFit, fit_device
+from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
-from eit_skin.inverse.hyperparameter import MODEL_ERROR_SHARE, choose_for_model_error
+from eit_skin.inverse.hyperparameter import MODEL_ERROR_SHARE
 from eit_skin.inverse.methods import DEFAULT_NOISE_FIGURE
 from eit_skin.patch.loading import load_patch
-from eit_skin.patch.model import Layer, SolverSpec
+from eit_skin.patch.model import CHANNEL_WEIGHTS, Layer, SolverSpec
 from eit_skin.patch.protocol import build_protocol
 from eit_skin.pipeline.builder import LayerImager
 
@@ -94,10 +95,10 @@ CANDIDATE_NOISE_FIGURES = (0.13, 0.2, 0.3, 0.5, 0.7, 1.0, 2.0)
 #: shares, on top of the noise figures in :data:`RULE_NOISE_FIGURES`.
 CANDIDATE_SHARES = (1 / 2, 1 / 4, 1 / 8, 1 / 16, 1 / 32)
 RULE_NOISE_FIGURES = (0.13, 0.3)
-#: Channel weights of a candidate: ``measured`` (the node's chain: by the measured channel
-#: noise) or ``equal`` (none, as EIDORS and pyEIT JAC by default; ``h`` by the same rules on
-#: the unweighted matrix: :func:`equal_weights`), the latter for the priors named here.
-CANDIDATE_WEIGHTS = ("measured", "equal")
+#: Channel weights of a candidate (the layer's ``solver.channel_weights``): ``measured`` (by
+#: the measured channel noise) or ``equal`` (as EIDORS and pyEIT JAC; ``h`` by the same
+#: rules on the unweighted matrix), the latter for the priors named here.
+CANDIDATE_WEIGHTS = CHANNEL_WEIGHTS
 EQUAL_WEIGHT_PRIORS = ("noser",)
 #: The simulated set of the choice: targets (radius fraction of R, conductivity ratio) at
 #: these fractions of R and angles, 1 % noise (of the RMS difference signal), one seed.
@@ -113,7 +114,7 @@ PACKAGE_DEFAULT = (
     SolverSpec().prior,
     DEFAULT_NOISE_FIGURE[SolverSpec().method],
     MODEL_ERROR_SHARE,
-    "measured",
+    SolverSpec().channel_weights,
 )
 #: What the real-device patch files shipped before issue 35 (in the figures and tables).
 PREVIOUS_DEFAULT = ("greit", None, 0.13, 0.0, "measured")
@@ -170,7 +171,11 @@ def run_eit_skin(layer: Layer, data: scoring.RealSet) -> Run:
     images = imager.images(imager.relative_change(data.frames, data.reference))
     frame_ms = median_frame_ms(lambda v: imager.frame_images(v, data.reference), data.frames)
     forward = ForwardModel(
-        build_mesh(layer), imager.protocol, layer.contact_impedance_ohm_m, layer.current_a
+        build_mesh(layer),
+        imager.protocol,
+        layer.contact_impedance_ohm_m,
+        layer.current_a,
+        layer_depth(layer),
     )
     model_v = forward.voltages(layer.material.sheet_conductance_s)
     return Run("eit_skin", images, imager.grid, build_s, frame_ms, model_v, tuple(report.lines()))
@@ -196,6 +201,7 @@ def calibrate(layer: Layer, protocol, data: scoring.RealSet, radius: float) -> d
         layer.contact_impedance_ohm_m,
         layer.current_a,
         magnitude=protocol.magnitude,
+        depth=layer_depth(layer),
     )
     z = fit.contact_impedance_ohm_m
     calibrated = replace(
@@ -205,7 +211,8 @@ def calibrate(layer: Layer, protocol, data: scoring.RealSet, radius: float) -> d
     )
     run = run_eit_skin(calibrated, data)
     score = scoring.score(data, run.images, run.grid.x, run.grid.y, run.grid.inside, radius)
-    return {"fit": fit, "score": score, "model_r": correlation(data.reference, run.model_v)}
+    model_v = set_oriented(run.model_v, protocol, data)
+    return {"fit": fit, "score": score, "model_r": correlation(data.reference, model_v)}
 
 
 def pyeit_protocol(data: scoring.RealSet):
@@ -255,6 +262,15 @@ def run_pyeit(layer: Layer, data: scoring.RealSet, like: ImageGrid, own_mesh: bo
     )
     tool = "pyEIT" if own_mesh else "pyEIT, eit_skin mesh"
     return Run(tool, grid.to_image(ds), grid, build_s, frame_ms, np.real(solver.v0))
+
+
+def set_oriented(model_v: np.ndarray, protocol, data: scoring.RealSet) -> np.ndarray:
+    """``[M]`` model voltages read with the set's ``meas_mat`` pair orientation.
+
+    A magnitude protocol may write a pair the other way round (``same_numbers``: its
+    orientation is immaterial); pyEIT and the set's reference read the set's way.
+    """
+    return model_v * np.where(protocol.measurements[:, 1] == data.meas_mat[:, 1], 1, -1)
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:
@@ -353,11 +369,21 @@ def kept_analysis() -> str:
     return "(not written yet: look at the figures and the tables, then write it here)\n"
 
 
-def candidate_layer(layer: Layer, method: str, prior: str | None, noise_figure: float) -> Layer:
-    """``layer`` with the solver candidate (``prior`` None: the layer's), ``h`` not fixed."""
+def candidate_layer(
+    layer: Layer, method: str, prior: str | None, noise_figure: float, weights: str
+) -> Layer:
+    """``layer`` with the solver candidate (``prior`` None: the layer's), ``h`` not fixed.
+
+    ``weights``: ``solver.channel_weights``, one of :data:`CANDIDATE_WEIGHTS`.
+    """
     prior = prior or layer.solver.prior
     solver = replace(
-        layer.solver, method=method, prior=prior, noise_figure=noise_figure, hyperparameter=None
+        layer.solver,
+        method=method,
+        prior=prior,
+        noise_figure=noise_figure,
+        hyperparameter=None,
+        channel_weights=weights,
     )
     return replace(layer, solver=solver)
 
@@ -367,40 +393,14 @@ def candidate_images(
     data: scoring.RealSet,
     repeated: np.ndarray | None,
     share: float = MODEL_ERROR_SHARE,
-    weights: str = "measured",
 ) -> tuple[np.ndarray, ImageGrid]:
     """The node's chain on ``layer`` (cached build): images ``[T, H, W]`` of the set's frames.
 
-    ``share``: ``use_reference``'s ``model_error_share`` (0: the noise figure alone);
-    ``weights``: one of :data:`CANDIDATE_WEIGHTS`.
+    ``share``: ``use_reference``'s ``model_error_share`` (0: the noise figure alone).
     """
     imager = LayerImager.build(layer)
-    if weights == "equal":
-        equal_weights(imager, data.reference, repeated, data.frames, share)
-    else:
-        imager.use_reference(data.reference, repeated, data.frames, model_error_share=share)
+    imager.use_reference(data.reference, repeated, data.frames, model_error_share=share)
     return imager.images(imager.relative_change(data.frames, data.reference)), imager.grid
-
-
-def equal_weights(
-    imager: LayerImager,
-    reference: np.ndarray,
-    repeated: np.ndarray | None,
-    frames: np.ndarray,
-    share: float = MODEL_ERROR_SHARE,
-) -> None:
-    """``imager.use_reference`` with every channel weighted equally (a freshly built imager).
-
-    The reference check and the model-error rule as in the node's chain; ``h`` is the larger
-    of the build's (the layer's noise figure on white noise) and the one leaving ``share``
-    of the reference's misfit unexplained, both on the unweighted matrix.
-    """
-    unweighted = imager.matrix
-    report = imager.use_reference(reference, repeated, frames, model_error_share=share)
-    h = unweighted.hyperparameter
-    if share > 0 and np.isfinite(report.model_misfit):
-        h = max(h, choose_for_model_error(unweighted.gram[0], share * report.model_misfit))
-    imager.matrix = imager.reconstructor = unweighted.with_hyperparameter(h)
 
 
 def simulated_set(layer: Layer) -> scoring.RealSet:
@@ -411,7 +411,9 @@ def simulated_set(layer: Layer) -> scoring.RealSet:
     """
     protocol = build_protocol(layer.protocol, layer.n_electrodes)
     mesh = build_mesh(layer, 0.5 * layer.mesh.max_edge_m)
-    forward = ForwardModel(mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a)
+    forward = ForwardModel(
+        mesh, protocol, layer.contact_impedance_ohm_m, layer.current_a, layer_depth(layer)
+    )  # the layer's own physics: a tank's depth too
     sigma0 = layer.material.sheet_conductance_s
     v0 = forward.voltages(np.full(mesh.n_triangles, sigma0))
     radius = sheet_radius(layer)
@@ -476,8 +478,8 @@ def candidate_scores(layer: Layer, data: scoring.RealSet, repeated, radius: floa
         cands += [(method, prior, nf, sh) for nf in RULE_NOISE_FIGURES for sh in CANDIDATE_SHARES]
         weights = CANDIDATE_WEIGHTS if prior in EQUAL_WEIGHT_PRIORS else CANDIDATE_WEIGHTS[:1]
         for cand in [(*c, w) for w in weights for c in cands]:
-            layer_c = candidate_layer(layer, *cand[:3])
-            images, grid = candidate_images(layer_c, data, repeated, *cand[3:])
+            layer_c = candidate_layer(layer, *cand[:3], cand[4])
+            images, grid = candidate_images(layer_c, data, repeated, cand[3])
             sc = scoring.score(data, images, grid.x, grid.y, grid.inside, radius)
             if data.name == "simulator":
                 sc["max_m"] = max_position_error(images, grid, data)
@@ -486,8 +488,11 @@ def candidate_scores(layer: Layer, data: scoring.RealSet, repeated, radius: floa
 
 
 def simulator_entry() -> dict:
-    """The simulated set (on :data:`SIM_PATCH`'s sheet): both tools and every candidate."""
-    layer = load_patch(DATA / f"{SIM_PATCH}.yaml").layers[0]
+    """The simulated set (on :data:`SIM_PATCH`'s sheet): both tools and every candidate.
+
+    A 2-D sheet, as the product's skins: the patch's tank depth, if any, left out.
+    """
+    layer = replace(load_patch(DATA / f"{SIM_PATCH}.yaml").layers[0], depth_m=None)
     data = simulated_set(layer)
     radius = sheet_radius(layer)
     grid = candidate_images(layer, data, None)[1]
@@ -543,8 +548,9 @@ def default_choice(entries: dict) -> list[str]:
         "through the node's chain (reference check, channels weighted by their measured "
         "noise, `h` for the noise figure on that noise); the "
         + ", ".join(PRIOR_NAMES[p] for p in EQUAL_WEIGHT_PRIORS)
-        + " candidates also with every channel weighted equally (as EIDORS and pyEIT JAC "
-        "do by default; the same rules for `h` on the unweighted matrix). Sets: the five "
+        + " candidates also with every channel weighted equally (`solver.channel_weights: "
+        "equal`, as EIDORS and pyEIT JAC do by default; the same rules for `h` on the "
+        "unweighted matrix). Sets: the five "
         "real ones and the "
         f"simulator ({len(SIM_RADII) * len(SIM_ANGLES)} targets of {SIM_TARGET[0]:g} R, "
         f"conductivity x{SIM_TARGET[1]:g}, at 0..0.9 R on {SIM_PATCH}'s sheet, data from a "
@@ -666,8 +672,9 @@ def main() -> None:
         for run in runs[1:]:
             if not (np.allclose(run.grid.x, ours.grid.x) and np.allclose(run.grid.y, ours.grid.y)):
                 raise AssertionError(f"{name}: the tools' pixel grids differ")
+        ours_v = set_oriented(runs[0].model_v, protocol, data)  # as pyEIT reads the set
         for run in runs[1:]:
-            r = correlation(run.model_v, runs[0].model_v)
+            r = correlation(run.model_v, ours_v)
             if r < 0.95:
                 raise AssertionError(f"{name}: pyEIT's model voltages disagree with ours (r={r})")
         scores = [
@@ -684,10 +691,10 @@ def main() -> None:
                 ]
         calibration = calibrate(layer, protocol, data, radius)
         before_images, before_grid = candidate_images(
-            candidate_layer(layer, *PREVIOUS_DEFAULT[:3]),
+            candidate_layer(layer, *PREVIOUS_DEFAULT[:3], PREVIOUS_DEFAULT[4]),
             data,
             repeated_frames(data),
-            *PREVIOUS_DEFAULT[3:],
+            PREVIOUS_DEFAULT[3],
         )
         before = Run("before", before_images, before_grid, 0, 0, ours.model_v)
         save_figure(data, [runs[0], runs[1], before], radius, FIGURES / f"{name}.png")
@@ -697,7 +704,7 @@ def main() -> None:
             "runs": runs,
             "scores": scores,
             "sensitivity": sensitivity,
-            "model_r": correlation(data.reference, runs[0].model_v),
+            "model_r": correlation(data.reference, ours_v),
             "calibration": calibration,
             "step_noise": step_noise(layer, protocol, data),
             "candidates": candidate_scores(layer, data, repeated_frames(data), radius),
@@ -729,8 +736,10 @@ def write_report(
         "and the one leaving that share of the reference's misfit to the model unexplained; "
         "the patch's inverse mesh; chosen below by leaving one set out) through "
         "`LayerImager`, the reconstruction node's chain, with the set's reference checked "
-        "and its channels weighted by their measured noise (`LayerImager.use_reference`, "
-        "docs/reconstruction.md; what was measured: Details). pyEIT JAC: its examples' settings "
+        "and the channel noise measured (`LayerImager.use_reference`, "
+        "docs/reconstruction.md; what was measured: Details); the tank patch files carry "
+        "their depth fitted to the unloaded frame (`layers[].depth`). pyEIT JAC: its "
+        "examples' settings "
         "(distmesh circle h0 = 0.1, p = 0.5, lambda = 0.01, kotre, normalised Jacobian and "
         "data), electrodes at the patch's electrode centres, the set's own measurement list; "
         "both imaged on the same pixel grid (the patch's, 64 pixels across). Scoring "

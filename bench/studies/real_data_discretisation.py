@@ -44,7 +44,6 @@ from bench.standing.bench_real_data import (
     DATA,
     PYEIT_H0,
     PYEIT_SETUP,
-    equal_weights,
     pyeit_protocol,
     repeated_frames,
     sheet_radius,
@@ -125,13 +124,19 @@ def chain_values(imager: LayerImager, data: scoring.RealSet) -> np.ndarray:
 
 
 def eit_skin_imager(layer, data: scoring.RealSet) -> tuple[LayerImager, LayerImager]:
-    """The bench's chain (package default, reference check, channel weights) and the same
-    chain with equal channel weights (:func:`bench.standing.bench_real_data.equal_weights`)."""
+    """The bench's chain (package default, reference check) with the channels weighted by
+    their measured noise and with every channel weighted equally (``solver.channel_weights``)."""
     imager = LayerImager.build(layer, cache_dir=None)
-    equal = replace(imager)
-    imager.use_reference(data.reference, repeated_frames(data), data.frames)
-    equal_weights(equal, data.reference, repeated_frames(data), data.frames)
-    return imager, equal
+    pair = tuple(
+        replace(
+            imager,
+            layer=replace(imager.layer, solver=replace(imager.layer.solver, channel_weights=w)),
+        )
+        for w in ("measured", "equal")
+    )
+    for one in pair:
+        one.use_reference(data.reference, repeated_frames(data), data.frames)
+    return pair
 
 
 def distmesh_imager(layer, data: scoring.RealSet, mesh: Mesh, grid: ImageGrid) -> LayerImager:

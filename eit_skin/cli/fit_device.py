@@ -11,6 +11,11 @@ frames are volts) cannot be fitted together with the conductance from one homoge
 the gain the patch's own conductance implies is printed too. ``--fit-input-gain`` also fits
 the board's ``device.negative_input_gain`` (its minus input's gain over its plus input's, from
 the same no-load frame: a device calibration, never from presses; pair drives only).
+A layer with ``depth`` (a tank) is fitted at that depth; ``--fit-depth`` also fits the depth
+(:func:`eit_skin.fem.device_fit.fit_depth`: the conductance and contact impedance fitted at
+every depth tried, the depth of the smallest residual; none when the 2-D sheet fits best) and
+prints the ``depth`` line to put in the layer (with a comment saying where it came from;
+``--write`` does not write it).
 
 ``--write`` stores ``material.sheet_conductance`` and ``electrodes.contact_impedance`` (a
 number, or a list of one per electrode), and with ``--fit-input-gain``
@@ -55,15 +60,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also fit device.negative_input_gain (the minus input's gain over the plus "
         "input's; pair drives)",
     )
+    parser.add_argument(
+        "--fit-depth",
+        action="store_true",
+        help="also fit a tank's depth (m) to the frame (electrodes as high as wide)",
+    )
     add_write_option(parser, "the fitted sheet_conductance and contact_impedance")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         path = patch_file(args)
-        layer_name, fit = fit_layer(path, args)
+        layer_name, fit, depth = fit_layer(path, args)
         for line in fit.lines():
             print(line)
+        if args.fit_depth:
+            print(
+                f"depth: {depth:.{DIGITS}g} m (add to layers[{layer_name}] as 'depth: "
+                f"{depth:.{DIGITS}g}  # fitted to the unloaded frame by eit-skin fit-device "
+                "--fit-depth')"
+                if depth is not None
+                else "depth: none (the 2-D sheet fits best)"
+            )
         print(f"gain at the patch's conductance: {fit.gain_at(_patch_sigma(path, layer_name)):.4g}")
         if args.write:
             texts = write_calibration(path, layer_name, fit, args.fit_input_gain)
@@ -83,12 +101,14 @@ def _patch_sigma(path: Path, layer_name: str) -> float:
 
 
 def fit_layer(path: Path, args: argparse.Namespace):
-    """``(layer name, DeviceFit)`` of a patch file's layer on a frames file's ``reference``.
+    """``(layer name, DeviceFit, fitted depth m or None)`` of a patch file's layer.
 
-    ``args``: the command's ``layer``, ``frames``, ``gain``, ``per_electrode`` and
-    ``fit_input_gain``.
+    On a frames file's ``reference``. ``args``: the command's ``layer``, ``frames``,
+    ``gain``, ``per_electrode``, ``fit_input_gain`` and ``fit_depth`` (else the depth is
+    the layer's).
     """
-    from eit_skin.fem.device_fit import fit_device
+    from eit_skin.fem.device_fit import fit_depth, fit_device
+    from eit_skin.fem.elements import layer_depth
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
@@ -99,19 +119,28 @@ def fit_layer(path: Path, args: argparse.Namespace):
     if not args.frames.is_file():
         raise ValueError(f"{args.frames}: no such file")
     reader = FramesNpzReader(args.frames, convert=protocol.select)
-    fit = fit_device(
-        build_mesh(layer),
-        protocol,
-        reader.reference,
-        layer.material.sheet_conductance_s,
-        layer.contact_impedance_ohm_m,
-        layer.current_a,
-        gain=args.gain,
-        magnitude=protocol.magnitude,
-        per_electrode={"auto": None, "yes": True, "no": False}[args.per_electrode],
-        fit_input_gain=args.fit_input_gain,
-    )
-    return layer.name, fit
+    options = {
+        "gain": args.gain,
+        "magnitude": protocol.magnitude,
+        "per_electrode": {"auto": None, "yes": True, "no": False}[args.per_electrode],
+        "fit_input_gain": args.fit_input_gain,
+    }
+    options["sheet_conductance_s"] = layer.material.sheet_conductance_s
+    options["contact_impedance_ohm_m"] = layer.contact_impedance_ohm_m
+    options["current_a"] = layer.current_a
+    mesh = build_mesh(layer)
+    if not args.fit_depth:
+        depth = layer_depth(layer)
+        fit = fit_device(mesh, protocol, reader.reference, depth=depth, **options)
+        return layer.name, fit, None if depth is None else depth.depth_m
+    widths = {e.width_m for e in layer.electrodes}
+    if layer.material.quantity != "pressure" or len(widths) != 1:
+        raise ValueError(
+            f"{path}: layers[{layer.name}]: --fit-depth needs a tank (a pressure layer) with "
+            "electrodes of one width"
+        )
+    depth, fit = fit_depth(mesh, protocol, reader.reference, widths.pop(), **options)
+    return layer.name, fit, depth
 
 
 def write_calibration(path: Path, layer_name: str, fit, input_gain: bool = False) -> dict[str, str]:

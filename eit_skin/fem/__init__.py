@@ -1,10 +1,13 @@
 """Finite elements on the sheet: mesh, complete-electrode forward model, image grid.
 
 Modules: ``mesh`` (triangle meshes of a layer), ``forward`` (:class:`ForwardModel`: sparse CEM
-assembly, one factorisation for every injection, voltages and Jacobian), ``forward_update``
+assembly, one factorisation for every injection, voltages and Jacobian), ``elements`` (its
+element matrices: a sheet's triangles, or a tank of some depth as prism layers),
+``forward_update``
 (exact Woodbury updates for local changes), ``image_grid`` (element values -> ``[H, W]``
 pixels), ``disk`` (disc meshes with exact electrode geometry, for analytic checks),
-``device_fit`` (calibrate sheet conductance and contact impedance to a no-load frame),
+``device_fit`` (calibrate sheet conductance, contact impedance and a tank's depth to a no-load
+frame),
 ``phantoms`` (small disc targets simulated exactly: the phantom set of every accuracy figure).
 """
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from eit_skin.fem.elements import TankDepth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.mesh import Mesh
 from eit_skin.patch.protocol import Protocol
@@ -54,6 +55,11 @@ MAX_LOG_STEP = 2.0
 INPUT_GAIN_GRID = np.geomspace(0.5, 2.0, 41)
 #: A contact impedance whose log standard error exceeds this (a factor e) is not determined.
 UNDETERMINED_LOG_STD = 1.0
+#: Depths :func:`fit_depth` tries first, times the sheet's largest extent (beyond ~4 extents
+#: a deeper tank changes the frame by less than the model's discretisation).
+DEPTH_GRID = np.geomspace(1 / 16, 4.0, 7)
+#: Golden-section steps after the grid (each narrows the bracket by 0.618).
+DEPTH_REFINEMENTS = 6
 
 
 @dataclass(frozen=True)
@@ -153,6 +159,7 @@ def fit_device(
     per_electrode: bool | None = None,
     fit_input_gain: bool = False,
     max_iterations: int = 40,
+    depth: TankDepth | None = None,
 ) -> DeviceFit:
     """Fit ``sigma`` and ``z`` to a no-load frame (see the module docstring).
 
@@ -169,6 +176,7 @@ def fit_device(
         fit_input_gain: fit the board's ``negative_input_gain`` too (starting from the
             protocol's; pair drives only).
         max_iterations: Levenberg-Marquardt iterations at most.
+        depth: a tank's depth and electrode height (None: a 2-D sheet), held fixed.
 
     Raises:
         ValueError: a frame of the wrong shape, too few usable channels, or a frame whose
@@ -184,9 +192,8 @@ def fit_device(
     if not per_electrode:
         z[:] = np.exp(np.mean(np.log(z)))
     rms = float(np.sqrt(np.mean(v[used] ** 2)))
-    frame = _FrameResidual(
-        mesh, protocol, current_a, v, used, rms, gain, magnitude, per_electrode, fit_input_gain
-    )
+    options = (gain, magnitude, per_electrode, fit_input_gain, depth)
+    frame = _FrameResidual(mesh, protocol, current_a, v, used, rms, *options)
     start, initial = frame.start(float(sheet_conductance_s), z, protocol.negative_input_gain)
     free = np.ones(n_par, dtype=bool)
     sigma, z, g, r, J, iterations = _levenberg_marquardt(frame, start, free, max_iterations)
@@ -239,15 +246,20 @@ class _FrameResidual:
     magnitude: bool
     per_electrode: bool
     fit_input_gain: bool = False
+    depth: TankDepth | None = None
 
     def __post_init__(self) -> None:
         if self.fit_input_gain and not self.protocol.pair_drive:
             raise ValueError("fit_input_gain: needs a pair drive (the inputs' ground is the sink)")
 
-    def model(self, z: np.ndarray, g: float) -> ForwardModel:
-        """The forward model at contact impedance ``z`` and negative input gain ``g``."""
+    def model(self, z: np.ndarray, g: float, sigma: float) -> ForwardModel:
+        """The forward model at contact impedance ``z`` and negative input gain ``g``.
+
+        A tank is homogeneous: ``sigma`` outside the imaged slab too.
+        """
+        depth = None if self.depth is None else replace(self.depth, outside_s=sigma)
         return ForwardModel(
-            self.mesh, replace(self.protocol, negative_input_gain=g), z, self.current_a
+            self.mesh, replace(self.protocol, negative_input_gain=g), z, self.current_a, depth
         )
 
     def evaluate(
@@ -258,7 +270,7 @@ class _FrameResidual:
         The derivative ``[m, n_par]`` is by ``log sigma``, ``log z`` (one column, or one
         per electrode) and, when fitted, ``log g``.
         """
-        model = self.model(z, g)
+        model = self.model(z, g, sigma)
         solution = model.solve(sigma)
         V = solution.voltages
         sign = np.sign(V) if self.magnitude else np.ones_like(V)
@@ -297,7 +309,7 @@ class _FrameResidual:
 
         ``sigma`` and ``z`` as given; one solve (the reading is linear in the gain).
         """
-        u = self.model(z, 1.0).solve(sigma).electrode_potentials
+        u = self.model(z, 1.0, sigma).solve(sigma).electrode_potentials
         k, plus, minus = self.protocol.measurements.T
         sink = self.protocol.injections[k, 1]
         a, b = u[k, plus] - u[k, sink], u[k, minus] - u[k, sink]  # [M]
@@ -316,7 +328,7 @@ class _FrameResidual:
         Fitted first, so a wrong unit or conductance does not have to be walked off by the
         iteration.
         """
-        V = self.model(z, g).voltages(sigma)
+        V = self.model(z, g, sigma).voltages(sigma)
         shape = self.gain * (np.abs(V) if self.magnitude else V)
         used, v = self.used, self.v
         c = float(shape[used] @ v[used] / (shape[used] @ shape[used]))
@@ -326,6 +338,48 @@ class _FrameResidual:
                 "channels (check protocol.sign, electrode numbering, or values: magnitude)"
             )
         return sigma / c, z * c
+
+
+def fit_depth(
+    mesh: Mesh, protocol: Protocol, reference: np.ndarray, electrode_height_m: float, **options
+) -> tuple[float | None, DeviceFit]:
+    """The tank depth (m) that fits a no-load frame best, with its :func:`fit_device`.
+
+    The conductance and the contact impedance are fitted jointly at every depth tried (the
+    other arguments as :func:`fit_device`'s, ``options`` by keyword: ``sheet_conductance_s``,
+    ``contact_impedance_ohm_m``, ``current_a`` required); the depth minimises the fit's
+    residual: first over :data:`DEPTH_GRID` (multiples of the sheet's largest extent, from the
+    electrode height, the 2-D sheet, up), then by :data:`DEPTH_REFINEMENTS` golden-section
+    steps in ``log D`` between the best grid point's neighbours. None when the sheet (depth =
+    the electrode height) fits best. Only the no-load frame is used: a device fact, as the
+    contact impedance.
+    """
+    nodes = np.asarray(mesh.nodes, dtype=np.float64)
+    extent = float(np.max(nodes.max(axis=0) - nodes.min(axis=0)))
+    h = float(electrode_height_m)
+    grid = np.unique(np.concatenate([[h], DEPTH_GRID * extent]))
+    grid = grid[grid >= h]
+    fits: dict[float, DeviceFit] = {}
+
+    def residual(depth: float) -> float:
+        if depth not in fits:
+            tank = None if depth <= h * (1 + 1e-9) else TankDepth(depth, h)
+            fits[depth] = fit_device(mesh, protocol, reference, depth=tank, **options)
+        return fits[depth].residual
+
+    best = int(np.argmin([residual(float(d)) for d in grid]))
+    lo, hi = np.log(grid[max(best - 1, 0)]), np.log(grid[min(best + 1, len(grid) - 1)])
+    ratio = (np.sqrt(5) - 1) / 2
+    a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    for _ in range(DEPTH_REFINEMENTS):
+        if residual(float(np.exp(a))) <= residual(float(np.exp(b))):  # minimum in [lo, b]
+            hi, b = b, a
+            a = hi - ratio * (hi - lo)
+        else:  # in [a, hi]
+            lo, a = a, b
+            b = lo + ratio * (hi - lo)
+    depth = min(fits, key=lambda d: fits[d].residual)
+    return (None if depth <= h * (1 + 1e-9) else depth), fits[depth]
 
 
 def _levenberg_marquardt(

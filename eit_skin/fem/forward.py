@@ -41,6 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
+from eit_skin.fem.elements import Elements, TankDepth, sheet_elements, tank_elements
 from eit_skin.fem.mesh import Mesh
 from eit_skin.patch.protocol import Protocol
 
@@ -98,14 +99,17 @@ class _Factorised:
 
 
 class ForwardModel:
-    """Sparse CEM finite-element forward model of one sheet.
+    """Sparse CEM finite-element forward model of one sheet, or of a tank of some depth.
 
     Args:
         mesh: the sheet's triangle mesh with its electrodes.
         protocol: drive and measurement pairs (``protocol.n_electrodes == mesh.n_electrodes``).
         contact_impedance_ohm_m: contact impedance ``z`` per electrode, ohm*metre, scalar or
-            ``[n_el]``, each > 0.
+            ``[n_el]``, each > 0 (a tank: per unit electrode width, :mod:`~eit_skin.fem.elements`).
         current_a: injected current amplitude, amperes (> 0).
+        depth: None for a sheet (2-D); a tank's depth and electrode height: the mesh extruded
+            into prism columns (:func:`~eit_skin.fem.elements.tank_elements`), the unknowns
+            still one sheet conductance per triangle, node potentials those of the ring's plane.
     """
 
     def __init__(
@@ -114,6 +118,7 @@ class ForwardModel:
         protocol: Protocol,
         contact_impedance_ohm_m: float | np.ndarray,
         current_a: float = 1e-3,
+        depth: TankDepth | None = None,
     ) -> None:
         nodes = np.asarray(mesh.nodes, dtype=np.float64)
         tri = np.asarray(mesh.triangles, dtype=np.int64)
@@ -138,15 +143,21 @@ class ForwardModel:
         self._protocol = protocol
         self._current_a = float(current_a)
         self._z = z.copy()
-        self._n_nodes = n_nodes
+        self._depth = depth
+        self._outside_s = 1.0 if depth is None else depth.outside_s
+        self._n_plane = n_nodes  # the nodes of the mesh (of the ring's plane in a tank)
         self._n_el = n_el
 
-        area, grads = _hat_gradients(nodes, tri)
+        el = (
+            sheet_elements(mesh, nodes, tri)
+            if depth is None
+            else tank_elements(mesh, nodes, tri, depth)
+        )
         self._tri = tri
-        self._grad_op = _gradient_operator(area, grads, tri, n_nodes)
-        local = area[:, None, None] * np.einsum("tdi,tdj->tij", grads, grads)  # [t, 3, 3]
-
-        erows, ecols, evals, self._el_len = _contact_terms(mesh, nodes, z)
+        self._elements = el
+        self._n_nodes = n_nodes = el.n_nodes
+        self._grad_op = el.operator()
+        erows, ecols, evals, self._el_len = _contact_terms(el, n_el, z)
         # C^T rows [n_el, n_nodes]: electrode current I_l = D_l U_l - (C^T u)_l
         coupling = (erows >= n_nodes) & (ecols < n_nodes)
         self._ct = sp.csr_matrix(
@@ -155,33 +166,36 @@ class ForwardModel:
         )
 
         # nodes no triangle uses: an identity row keeps the matrix regular
-        used = np.zeros(n_nodes, dtype=bool)
+        used = np.zeros(self._n_plane, dtype=bool)
         used[tri.ravel()] = True
-        unused = np.flatnonzero(~used)
-        self._unused = unused
         _check_every_part_touches_an_electrode(mesh, tri, used)
-        self._assemble_pattern(local, (erows, ecols, evals), unused)
+        self._unused = np.flatnonzero(~used)  # of the plane's nodes
+        levels = n_nodes // self._n_plane
+        unused = (self._unused[None, :] + self._n_plane * np.arange(levels)[:, None]).ravel()
+        self._assemble_pattern(el, (erows, ecols, evals), unused)
         self._cache: _Factorised | None = None
         self._order: np.ndarray | None = None  # fill-reducing order, found once
         self._permuted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _assemble_pattern(
         self,
-        local: np.ndarray,
+        elements: Elements,
         contact: tuple[np.ndarray, np.ndarray, np.ndarray],
         unused: np.ndarray,
     ) -> None:
         """Assemble the grounded system's CSR pattern once.
 
-        Data slots of the stiffness entries (``local`` ``[t, 3, 3]`` per unit sigma), the
+        Data slots of the stiffness entries (``elements``' stiffness per unit sigma), the
         constant contact data (``contact``: rows, columns, values) and the identity rows of
         the ``unused`` nodes.
         """
-        tri, n_nodes, n_el = self._tri, self._n_nodes, self._n_el
+        conn, n_nodes, n_el = elements.nodes, self._n_nodes, self._n_el
+        local = elements.stiffness()
+        k = conn.shape[1]
         erows, ecols, evals = contact
         ground = n_nodes + n_el - 1
-        srows = np.repeat(tri, 3, axis=1).ravel()
-        scols = np.tile(tri, (1, 3)).ravel()
+        srows = np.repeat(conn, k, axis=1).ravel()
+        scols = np.tile(conn, (1, k)).ravel()
         rows = np.concatenate([srows, erows, unused])
         cols = np.concatenate([scols, ecols, unused])
         keep = (rows != ground) & (cols != ground)
@@ -192,7 +206,7 @@ class ForwardModel:
         uniq, inverse = np.unique(key, return_inverse=True)
         self._n_sys = n_sys
         self._slot_stiff = inverse[: int(keep_stiff.sum())]  # data slot of each kept stiff entry
-        self._stiff_elem = np.repeat(np.arange(len(tri)), 9)[keep_stiff]
+        self._stiff_elem = np.repeat(elements.owner(), k * k)[keep_stiff]
         self._stiff_vals = local.reshape(-1)[keep_stiff]
         const = np.bincount(
             inverse[int(keep_stiff.sum()) :],
@@ -231,6 +245,25 @@ class ForwardModel:
         return self._n_el
 
     @property
+    def n_nodes(self) -> int:
+        """Node potentials solved for (a tank: the mesh's nodes at every level)."""
+        return self._n_nodes
+
+    @property
+    def depth(self) -> TankDepth | None:
+        """The tank's depth, or None for a sheet."""
+        return self._depth
+
+    def nodes_of(self, changed: np.ndarray) -> np.ndarray:
+        """Sorted node indices whose stiffness a change of the ``changed`` triangles touches.
+
+        ``changed``: bool ``[n_triangles]``; a tank: the nodes of those columns' slab elements.
+        """
+        el = self._elements
+        sensed = np.flatnonzero(np.tile(np.asarray(changed, dtype=bool), el.sensed // el.columns))
+        return np.unique(el.nodes[sensed])
+
+    @property
     def current_a(self) -> float:
         return self._current_a
 
@@ -263,7 +296,7 @@ class ForwardModel:
     def _matrix(self, s: np.ndarray) -> sp.csr_matrix:
         data = self._const_data + np.bincount(
             self._slot_stiff,
-            weights=self._stiff_vals * s[self._stiff_elem],
+            weights=self._stiff_vals * np.append(s, self._outside_s)[self._stiff_elem],
             minlength=self._const_data.size,
         )
         return sp.csr_matrix(
@@ -329,6 +362,7 @@ class ForwardModel:
         u = u - shift
         U = U - shift
         currents = U * (self._el_len / self._z) - (self._ct @ u.T).T
+        u = u[:, : self._n_plane]  # a tank: the ring's plane
         if self._unused.size:
             u[:, self._unused] = np.nan
         return ForwardSolution(
@@ -346,16 +380,14 @@ class ForwardModel:
         """``[M, n_triangles]`` sensitivity ``dV/dsigma`` (V/S), adjoint method."""
         s = self._sigma_array(sigma)
         basis = self._factorise(s).basis[: self._n_nodes]  # [n_nodes, n_el]
-        # element gradients of each basis field, [n_el, 2, t] (rows contiguous per field);
-        # sqrt(area) in both, so sum_d gu*gv carries the area
+        # element rows of each basis field, [n_el, q, t] (rows contiguous per field), so
+        # sum_q gu*gv is the column's int grad u . grad v per unit sheet conductance
         gw = self._field_gradients(basis)
         n_el, n_t = self._n_el, self.n_elements
         lead = self._lead_coefficients()  # [M, n_el * n_el] sparse
         if n_el**2 * n_t <= 20_000_000:
             # all pairwise field products once ([n_el * n_el, t]), then a sparse combination
-            P = (gw[:, None, 0] * gw[None, :, 0] + gw[:, None, 1] * gw[None, :, 1]).reshape(
-                n_el * n_el, n_t
-            )
+            P = np.einsum("aqt,bqt->abt", gw, gw).reshape(n_el * n_el, n_t)
             out = np.asarray(lead @ P)
         else:  # many electrodes on a big mesh: bounded memory
             k = self._protocol.measurements[:, 0]
@@ -372,9 +404,13 @@ class ForwardModel:
         return out
 
     def _field_gradients(self, fields: np.ndarray) -> np.ndarray:
-        """``[k, 2, t]`` ``sqrt(area) grad u`` per element of node fields ``[n_nodes, k]``."""
-        g = self._grad_op @ fields  # [2 t, k], one sparse product
-        return np.ascontiguousarray(g.T).reshape(fields.shape[1], 2, self.n_elements)
+        """``[k, q, t]`` element rows ``B u`` per column of node fields ``[n_nodes, k]``.
+
+        A sheet: ``q = 2``, ``sqrt(area) grad u``; a tank: 7 rows per prism of the column.
+        """
+        g = self._grad_op @ fields  # [q t, k], one sparse product
+        q = self._elements.rows_per_column
+        return np.ascontiguousarray(g.T).reshape(fields.shape[1], q, self.n_elements)
 
     def jacobian_basis(self, sigma) -> JacobianBasis:
         """:meth:`jacobian` factored as ``combination @ products`` (see :class:`JacobianBasis`).
@@ -391,9 +427,7 @@ class ForwardModel:
         products = np.empty((a_idx.size, n_t))  # rows (a, a..f-1) for a = 0..f-1
         row = 0
         for a in range(f):  # one block of rows per field (f ~ 15), vectorised over elements
-            block = products[row : row + f - a]
-            np.multiply(gw[a, 0], gw[a:, 0], out=block)
-            block += gw[a, 1] * gw[a:, 1]
+            products[row : row + f - a] = np.einsum("qt,bqt->bt", gw[a], gw[a:])
             row += f - a
         pair = np.full((n_el, n_el), -1, dtype=np.int64)
         pair[a_idx, b_idx] = np.arange(a_idx.size)
@@ -418,17 +452,11 @@ class ForwardModel:
         """
         s = self._sigma_array(sigma)
         basis = self._factorise(s).basis  # [n_nodes + n_el, n_el]
-        nodes = np.asarray(self._mesh.nodes, dtype=np.float64)
         n_el = self._n_el
         gram = np.empty((n_el, n_el, n_el))  # [l, a, b] int_{e_l} (W_a,l - w_a)(W_b,l - w_b) ds
-        for el, edge_arr in enumerate(self._mesh.electrode_edges):
-            ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
-            length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)[:, None]
-            drop = basis[self._n_nodes + el][None, :] - basis[: self._n_nodes]  # [n_nodes, n_el]
-            da, db = drop[ed[:, 0]], drop[ed[:, 1]]  # [edges, n_el]
-            gram[el] = (da * length / 3).T @ da + (db * length / 3).T @ db
-            cross = (da * length / 6).T @ db
-            gram[el] += cross + cross.T
+        for el, (surface, mass) in enumerate(self._elements.contact):
+            drop = basis[self._n_nodes + el][None, :] - basis[surface]  # [e, c, n_el]
+            gram[el] = np.einsum("eia,eij,ejb->ab", drop, mass, drop)
         k = self._protocol.measurements[:, 0]
         electrodes, weights = self._protocol.measurement_terms
         # [l, n_inj, n_el]: current pattern of each injection through each electrode's form
@@ -475,84 +503,33 @@ class ForwardModel:
         return float(spla.norm(Ks, 1) * spla.onenormest(inv))
 
 
-def _hat_gradients(nodes: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle areas ``[t]`` m^2 and hat-function gradients ``[t, 2, 3]`` 1/m.
-
-    ``grads[:, d, j]`` is component ``d`` of node ``j``'s gradient; a degenerate or clockwise
-    triangle is refused.
-    """
-    p = nodes[tri]  # [t, 3, 2]
-    e1 = p[:, 2] - p[:, 1]  # edge opposite node 0
-    e2 = p[:, 0] - p[:, 2]
-    e3 = p[:, 1] - p[:, 0]
-    area = 0.5 * (e3[:, 0] * (-e2[:, 1]) - e3[:, 1] * (-e2[:, 0]))
-    if np.any(area <= 0):
-        bad = int(np.flatnonzero(area <= 0)[0])
-        raise ValueError(
-            f"mesh.triangles: triangle {bad} is degenerate or clockwise (area {area[bad]:g})"
-        )
-    edges = np.stack([e1, e2, e3], axis=1)  # [t, 3, 2]
-    # grad phi_j = perp(edge opposite j) / (2 area), perp(x, y) = (-y, x)
-    grads = np.stack([-edges[..., 1], edges[..., 0]], axis=1) / (2 * area)[:, None, None]
-    return area, grads
-
-
-def _gradient_operator(
-    area: np.ndarray, grads: np.ndarray, tri: np.ndarray, n_nodes: int
-) -> sp.csr_matrix:
-    """``sqrt(area)`` times the gradient as one sparse operator ``[2 t, n_nodes]``.
-
-    Rows ``(d, t)``, so a field block ``[n_nodes, k]`` maps to area-weighted element
-    gradients in one sparse product.
-    """
-    n_t = tri.shape[0]
-    grad_rows = np.broadcast_to(
-        (np.arange(2)[None, :, None] * n_t) + np.arange(n_t)[:, None, None], (n_t, 2, 3)
-    )
-    return sp.csr_matrix(
-        (
-            (grads * np.sqrt(area)[:, None, None]).ravel(),
-            (grad_rows.ravel(), np.broadcast_to(tri[:, None, :], (n_t, 2, 3)).ravel()),
-        ),
-        shape=(2 * n_t, n_nodes),
-    )
-
-
 def _contact_terms(
-    mesh: Mesh, nodes: np.ndarray, z: np.ndarray
+    elements: Elements, n_el: int, z: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The constant contact terms ``B``, ``C``, ``D`` and the electrode lengths ``[n_el]`` m.
+    """The constant contact terms ``B``, ``C``, ``D`` and the electrode sizes ``[n_el]`` m.
 
-    The terms are COO rows, columns and values over the unknowns ``[u (n_nodes), U (n_el)]``.
+    The terms are COO rows, columns and values over the unknowns ``[u (n_nodes), U (n_el)]``;
+    an electrode's size is its surface's mass total (a sheet: its length).
     """
-    n_nodes, n_el = nodes.shape[0], mesh.n_electrodes
+    n_nodes = elements.n_nodes
     erows, ecols, evals = [], [], []
-    el_len = np.zeros(n_el)
-    for el_i, edge_arr in enumerate(mesh.electrode_edges):
-        ed = np.asarray(edge_arr, dtype=np.int64).reshape(-1, 2)
-        if ed.shape[0] == 0:
-            raise ValueError(f"mesh.electrode_edges[{el_i}]: electrode has no boundary edge")
-        if ed.min() < 0 or ed.max() >= n_nodes:
-            raise ValueError(f"mesh.electrode_edges[{el_i}]: node index out of range")
-        length = np.linalg.norm(nodes[ed[:, 1]] - nodes[ed[:, 0]], axis=1)
-        if np.any(length <= 0):
-            raise ValueError(f"mesh.electrode_edges[{el_i}]: zero-length edge")
-        el_len[el_i] = length.sum()
-        a, b = ed[:, 0], ed[:, 1]
+    size = np.zeros(n_el)
+    for el_i, (surface, mass) in enumerate(elements.contact):
         w = 1.0 / z[el_i]
-        # edge mass matrix (1/z) * L/6 [[2, 1], [1, 2]]
-        erows += [a, b, a, b]
-        ecols += [a, b, b, a]
-        evals += [w * length / 3, w * length / 3, w * length / 6, w * length / 6]
-        # coupling -(1/z) int phi_i ds = -(1/z) L/2 at both nodes, symmetric
-        el = np.full(len(a), n_nodes + el_i)
-        erows += [a, b, el, el]
-        ecols += [el, el, a, b]
-        evals += [-w * length / 2] * 4
+        c = surface.shape[1]
+        size[el_i] = mass.sum()
+        erows.append(np.repeat(surface, c, axis=1).ravel())  # B: surface mass / z
+        ecols.append(np.tile(surface, (1, c)).ravel())
+        evals.append(w * mass.ravel())
+        integral = w * mass.sum(axis=2)  # int phi_i ds / z, [e, c]: the coupling C, symmetric
+        el = np.full(surface.size, n_nodes + el_i)
+        erows += [surface.ravel(), el]
+        ecols += [el, surface.ravel()]
+        evals += [-integral.ravel(), -integral.ravel()]
         erows.append(np.array([n_nodes + el_i]))
         ecols.append(np.array([n_nodes + el_i]))
-        evals.append(np.array([el_len[el_i] * w]))
-    return np.concatenate(erows), np.concatenate(ecols), np.concatenate(evals), el_len
+        evals.append(np.array([size[el_i] * w]))
+    return np.concatenate(erows), np.concatenate(ecols), np.concatenate(evals), size
 
 
 def _check_every_part_touches_an_electrode(mesh: Mesh, tri: np.ndarray, used: np.ndarray) -> None:

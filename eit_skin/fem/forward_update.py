@@ -42,7 +42,7 @@ class LocalForwardUpdate:
     ) -> None:
         self.model = model
         self.sigma_base = np.array(sigma_base, dtype=np.float64)
-        self._n_nodes = model.mesh.n_nodes
+        self._n_nodes = model.n_nodes
         self._n_el = model.n_electrodes
         self._max_active = int(max_active_fraction * self._n_nodes)
         k0 = model.system_matrix(self.sigma_base).tocsr()
@@ -102,7 +102,7 @@ class LocalForwardUpdate:
         if not changed.any():
             r[:-1, :-1] = self._r0
             return r
-        active = np.unique(self.model.mesh.triangles[changed])
+        active = self.model.nodes_of(changed)
         if active.size > self._max_active:
             return None
         dk = self.model.system_matrix(s) - self._k0

@@ -31,6 +31,7 @@ from eit_skin.patch.holes import read_holes
 from eit_skin.patch.material import QUANTITIES, RESPONSES, Material
 from eit_skin.patch.mesh_budget import budget_problem
 from eit_skin.patch.model import (
+    CHANNEL_WEIGHTS,
     METHODS,
     PRIOR_KINDS,
     AccuracyTarget,
@@ -62,6 +63,7 @@ LAYER_KEYS = (
     "holes",
     "current",
     "full_scale_v",
+    "depth",
     "protocol",
     "mesh",
     "solver",
@@ -142,6 +144,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
     mesh = _mesh_spec(r, d.get("mesh", {}), r.join(path, "mesh"), outline, electrodes)
     solver = _solver_spec(r, d.get("solver", {}), r.join(path, "solver"))
     device = _device(r, d.get("device", {}), path, protocol, len(electrodes), current)
+    depth = _depth(r, d, path, electrodes, material)
     if solver.accuracy_target is not None:
         _refuse_chosen_keys(r, d, path)
     for array in (outline, *holes):
@@ -160,6 +163,7 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
         solver=solver,
         device=device,
         full_scale_v=full_scale,
+        depth_m=depth,
     )
     if check_budget:
         problem = budget_problem(layer)
@@ -167,6 +171,22 @@ def _layer(r: Reader, data: Any, path: str, check_budget: bool) -> Layer:
             key, reason = problem
             raise r.error(r.join(r.join(path, "mesh"), key), reason)
     return layer
+
+
+def _depth(r: Reader, d: dict, path: str, electrodes, material: Material) -> float | None:
+    """``depth`` (m): a tank's; refused where the model cannot honour it."""
+    depth = r.number(d, "depth", path, default=None, positive=True, allow_none=True)
+    if depth is None:
+        return None
+    where = r.join(path, "depth")
+    if material.quantity != "pressure":
+        raise r.error(where, f"a {material.quantity} layer is a thin sheet: no depth")
+    widths = np.array([e.width_m for e in electrodes])
+    if np.ptp(widths) > 1e-9 * widths.max():
+        raise r.error(where, "needs electrodes of one width (their height on the wall)")
+    if depth < widths[0]:
+        raise r.error(where, f"{depth} m is less than the electrodes' height {widths[0]} m")
+    return float(depth)
 
 
 def _material(r: Reader, data: Any, path: str) -> Material:
@@ -366,6 +386,13 @@ def _solver_spec(r: Reader, data: Any, path: str) -> SolverSpec:
         ),
         "reference_frames": r.integer(
             d, "reference_frames", path, default=defaults.reference_frames, minimum=1
+        ),
+        "channel_weights": r.string(
+            d,
+            "channel_weights",
+            path,
+            default=defaults.channel_weights,
+            choices=CHANNEL_WEIGHTS,
         ),
         "accuracy_target": None
         if d.get("accuracy_target") is None

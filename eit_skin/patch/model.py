@@ -154,6 +154,14 @@ METHODS_WITH_PRIOR: tuple[str, ...] = ("one_step", "gauss_newton")
 PRIOR_KINDS: tuple[str, ...] = ("tikhonov", "laplace", "noser")
 """Names ``solver.prior`` may take; :func:`eit_skin.inverse.priors.make_prior` builds each."""
 
+CHANNEL_WEIGHTS: tuple[str, ...] = ("measured", "equal")
+"""Names ``solver.channel_weights`` may take (``LayerImager.use_reference`` honours it)."""
+
+DEFAULT_CHANNEL_WEIGHTS = "equal"
+"""``solver.channel_weights`` when not given: chosen with the prior, noise figure and model-error
+share by leaving one set out over the real recordings (tanks at their fitted depths) and the
+simulator (``bench/standing/real_data.md``); EIDORS's and pyEIT's default too."""
+
 DEFAULT_PRIOR = "noser"
 """``solver.prior`` when not given: chosen with the one-step default noise figure and the
 model-error share by leaving one set out over the real recordings and the simulator
@@ -176,6 +184,10 @@ class SolverSpec:
         max_iterations: Gauss-Newton iterations (>= 1).
         image_pixels: pixels along the long side of the ``H x W`` image grid (>= 8).
         reference_frames: frames averaged into the reference (no-touch) measurement (>= 1).
+        channel_weights: ``"measured"`` (each channel weighted by its measured noise, relative
+            to the median channel's) or ``"equal"`` (every channel alike, as EIDORS and pyEIT);
+            one-step and GREIT only (:data:`CHANNEL_WEIGHTS`, default
+            :data:`DEFAULT_CHANNEL_WEIGHTS`).
         accuracy_target: what the model must achieve (:class:`AccuracyTarget`), or ``None``;
             with a target the mesh sizes, ``image_pixels`` and ``max_iterations`` are chosen
             by the pipeline and may not be given.
@@ -189,9 +201,10 @@ class SolverSpec:
     image_pixels: int = 64
     reference_frames: int = 20
     accuracy_target: AccuracyTarget | None = None
+    channel_weights: str = DEFAULT_CHANNEL_WEIGHTS
 
     #: Keys added after patches were hashed: left out of the content hash at their default.
-    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("accuracy_target",)
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("accuracy_target", "channel_weights")
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -210,6 +223,11 @@ class SolverSpec:
             raise ValueError(f"image_pixels: must be >= 8, got {self.image_pixels}")
         if self.reference_frames < 1:
             raise ValueError(f"reference_frames: must be >= 1, got {self.reference_frames}")
+        if self.channel_weights not in CHANNEL_WEIGHTS:
+            raise ValueError(
+                f"channel_weights: unknown {self.channel_weights!r}; expected one of "
+                f"{CHANNEL_WEIGHTS}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,6 +254,8 @@ class Layer:
         full_scale_v: the board's full scale, V: a value with ``|v|`` above it is no
             measurement of the sheet (flagged ``FLAG_OUT_OF_RANGE``, left out of the image;
             the simulator's ADC gets this full scale); None: not stated, not checked.
+        depth_m: a tank's depth, m (the electrodes a ring at mid-depth, as high as they are
+            wide; :class:`~eit_skin.fem.elements.TankDepth`); None: a 2-D sheet.
     """
 
     name: str
@@ -251,11 +271,12 @@ class Layer:
     solver: SolverSpec
     device: DeviceSpec = DEFAULT_DEVICE
     full_scale_v: float | None = None
+    depth_m: float | None = None
 
     #: Fields that do not change the model: left out of the content hash.
     HASH_EXCLUDE: ClassVar[tuple[str, ...]] = ("device",)
     #: Keys added after patches were hashed: left out of the content hash at their default.
-    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v",)
+    HASH_ONLY_IF_SET: ClassVar[tuple[str, ...]] = ("full_scale_v", "depth_m")
 
     @property
     def n_electrodes(self) -> int:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.forward import ForwardModel
 from eit_skin.fem.image_grid import ImageGrid
 from eit_skin.fem.mesh import Mesh, build_mesh
@@ -80,6 +81,7 @@ def forward_model(layer: Layer, mesh: Mesh | None = None) -> ForwardModel:
         layer.measured_protocol,
         layer.contact_impedance_ohm_m,
         layer.current_a,
+        layer_depth(layer),
     )
 
 
@@ -228,6 +230,8 @@ class ReferenceReport:
         model_misfit: the reference's relative misfit to the homogeneous model
             (:func:`~eit_skin.inverse.hyperparameter.reference_misfit`); NaN: not measured.
         for_model_error: whether the model-error rule, not the noise figure, set ``h``.
+        equal_weights: whether ``solver.channel_weights: equal`` weighted every channel alike
+            (``weighted`` is then 0).
     """
 
     check: ReferenceCheck
@@ -238,6 +242,7 @@ class ReferenceReport:
     chosen: bool
     model_misfit: float = float("nan")
     for_model_error: bool = False
+    equal_weights: bool = False
 
     def lines(self) -> list[str]:
         """Human-readable summary, one fact per line."""
@@ -245,9 +250,14 @@ class ReferenceReport:
         if self.noise_source is None:
             out.append("channel noise: not measured (channels weighted equally)")
         else:
+            weights = (
+                "channels weighted equally (solver.channel_weights)"
+                if self.equal_weights
+                else f"{self.weighted} channels noisier (down-weighted)"
+            )
             out.append(
                 f"channel noise: {self.noise_source}; median {self.median_noise:.3g} of the "
-                f"reference per frame, {self.weighted} channels noisier (down-weighted)"
+                f"reference per frame, {weights}"
             )
         if np.isfinite(self.model_misfit):
             out.append(f"reference misfit to the model {self.model_misfit:.1%}")
@@ -325,7 +335,8 @@ class LayerImager:
         with an unusable reference value are left out of every later image; the noise of
         ``reference_frames`` ``[K, M]`` V (else of ``frames`` ``[T, M]`` V, else of the
         reference's reciprocity) weights the channels (``one_step``/``greit``; Gauss-Newton is
-        not weighted) and the hyperparameter is re-chosen, unless ``solver.hyperparameter``
+        not weighted; ``solver.channel_weights: equal`` weights every channel alike, as
+        EIDORS and pyEIT) and the hyperparameter is re-chosen, unless ``solver.hyperparameter``
         fixes it, as the larger of the one for the layer's noise figure on that measured
         noise and the one for the model error (``model_error_share`` of the reference's
         misfit to the homogeneous model: :mod:`eit_skin.inverse.hyperparameter`; 0 turns
@@ -350,7 +361,8 @@ class LayerImager:
             return ReferenceReport(check, None, float("nan"), 0, base.hyperparameter, False)
         relative = noise.relative(reference)
         usable = ~check.excluded & np.isfinite(relative)
-        scale = channel_scale(relative, usable)
+        equal = self.layer.solver.channel_weights == "equal"
+        scale = np.ones_like(relative) if equal else channel_scale(relative, usable)
         fixed = self.layer.solver.hyperparameter
         target = None
         if fixed is None:
@@ -377,6 +389,7 @@ class LayerImager:
             fixed is None,
             misfit,
             for_model_error,
+            equal,
         )
 
     @classmethod

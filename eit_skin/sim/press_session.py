@@ -18,6 +18,7 @@ import numpy as np
 
 from eit_skin.calibration.session import PressSession
 from eit_skin.fem.device_fit import DeviceFit, fit_device
+from eit_skin.fem.elements import layer_depth
 from eit_skin.fem.mesh import build_mesh
 from eit_skin.patch.device import NEGATIVE_INPUT_GAIN
 from eit_skin.patch.geometry import points_in_polygon
@@ -186,6 +187,7 @@ def calibrated_to_device(
         chosen.current_a,
         magnitude=protocol.magnitude,
         fit_input_gain=fit_gain,
+        depth=layer_depth(chosen),
     )
     ratio = fit.sheet_conductance_s / chosen.material.sheet_conductance_s
     z = [float(v) * ratio for v in fit.contact_impedance_ohm_m]

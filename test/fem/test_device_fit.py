@@ -187,3 +187,35 @@ def test_former_command_names_are_the_new_commands(capsys):
         captured = capsys.readouterr()
         assert captured.err == f"eit-skin: '{old}' is deprecated, use '{new}'\n"
         assert captured.out.startswith(f"usage: eit-skin {new} ")
+
+
+def test_fit_device_command_fits_a_tank_at_its_depth_and_refuses_fit_depth_on_a_stretch_layer(
+    tmp_path, capsys
+):
+    from eit_skin.cli.main import main
+    from eit_skin.fem.elements import TankDepth
+    from eit_skin.fem.mesh import build_mesh
+    from eit_skin.patch.loading import load_patch
+
+    tank = PATCH.replace("    protocol:", "    depth: 0.05\n    protocol:").replace(
+        "layout: full, measure_driven: true", "drive: adjacent, measure: adjacent"
+    )
+    path = tmp_path / "tank.yaml"
+    path.write_text(tank)
+    layer = load_patch(path).layers[0]
+    data = ForwardModel(
+        build_mesh(layer), layer.measured_protocol, 0.02, 1e-3, TankDepth(0.05, 0.01, 0.3)
+    )
+    frame = layer.measured_protocol.device_frame(data.voltages(0.3))
+    np.savez(tmp_path / "noload.npz", reference=frame, frames=frame[None])
+    args = ["fit-device", "--patch", str(path), "--frames", str(tmp_path / "noload.npz")]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "sheet conductance: 0.3 S" in out and "fit residual: 0.000%" in out, out
+    stretch = tank.replace("    depth: 0.05\n", "").replace(
+        "pressure_scale: 1.0e4", "gauge_factor: 2.0"
+    )
+    stretch = stretch.replace("quantity: pressure", "quantity: stretch")
+    path.write_text(stretch)
+    assert main([*args, "--fit-depth"]) == 1
+    assert "--fit-depth needs a tank" in capsys.readouterr().err

@@ -3,6 +3,8 @@ ReconstructionMatrix.with_channel_scale, LayerImager.use_reference), online and 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -18,11 +20,13 @@ from eit_skin.inverse.channel_noise import (
 from eit_skin.inverse.dual_form import lambda_squared
 from eit_skin.inverse.one_step import ReconstructionMatrix
 from eit_skin.patch.protocol import ProtocolSpec, build_protocol
+from eit_skin.pipeline.builder import LayerImager
 from eit_skin.pipeline.processor import LayerProcessor
 from test.support.pressed_disc import PRESS_M, pressed_disc
 
 SOLVER = (
-    "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20}"
+    "{method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 16, reference_frames: 20, "
+    "channel_weights: measured}"
 )
 PROTOCOL = build_protocol(ProtocolSpec(), 16)
 PRESS = np.array(PRESS_M)
@@ -125,6 +129,34 @@ def test_weighting_by_measured_noise_images_a_heteroscedastic_recording_better(s
 
     assert error(weighted) < 0.5 * error(unweighted)
     assert error(weighted) < 0.008
+
+
+def test_equal_channel_weights_are_the_measured_rule_fed_a_flat_noise(small):
+    """``solver.channel_weights: equal`` (any measured noise) gives the matrix and ``h`` that
+    the measured rule gives when every channel's relative noise is the same; the model-error
+    rule acts on both alike."""
+    _, imager, v0, _ = small
+    built = {
+        w: LayerImager.build(
+            replace(imager.layer, solver=replace(imager.layer.solver, channel_weights=w)),
+            cache_dir=None,
+        )
+        for w in ("measured", "equal")
+    }
+    rng = np.random.default_rng(3)
+    reference = v0 * (1.0 + 0.05 * rng.normal(size=v0.size))  # a misfit to the model
+    flat = reference * (1.0 + 1e-3 * rng.normal(size=(30, 1)))  # same relative noise
+    uneven = reference + rng.normal(size=(30, v0.size)) * 1e-3 * abs(reference).max()
+    equal = built["equal"].use_reference(reference, uneven)
+    assert equal.for_model_error and equal.weighted == 0
+    assert "channels weighted equally" in "\n".join(equal.lines())
+    equal_matrix = built["equal"].matrix.matrix
+    measured = built["measured"].use_reference(reference, flat)
+    assert measured.hyperparameter == pytest.approx(equal.hyperparameter, rel=1e-9)
+    np.testing.assert_allclose(built["measured"].matrix.matrix, equal_matrix, rtol=1e-7)
+    # the same uneven noise, measured: other weights, another matrix
+    assert built["measured"].use_reference(reference, uneven).weighted > 0
+    assert not np.allclose(built["measured"].matrix.matrix, equal_matrix, rtol=1e-3)
 
 
 # --- bad references: online (LayerProcessor) ---------------------------------------------------

@@ -912,3 +912,24 @@ def test_a_layer_by_name_or_the_first_when_none_is_named():
     assert arm.layer(second.name) is second
     with pytest.raises(KeyError, match=rf"no layer 'nope'; layers: .*{second.name}"):
         arm.layer("nope")
+
+
+def test_depth_is_a_tank_key_refused_where_it_cannot_be_honoured():
+    data = base()
+    assert patch_from_dict(data).layers[0].depth_m is None
+    plain = patch_from_dict(data).layers[0].content_hash
+    data["layers"][0]["depth"] = 0.1
+    layer = patch_from_dict(data).layers[0]
+    assert layer.depth_m == 0.1 and layer.content_hash != plain
+    short = copy.deepcopy(data)
+    short["layers"][0]["depth"] = 0.003
+    with pytest.raises(PatchError, match=r"layers\[0\]\.depth: .*less than the electrodes"):
+        patch_from_dict(short)
+    stretch = copy.deepcopy(data)
+    stretch["layers"][0]["material"] = {
+        "quantity": "stretch",
+        "sheet_conductance": 1e-4,
+        "gauge_factor": 2.0,
+    }
+    with pytest.raises(PatchError, match=r"layers\[0\]\.depth: a stretch layer is a thin"):
+        patch_from_dict(stretch)

@@ -51,3 +51,22 @@ def test_a_solver_without_noise_figure_gets_its_method_default(tmp_path):
     assert imager.matrix.hyperparameter == pytest.approx(
         LayerImager.build(explicit.layers[0], cache_dir=None).matrix.hyperparameter
     )
+
+
+def test_channel_weights_round_trip_and_a_bad_value_is_refused_naming_the_key(tmp_path):
+    from eit_skin.patch.model import DEFAULT_CHANNEL_WEIGHTS
+
+    layers = load_patch(arm_with_solver(tmp_path, "method: greit")).layers
+    assert [ly.solver.channel_weights for ly in layers] == [DEFAULT_CHANNEL_WEIGHTS] * 2
+    for weights in ("measured", "equal"):
+        path = arm_with_solver(tmp_path, f"method: greit, channel_weights: {weights}")
+        assert [ly.solver.channel_weights for ly in load_patch(path).layers] == [weights] * 2
+    # the key changes no build: a patch at the default keeps the hash it had without the key
+    default = arm_with_solver(
+        tmp_path, f"method: greit, channel_weights: {DEFAULT_CHANNEL_WEIGHTS}"
+    )
+    assert [ly.content_hash for ly in load_patch(default).layers] == [
+        ly.content_hash for ly in layers
+    ]
+    with pytest.raises(PatchError, match=r"solver\.channel_weights.*'equals'.*measured, equal"):
+        load_patch(arm_with_solver(tmp_path, "method: greit, channel_weights: equals"))

@@ -18,7 +18,10 @@ from eit_skin.resources import config_path
 
 pytestmark = pytest.mark.filterwarnings("error")
 
-ELBOW_SOLVER = "solver: {method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 64}"
+ELBOW_SOLVER = (
+    "solver: {method: one_step, prior: laplace, noise_figure: 0.3, image_pixels: 64, "
+    "channel_weights: measured}"
+)
 GN_SOLVER = (
     "solver: {method: gauss_newton, prior: laplace, noise_figure: 0.3, max_iterations: 3, "
     "image_pixels: 64}"
