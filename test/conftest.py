@@ -40,6 +40,9 @@ os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_skin_ros_log_"))
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+# one BLAS thread per process: two workers and their nodes already fill both cores, and
+# OpenBLAS threads spinning beside them made a numeric test up to 10x slower (4 -> 42 s)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # reconstruction matrices: make test keeps them in build/cache; never in the home folder
 os.environ.setdefault("EIT_SKIN_CACHE", tempfile.mkdtemp(prefix="eit_skin_cache_"))
 
