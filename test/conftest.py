@@ -40,8 +40,29 @@ os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eit_skin_ros_log_"))
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+# one BLAS thread per process: two workers and their nodes already fill both cores, and
+# OpenBLAS threads spinning beside them made a numeric test up to 10x slower (4 -> 42 s)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # reconstruction matrices: make test keeps them in build/cache; never in the home folder
 os.environ.setdefault("EIT_SKIN_CACHE", tempfile.mkdtemp(prefix="eit_skin_cache_"))
+
+
+def _compile_frame_kernel_once() -> None:
+    """The compiled frame kernel in a disk cache of this run's own, filled here by the first
+    pytest process before its xdist workers and any node start: every later process (node,
+    command, worker) loads it, about 0.3 s of CPU, instead of compiling it, about 1.5 s.
+    Written once and then only read, so processes that start together never write it at
+    the same time (numba issue #4807, eit_skin.pipeline.frame_kernel)."""
+    if "NUMBA_CACHE_DIR" in os.environ:  # a worker: its first process filled it
+        return
+    os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="eit_skin_numba_")
+    os.environ["EIT_SKIN_JIT_CACHE"] = "1"
+    from eit_skin.pipeline.frame_kernel import compiled_step_status
+
+    compiled_step_status()
+
+
+_compile_frame_kernel_once()
 
 
 #: Most a test's time budget is stretched on a loaded machine.

@@ -15,6 +15,9 @@ variable ``EIT_SKIN_JIT=0``, :func:`frame_step` is the numpy step (:func:`compil
 says which). The kernel is compiled once per process, about a second, the first time
 :func:`frame_step` is asked for it (a node does so before it spins); it is not cached on disk,
 since numba's disk cache is not safe for processes that start together (numba issue #4807).
+Only with ``EIT_SKIN_JIT_CACHE=1`` is it kept in numba's disk cache (``NUMBA_CACHE_DIR``):
+the test suite compiles it there once before any node starts (test/conftest.py), so that
+its hundred-odd node processes load it (about 0.1 s) instead of compiling it.
 """
 
 from __future__ import annotations
@@ -32,6 +35,9 @@ from eit_skin.pipeline.frame_plan import FrameChecks, FramePlan, FrameResult, re
 
 #: Environment variable: ``0`` keeps every frame on the numpy step.
 JIT_SWITCH = "EIT_SKIN_JIT"
+#: Environment variable: ``1`` keeps the compiled kernel in numba's disk cache
+#: (``NUMBA_CACHE_DIR``); only for a cache filled before processes start together.
+JIT_CACHE_SWITCH = "EIT_SKIN_JIT_CACHE"
 
 #: The signature of a planned frame step (:func:`reference_step`, :func:`compiled_step`).
 FrameStep = Callable[[FramePlan, np.ndarray, np.ndarray, FrameChecks], FrameResult | None]
@@ -110,7 +116,8 @@ def _compiled() -> tuple[Callable[..., Any] | None, str]:
     checks = tup((f64, f64[::1], f64, f64, f64, f64[::1], f64[::1]))
     result = tup((f32[::1], f64[::1], f32[:, ::1], numba.boolean, numba.boolean))
     signature = result(f64[::1], f64[::1], plan, checks)
-    kernel = numba.njit(signature, cache=False, nogil=True)(_kernel)
+    cache = os.environ.get(JIT_CACHE_SWITCH, "0").strip() == "1"
+    kernel = numba.njit(signature, cache=cache, nogil=True)(_kernel)
     return kernel, f"compiled (numba {numba.__version__})"
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -185,6 +186,21 @@ def test_the_environment_switch_keeps_a_process_on_the_numpy_path():
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "numpy (EIT_SKIN_JIT=0)"
+
+
+def test_the_compiled_kernel_is_kept_on_disk_only_when_asked(tmp_path):
+    """``EIT_SKIN_JIT_CACHE=1`` (this run's processes, test/conftest.py) keeps the kernel in
+    ``NUMBA_CACHE_DIR``, where every node of the run loads it; without it a process that
+    compiles the kernel writes nothing there (the default: numba issue #4807)."""
+    assert os.environ["EIT_SKIN_JIT_CACHE"] == "1"
+    assert list(Path(os.environ["NUMBA_CACHE_DIR"]).rglob("frame_kernel._kernel-*.nbi"))
+    code = "from eit_skin.pipeline.frame_kernel import compiled_step_status as s; print(s())"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), EIT_SKIN_JIT_CACHE="0")
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.startswith("compiled (numba"), out.stdout
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_values_no_sheet_can_give_are_left_out_alike_on_both_paths(tmp_path):
