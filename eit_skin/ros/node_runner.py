@@ -260,6 +260,13 @@ class StopSignals:
     node is destroyed (threads joined, files closed) before the context shuts down.
     Before :attr:`spinning` is set (a node still building its matrices) a signal raises
     KeyboardInterrupt, so a slow start can still be interrupted.
+
+    Python runs a handler only when the main thread comes back to Python. A main thread
+    stuck in native code (a DDS wait that cannot retake a mutex a deadlocked DDS thread
+    holds) never does; so the C-level handler's byte (``signal.set_wakeup_fd``) also wakes a
+    watcher thread, which while spinning arms the watchdog of :meth:`report_hung_cleanup`:
+    every thread's stack and exit 1 after :attr:`stuck_timeout_s`, unless the main thread
+    gets to its clean-up first (which re-arms it).
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -268,6 +275,7 @@ class StopSignals:
         self.requested = threading.Event()
         self.spinning = False
         self.first_signal_s: float | None = None  # time.monotonic() of the first signal
+        self.stuck_timeout_s = SHUTDOWN_TIMEOUT_S  # s, signal to exit when nothing else runs
 
     def _handle(self, signum: int, frame: object) -> None:
         if self.first_signal_s is None:
@@ -280,11 +288,25 @@ class StopSignals:
     def installed(self) -> Iterator[StopSignals]:
         """Handle the signals while inside the block; the previous handlers after it."""
         previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
+        wakeup, write = os.pipe()
+        os.set_blocking(write, False)
+        previous_write = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, args=(wakeup,), daemon=True).start()
         try:
             yield self
         finally:
+            signal.set_wakeup_fd(previous_write)
+            os.close(write)  # the watcher reads the end of the pipe and returns
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+
+    def _watch(self, wakeup: int) -> None:
+        """While spinning, each signal's byte requests a stop and arms its watchdog."""
+        with os.fdopen(wakeup, "rb", buffering=0) as pipe:
+            while pipe.read(64):
+                if self.spinning:
+                    self.requested.set()
+                    faulthandler.dump_traceback_later(self.stuck_timeout_s, exit=True)
 
     def ignore(self) -> None:
         """Ignore further signals (while cleaning up after the first one)."""

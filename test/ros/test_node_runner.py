@@ -172,6 +172,39 @@ def test_a_hung_cleanup_is_reported_with_its_stack_and_ends(how: str) -> None:
     assert "KeyboardInterrupt" not in stderr, stderr
 
 
+SIGNAL_WHILE_STUCK = """
+import ctypes
+from eit_skin.ros.node_runner import StopSignals
+libc = ctypes.CDLL(None)
+mutex = ctypes.create_string_buffer(64)  # a default pthread mutex (all zeros)
+signals = StopSignals()
+signals.stuck_timeout_s = 1.0
+with signals.installed():
+    signals.spinning = True
+    libc.pthread_mutex_lock(mutex)
+    print("stuck", flush=True)
+    libc.pthread_mutex_lock(mutex)  # locked again: blocks in C for ever, the GIL released
+"""
+
+
+def test_a_signal_ends_a_node_whose_main_thread_is_stuck_in_native_code() -> None:
+    """The main thread blocked in C (as in a DDS wait that cannot retake a mutex a
+    deadlocked DDS thread holds) never runs a Python signal handler: the C handler's
+    wakeup byte still arms the watchdog, which prints every thread's stack and ends the
+    process (exit 1) instead of leaving it to SIGKILL."""
+    import signal
+
+    process = _python_child(SIGNAL_WHILE_STUCK, "")
+    try:
+        assert process.stdout.readline() == "stuck\n"
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 1, stderr
+    assert "in <module>" in stderr and "hread 0x" in stderr, stderr
+
+
 STUCK_AT_EXIT = """
 import ctypes
 from eit_skin.ros.exit_timer import exit_after
