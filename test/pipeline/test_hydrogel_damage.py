@@ -89,7 +89,15 @@ def test_damage_is_reported_as_a_changed_sheet_not_a_stream_of_touches(hydrogel)
             changed_at = t
     assert touched, "the damage never registered: nothing tested"
     limit = processor.tracker.drift_time_constant_s
-    assert changed_at is not None and changed_at <= touched[0] + limit + 8.0
+    assert changed_at is not None, "the damage was never called a changed sheet"
+    # the rule counts a change "without a break": from the first of the unbroken run of
+    # touched frames (8 s apart) that ends in the report; the damage's onset can flicker at
+    # the touch bar first (the package default of issue 35: touched at 184, 192, 208, ...)
+    run = [t for t in touched if t <= changed_at]
+    breaks = np.flatnonzero(np.diff(run) > 8.0 + 1e-6)
+    unbroken_from = run[breaks[-1] + 1] if breaks.size else run[0]
+    assert changed_at <= unbroken_from + limit + 8.0, (unbroken_from, changed_at)
+    assert changed_at <= touched[0] + 3 * limit, (touched[0], changed_at)  # onset flicker only
     assert "sheet changed" in online.sheet_changed and "not a touch" in online.sheet_changed
     assert not with_contacts or max(with_contacts) < changed_at
     assert len(with_contacts) <= limit / 8.0 + 1, with_contacts
