@@ -185,6 +185,9 @@ def test_design_command_prints_its_local_address_and_stops_on_ctrl_c(workdir):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # SIGINT as a terminal gives it, even when this run inherited it ignored (a
+        # non-interactive shell's background command): else the Ctrl-C below is lost
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: lines.put(proc.stdout.readline()), daemon=True).start()
