@@ -112,6 +112,7 @@ def fit_layer(path: Path, args: argparse.Namespace):
     from eit_skin.fem.mesh import build_mesh
     from eit_skin.io.npz import FramesNpzReader
     from eit_skin.patch.loading import load_patch
+    from eit_skin.patch.model import tank_refusal
 
     patch = load_patch(path)
     layer = patch.layer(args.layer)
@@ -120,26 +121,24 @@ def fit_layer(path: Path, args: argparse.Namespace):
         raise ValueError(f"{args.frames}: no such file")
     reader = FramesNpzReader(args.frames, convert=protocol.select)
     options = {
+        "sheet_conductance_s": layer.material.sheet_conductance_s,
+        "contact_impedance_ohm_m": layer.contact_impedance_ohm_m,
+        "current_a": layer.current_a,
         "gain": args.gain,
         "magnitude": protocol.magnitude,
         "per_electrode": {"auto": None, "yes": True, "no": False}[args.per_electrode],
         "fit_input_gain": args.fit_input_gain,
     }
-    options["sheet_conductance_s"] = layer.material.sheet_conductance_s
-    options["contact_impedance_ohm_m"] = layer.contact_impedance_ohm_m
-    options["current_a"] = layer.current_a
     mesh = build_mesh(layer)
     if not args.fit_depth:
         depth = layer_depth(layer)
         fit = fit_device(mesh, protocol, reader.reference, depth=depth, **options)
         return layer.name, fit, None if depth is None else depth.depth_m
-    widths = {e.width_m for e in layer.electrodes}
-    if layer.material.quantity != "pressure" or len(widths) != 1:
-        raise ValueError(
-            f"{path}: layers[{layer.name}]: --fit-depth needs a tank (a pressure layer) with "
-            "electrodes of one width"
-        )
-    depth, fit = fit_depth(mesh, protocol, reader.reference, widths.pop(), **options)
+    refusal = tank_refusal(layer.material, layer.electrodes)
+    if refusal is not None:
+        raise ValueError(f"{path}: layers[{layer.name}]: --fit-depth needs a tank: {refusal}")
+    height = layer.electrodes[0].width_m
+    depth, fit = fit_depth(mesh, protocol, reader.reference, height, **options)
     return layer.name, fit, depth
 
 

@@ -42,6 +42,7 @@ from eit_skin.patch.model import (
     Patch,
     PatchError,
     SolverSpec,
+    tank_refusal,
 )
 from eit_skin.patch.outline import read_outline
 from eit_skin.patch.placement import (
@@ -179,13 +180,12 @@ def _depth(r: Reader, d: dict, path: str, electrodes, material: Material) -> flo
     if depth is None:
         return None
     where = r.join(path, "depth")
-    if material.quantity != "pressure":
-        raise r.error(where, f"a {material.quantity} layer is a thin sheet: no depth")
-    widths = np.array([e.width_m for e in electrodes])
-    if np.ptp(widths) > 1e-9 * widths.max():
-        raise r.error(where, "needs electrodes of one width (their height on the wall)")
-    if depth < widths[0]:
-        raise r.error(where, f"{depth} m is less than the electrodes' height {widths[0]} m")
+    refusal = tank_refusal(material, electrodes)
+    if refusal is not None:
+        raise r.error(where, refusal)
+    height = electrodes[0].width_m
+    if depth < height:
+        raise r.error(where, f"{depth} m is less than the electrodes' height {height} m")
     return float(depth)
 
 

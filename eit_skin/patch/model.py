@@ -230,6 +230,19 @@ class SolverSpec:
             )
 
 
+def tank_refusal(material: Material, electrodes: tuple[Electrode, ...]) -> str | None:
+    """Why a layer cannot be a tank (``layers[].depth``), or None.
+
+    A tank is a pressure layer whose electrodes, as high as they are wide, share one width.
+    """
+    if material.quantity != "pressure":
+        return f"a {material.quantity} layer is a thin sheet: no depth"
+    widths = np.array([e.width_m for e in electrodes])
+    if np.ptp(widths) > 1e-9 * widths.max():
+        return "needs electrodes of one width (their height on the wall)"
+    return None
+
+
 @dataclass(frozen=True, eq=False)
 class Layer:
     """One sheet of a patch: its own EIT domain.
